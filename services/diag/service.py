@@ -1,0 +1,93 @@
+"""Diagnostic services: ``testpattern`` (a synthetic camera) and ``monitor`` (traffic stats)."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from typing import Any
+
+from pydantic import Field
+
+from services.diag.monitor import TrafficStats
+from services.diag.testpattern import test_frame
+from shared import keys
+from shared.bus import Bus
+from shared.messages import RgbdFrame
+from shared.service import Service, ServiceConfig
+
+
+class TestPatternConfig(ServiceConfig):
+    rate_hz: float = Field(default=10.0, gt=0, le=200)
+    width: int = Field(default=640, ge=8, le=4096)
+    height: int = Field(default=480, ge=8, le=4096)
+    seed: int = 0
+
+
+class TestPatternService(Service):
+    """Publishes test-pattern RGB-D frames on ``sensors/rgbd`` at ``rate_hz``."""
+
+    name = "testpattern"
+    Config = TestPatternConfig
+    config: TestPatternConfig
+
+    def __init__(self, bus: Bus, config: TestPatternConfig) -> None:
+        super().__init__(bus, config)
+        self.tick_hz = config.rate_hz
+        self.seq = 0
+
+    def start(self) -> None:
+        self.pub = self.bus.publisher(keys.rgbd(self.bus.robot_id), RgbdFrame)
+
+    def tick(self) -> None:
+        c = self.config
+        frame = test_frame(self.seq, 0.0, width=c.width, height=c.height, seed=c.seed)
+        # Stamp when the frame is complete, as a camera driver stamps at capture.
+        self.pub.put(frame.model_copy(update={"stamp": time.time()}))
+        self.seq += 1
+
+    def info(self) -> dict[str, Any]:
+        return {"frames_sent": self.seq}
+
+
+class MonitorConfig(ServiceConfig):
+    window_s: float = Field(default=5.0, gt=0)
+    report_s: float = Field(default=5.0, gt=0, description="seconds between log lines")
+
+
+class MonitorService(Service):
+    """Watches every key of its robot; validates frames and measures their latency."""
+
+    name = "monitor"
+    Config = MonitorConfig
+    config: MonitorConfig
+
+    def __init__(self, bus: Bus, config: MonitorConfig) -> None:
+        super().__init__(bus, config)
+        self.tick_hz = 1.0 / config.report_s
+        self.traffic = TrafficStats(config.window_s)
+        self._lock = threading.Lock()
+        self._rgbd = keys.rgbd(bus.robot_id)
+
+    def start(self) -> None:
+        self.bus.subscribe_raw(keys.robot_all(self.bus.robot_id), self._on_payload)
+
+    def _on_payload(self, key: str, payload: bytes) -> None:
+        now = time.time()
+        latency = None
+        if key == self._rgbd:
+            frame = self.bus.decode(key, RgbdFrame, payload)
+            latency = None if frame is None else now - frame.stamp
+        with self._lock:
+            self.traffic.observe(key, len(payload), now, latency)
+
+    def _report(self) -> list[dict[str, Any]]:
+        with self._lock:
+            return [dataclasses.asdict(r) for r in self.traffic.report(time.time())]
+
+    def tick(self) -> None:
+        for row in self._report():
+            self.log.info("%(key)s: %(messages)d msgs, %(rate_hz).1f Hz, %(mbytes_per_s).2f MB/s", row)
+
+    def info(self) -> dict[str, Any]:
+        return {"streams": self._report()}

@@ -1,0 +1,35 @@
+"""Which services ``ovamos run`` can start, imported lazily.
+
+Lazy imports keep a robot that only runs the base driver free of the heavy
+dependencies (torch, MuJoCo) of the services it does not run.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from shared.service import Service
+
+SERVICES: dict[str, str] = {
+    "testpattern": "services.diag.service:TestPatternService",
+    "monitor": "services.diag.service:MonitorService",
+}
+
+# Services of the design that are not built yet, with the issue that builds them.
+PLANNED: dict[str, int] = {
+    "sim": 3, "mapping": 4, "planner": 5, "perception": 7, "base_driver": 8, "gateway": 9,
+}
+
+
+class UnknownServiceError(LookupError):
+    """A service name ``ovamos run`` cannot start."""
+
+
+def service_class(name: str) -> type[Service]:
+    if name in PLANNED:
+        raise UnknownServiceError(f"service {name!r} is not implemented yet (issue #{PLANNED[name]}); "
+                                  f"available now: {', '.join(SERVICES)}")
+    if name not in SERVICES:
+        raise UnknownServiceError(f"unknown service {name!r}; available: {', '.join(SERVICES)}")
+    module, _, attr = SERVICES[name].partition(":")
+    return getattr(importlib.import_module(module), attr)

@@ -1,0 +1,101 @@
+"""Every Zenoh key expression the system uses, built in one place.
+
+All keys live under ``ovamos/<robot_id>/`` so that several robots can share one
+Zenoh network and a subscriber can select one robot (or all, with ``*``).
+Services never write key strings themselves: a renamed key is a one-line change here.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+ROOT = "ovamos"
+ANY = "*"
+
+# Characters with a meaning in Zenoh key expressions; an id containing one would
+# silently widen or break a key.
+_FORBIDDEN = set("/*$?#")
+
+
+class KeyExprError(ValueError):
+    """An id that cannot be a single key chunk, or a key that is not one of ours."""
+
+
+def check_chunk(value: str, what: str) -> str:
+    """Return ``value`` if it can be one chunk of a key expression, else raise."""
+    if not value or value != value.strip() or _FORBIDDEN & set(value):
+        raise KeyExprError(f"{what} {value!r} is not usable in a Zenoh key: it must be non-empty, "
+                        f"without spaces around it and without any of '/*$?#'")
+    return value
+
+
+def _robot(robot_id: str) -> str:
+    if robot_id != ANY:
+        check_chunk(robot_id, "robot id")
+    return f"{ROOT}/{robot_id}"
+
+
+def rgbd(robot_id: str) -> str:
+    """RGB-D frames with intrinsics and camera pose (binary)."""
+    return f"{_robot(robot_id)}/sensors/rgbd"
+
+
+def odom(robot_id: str) -> str:
+    return f"{_robot(robot_id)}/odom"
+
+
+def perception_result(robot_id: str) -> str:
+    return f"{_robot(robot_id)}/perception/result"
+
+
+def map_snapshot(robot_id: str) -> str:
+    """Published snapshots, and the queryable that answers on-demand snapshot requests."""
+    return f"{_robot(robot_id)}/map/snapshot"
+
+
+def plan_command(robot_id: str) -> str:
+    return f"{_robot(robot_id)}/plan/command"
+
+
+def driver_state(robot_id: str) -> str:
+    return f"{_robot(robot_id)}/driver/state"
+
+
+def task_current(robot_id: str) -> str:
+    return f"{_robot(robot_id)}/task/current"
+
+
+def task_events(robot_id: str) -> str:
+    return f"{_robot(robot_id)}/task/events"
+
+
+def alive(robot_id: str, service: str = ANY, instance: str = ANY) -> str:
+    """Liveliness token of one service instance, or a selector over many with ``*``."""
+    parts = [_robot(robot_id), "alive"]
+    for value, what in ((service, "service"), (instance, "instance")):
+        parts.append(value if value == ANY else check_chunk(value, what))
+    return "/".join(parts)
+
+
+def stats(robot_id: str, service: str = ANY, instance: str = ANY) -> str:
+    """Queryable answering a service instance's message counters (for ``ovamos status``)."""
+    return alive(robot_id, service, instance).replace("/alive/", "/stats/", 1)
+
+
+def robot_all(robot_id: str) -> str:
+    """Every key of one robot (used by the monitor)."""
+    return f"{_robot(robot_id)}/**"
+
+
+class ServiceKey(NamedTuple):
+    robot_id: str
+    service: str
+    instance: str
+
+
+def parse_service_key(key: str) -> ServiceKey:
+    """Split an ``alive`` or ``stats`` key back into its robot, service and instance."""
+    parts = str(key).split("/")
+    if len(parts) != 5 or parts[0] != ROOT or parts[2] not in ("alive", "stats"):
+        raise KeyExprError(f"not an ovamos alive/stats key: {key!r}")
+    return ServiceKey(parts[1], parts[3], parts[4])

@@ -1,0 +1,241 @@
+"""Message types exchanged between services, with their encoding.
+
+Two families share one interface (``to_bytes()`` / ``from_bytes()``), so the
+bus can publish and validate any of them the same way:
+
+* :class:`JsonMessage` for small messages (odometry, task events, stats): a
+  pydantic model sent as JSON, readable with any Zenoh tool.
+* :class:`BinaryMessage` for messages with arrays (frames, maps): pydantic for
+  the scalar fields, :mod:`shared.codec` for the arrays.
+
+Every message carries its schema version; decoding the wrong kind, an unknown
+version or an inconsistent payload raises :class:`DecodeError` and nothing else.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar, Self
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from shared.codec import DecodeError, pack, unpack
+
+__all__ = ["DecodeError", "JsonMessage", "BinaryMessage", "ArraySpec", "Intrinsics", "RgbdFrame",
+           "MapSnapshot", "ObjectInstance", "CounterSet", "ServiceStats"]
+
+
+def _validation_error(cls: type, exc: ValidationError) -> DecodeError:
+    first = exc.errors()[0]
+    where = ".".join(str(p) for p in first["loc"]) or "message"
+    return DecodeError(f"invalid {cls.__name__}: {where}: {first['msg']} "
+                       f"({exc.error_count()} error(s))")
+
+
+class JsonMessage(BaseModel):
+    """A small message sent as JSON; unknown fields are rejected, not ignored."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    VERSION: ClassVar[int] = 1
+    v: int = 1
+
+    @model_validator(mode="after")
+    def _check_version(self) -> Self:
+        if self.v != self.VERSION:
+            raise ValueError(f"version {self.v} is not supported (expected {self.VERSION})")
+        return self
+
+    def to_bytes(self) -> bytes:
+        return self.model_dump_json().encode()
+
+    @classmethod
+    def from_bytes(cls, data: bytes | bytearray | memoryview) -> Self:
+        try:
+            return cls.model_validate_json(bytes(data))
+        except ValidationError as exc:
+            raise _validation_error(cls, exc) from None
+
+
+@dataclass(frozen=True)
+class ArraySpec:
+    """What a binary message accepts for one array field."""
+
+    dtypes: tuple[str, ...]
+    ndim: int
+
+    def check(self, name: str, arr: np.ndarray) -> None:
+        if arr.dtype not in [np.dtype(d) for d in self.dtypes] or arr.ndim != self.ndim:
+            raise ValueError(f"{name} must be a {self.ndim}-d array of {'/'.join(self.dtypes)}, "
+                             f"got {arr.ndim}-d {arr.dtype}")
+
+
+class BinaryMessage(BaseModel):
+    """A message whose ``ARRAYS`` fields travel as raw bytes (see :mod:`shared.codec`).
+
+    Subclasses declare ``KIND``, ``ARRAYS`` and, for large but sparse content
+    such as map grids, ``COMPRESS_LEVEL``. Array shapes and dtypes are checked
+    when a message is built, so a producer bug fails at the producer.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True, arbitrary_types_allowed=True)
+    KIND: ClassVar[str]
+    VERSION: ClassVar[int] = 1
+    ARRAYS: ClassVar[dict[str, ArraySpec]]
+    COMPRESS_LEVEL: ClassVar[int | None] = None
+
+    @model_validator(mode="after")
+    def _check_arrays(self) -> Self:
+        for name, spec in self.ARRAYS.items():
+            arr = getattr(self, name)
+            if arr is not None:
+                spec.check(name, arr)
+        return self
+
+    def to_bytes(self) -> bytearray:
+        fields = self.model_dump(mode="json", exclude=set(self.ARRAYS))
+        arrays = {n: getattr(self, n) for n in self.ARRAYS if getattr(self, n) is not None}
+        return pack(self.KIND, self.VERSION, fields, arrays, compress_level=self.COMPRESS_LEVEL)
+
+    @classmethod
+    def from_bytes(cls, data: bytes | bytearray | memoryview) -> Self:
+        fields, arrays = unpack(data, cls.KIND, cls.VERSION)
+        unknown = set(arrays) - set(cls.ARRAYS)
+        if unknown:
+            raise DecodeError(f"invalid {cls.__name__}: unexpected arrays {sorted(unknown)}")
+        try:
+            return cls.model_validate({**fields, **arrays})
+        except ValidationError as exc:
+            raise _validation_error(cls, exc) from None
+
+
+class Intrinsics(BaseModel):
+    """Pinhole intrinsics in pixels."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+
+
+_IDENTITY = tuple(float(x) for x in np.eye(4).ravel())
+
+
+class RgbdFrame(BinaryMessage):
+    """One camera frame with everything needed to project it into the world.
+
+    ``camera_pose`` is world_T_camera, row-major 4x4; the camera frame is the
+    optical one (x right, y down, z forward), the world frame REP-103 (x
+    forward, y left, z up). ``depth`` is metres when float32, or units of
+    ``depth_scale`` metres when uint16 (0.001 for millimetre sensors); 0 means
+    no reading. ``instance_ids`` exists only on simulated frames.
+    """
+
+    KIND: ClassVar[str] = "rgbd"
+    ARRAYS: ClassVar[dict[str, ArraySpec]] = {
+        "rgb": ArraySpec(("|u1",), 3),
+        "depth": ArraySpec(("<f4", "<u2"), 2),
+        "instance_ids": ArraySpec(("<i4",), 2),
+    }
+    seq: int = Field(ge=0)
+    stamp: float
+    intrinsics: Intrinsics
+    camera_pose: tuple[float, ...] = _IDENTITY
+    depth_scale: float = Field(default=1.0, gt=0)
+    rgb: np.ndarray
+    depth: np.ndarray
+    instance_ids: np.ndarray | None = None
+
+    @model_validator(mode="after")
+    def _check_shapes(self) -> Self:
+        h, w = self.depth.shape
+        if self.rgb.shape != (h, w, 3):
+            raise ValueError(f"rgb shape {self.rgb.shape} does not match depth {(h, w)} x 3")
+        if self.instance_ids is not None and self.instance_ids.shape != (h, w):
+            raise ValueError(f"instance_ids shape {self.instance_ids.shape} != depth {(h, w)}")
+        if len(self.camera_pose) != 16:
+            raise ValueError("camera_pose must hold 16 numbers (a row-major 4x4 matrix)")
+        return self
+
+    @property
+    def pose_matrix(self) -> np.ndarray:
+        return np.asarray(self.camera_pose, dtype=np.float64).reshape(4, 4)
+
+
+class ObjectInstance(BaseModel):
+    """One object the map believes exists (world metres)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    label: str
+    x: float
+    y: float
+    z: float = 0.0
+    score: float
+    hits: int = Field(ge=0)
+    confirmed: bool = False
+
+
+class MapSnapshot(BinaryMessage):
+    """The mapping service's state as the planner and gateway need it.
+
+    Grids are H x W over a square-cell grid whose cell (0, 0) has its corner at
+    ``origin`` (world metres); ``values`` has one layer per name in ``layers``.
+    Compressed on the wire: most of a map is empty early in a search.
+    """
+
+    KIND: ClassVar[str] = "map"
+    COMPRESS_LEVEL: ClassVar[int | None] = 1
+    ARRAYS: ClassVar[dict[str, ArraySpec]] = {
+        "obstacle": ArraySpec(("|b1",), 2),
+        "explored": ArraySpec(("|b1",), 2),
+        "counts": ArraySpec(("<u2",), 2),
+        "values": ArraySpec(("<f4",), 3),
+        "frontiers": ArraySpec(("<f8",), 2),
+    }
+    seq: int = Field(ge=-1, description="seq of the last fused frame, -1 before the first")
+    stamp: float
+    resolution: float = Field(gt=0)
+    origin: tuple[float, float]
+    layers: tuple[str, ...]
+    objects: tuple[ObjectInstance, ...] = ()
+    obstacle: np.ndarray
+    explored: np.ndarray
+    counts: np.ndarray
+    values: np.ndarray
+    frontiers: np.ndarray
+
+    @model_validator(mode="after")
+    def _check_shapes(self) -> Self:
+        shape = self.obstacle.shape
+        for name in ("explored", "counts"):
+            if getattr(self, name).shape != shape:
+                raise ValueError(f"{name} shape {getattr(self, name).shape} != obstacle {shape}")
+        if self.values.shape != (len(self.layers), *shape):
+            raise ValueError(f"values shape {self.values.shape} != {(len(self.layers), *shape)}")
+        if self.frontiers.shape[1:] != (2,):
+            raise ValueError(f"frontiers must be N x 2 (x, y), got {self.frontiers.shape}")
+        return self
+
+
+class CounterSet(BaseModel):
+    """Traffic on one key, as seen by one service instance."""
+
+    model_config = ConfigDict(extra="forbid")
+    received: int = 0
+    dropped: int = 0
+    malformed: int = 0
+    errors: int = 0
+    published: int = 0
+
+
+class ServiceStats(JsonMessage):
+    """What a service instance answers on its ``stats`` key (shown by ``ovamos status``)."""
+
+    robot_id: str
+    service: str
+    instance: str
+    pid: int
+    started: float
+    counters: dict[str, CounterSet]
+    info: dict[str, Any] = {}

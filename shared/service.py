@@ -1,0 +1,121 @@
+"""The life cycle every service shares: configure, start, tick, stop on a signal.
+
+A service subclass holds only its wiring (which keys feed which core methods);
+the core it wraps knows nothing of Zenoh. :func:`run_service` is what
+``ovamos run SERVICE`` calls, and what tests and the demo start in a spawned
+process.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import threading
+import time
+import tomllib
+from pathlib import Path
+from typing import Any, ClassVar
+
+import zenoh
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from shared.bus import Bus
+from shared.log import sampled
+
+log = logging.getLogger("ovamos.service")
+
+
+class ServiceConfigError(ValueError):
+    """A service config file that cannot be read or does not fit the service."""
+
+
+class ServiceConfig(BaseModel):
+    """Base of every service's config: unknown keys are errors (typos must not pass)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+class Service:
+    """Base class: override :meth:`start`, and :meth:`tick` for periodic work."""
+
+    name: ClassVar[str]
+    Config: ClassVar[type[ServiceConfig]] = ServiceConfig
+    #: how often :meth:`tick` runs; None = never (purely event-driven services)
+    tick_hz: float | None = None
+
+    def __init__(self, bus: Bus, config: ServiceConfig) -> None:
+        self.bus = bus
+        self.config = config
+        self.log = bus.log
+
+    def start(self) -> None:
+        """Declare publishers and subscriptions."""
+
+    def tick(self) -> None:
+        """Periodic work, called ``tick_hz`` times a second from the main thread."""
+
+    def info(self) -> dict[str, Any]:
+        """Service-specific status shown by ``ovamos status``."""
+        return {}
+
+    def stop(self) -> None:
+        """Release what :meth:`start` acquired beyond the bus (files, devices)."""
+
+
+def load_config(cls: type[Service], path: str | Path | None, overrides: dict[str, Any] | None = None
+                ) -> ServiceConfig:
+    """Read a service config (TOML or JSON) and validate it against the service's model."""
+    data: dict[str, Any] = {}
+    if path is not None:
+        path = Path(path)
+        try:
+            text = path.read_text()
+            data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
+        except (OSError, ValueError) as exc:
+            raise ServiceConfigError(f"cannot read config {path}: {exc}") from None
+    data.update(overrides or {})
+    try:
+        return cls.Config.model_validate(data)
+    except ValidationError as exc:
+        problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+        raise ServiceConfigError(f"invalid config for {cls.name}: {problems}") from None
+
+
+def install_signal_handlers(stop: threading.Event) -> None:
+    """SIGINT / SIGTERM end the run gracefully (main thread only, as Python requires)."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+
+
+def run_service(cls: type[Service], zenoh_config: zenoh.Config, config: ServiceConfig, *,
+                robot_id: str, instance: str, stop: threading.Event) -> None:
+    """Run one service instance until ``stop`` is set, then shut it down cleanly."""
+    svc: Service | None = None
+    bus = Bus.open(zenoh_config, robot_id, cls.name, instance, info=lambda: svc.info() if svc else {})
+    try:
+        svc = cls(bus, config)
+        svc.start()
+        log.info("%s/%s up on robot %s", cls.name, instance, robot_id)
+        if svc.tick_hz is None:
+            stop.wait()
+        next_tick = time.monotonic()
+        while not stop.is_set():
+            _tick(svc)
+            next_tick = max(next_tick + 1.0 / svc.tick_hz, time.monotonic())
+            stop.wait(next_tick - time.monotonic())
+    finally:
+        if svc is not None:
+            svc.stop()
+        bus.close()
+        log.info("%s/%s stopped", cls.name, instance)
+
+
+def _tick(svc: Service) -> None:
+    """One tick; a failing tick is logged and counted, the service keeps running."""
+    try:
+        svc.tick()
+    except Exception:
+        n = svc.bus.counters.bump("tick", "errors")
+        if sampled(n):
+            svc.log.exception("tick failed (%d so far)", n)
