@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import threading
 from pathlib import Path
 from typing import Annotated, Optional
@@ -60,7 +61,8 @@ def router(config: ZenohFile = None, listen: Listen = None, connect: Connect = N
         raise _fail(str(exc))
     stop = threading.Event()
     install_signal_handlers(stop)
-    err.print(f"router {session.zid()} listening on {cfg.get_json('listen/endpoints')}")
+    logging.getLogger("ovamos.router").info("router %s listening on %s", session.zid(),
+                                            cfg.get_json("listen/endpoints"))
     stop.wait()
     session.close()
 
@@ -130,12 +132,13 @@ def demo(seconds: Annotated[float, typer.Option(help="How long to run.")] = 6.0,
 @bench_app.command("transport")
 def bench_transport(
         frames: Annotated[int, typer.Option(help="Round trips per run.")] = 200,
-        runs: Annotated[int, typer.Option(help="Runs per variant (the median is reported).")] = 5,
+        runs: Annotated[int, typer.Option(help="Runs (the median of run medians is reported).")] = 5,
+        gap_ms: Annotated[float, typer.Option(help="Pause before each round trip.")] = 5.0,
         as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False
 ) -> None:
     """Latency of a 640x480 RGB-D frame through a router: raw Zenoh vs. the ovamos bus."""
     from bench.transport import print_table, run_benchmark
-    result = run_benchmark(frames=frames, runs=runs, progress=None if as_json else err)
+    result = run_benchmark(frames=frames, runs=runs, gap_ms=gap_ms, progress=None if as_json else err)
     if as_json:
         print(json.dumps(result))
     else:

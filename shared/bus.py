@@ -35,7 +35,7 @@ log = logging.getLogger("ovamos.bus")
 class Codec(Protocol):
     """What the bus needs of a message type (JsonMessage and BinaryMessage both qualify)."""
 
-    def to_bytes(self) -> bytes | bytearray: ...
+    def to_bytes(self, out: bytearray | None = None) -> bytes | bytearray: ...
 
     @classmethod
     def from_bytes(cls, data: bytes) -> Self: ...
@@ -69,11 +69,16 @@ class Publisher(Generic[M]):
     def __init__(self, bus: Bus, key: str, msg_type: type[M], **options: Any) -> None:
         self.key, self.msg_type, self._bus = key, msg_type, bus
         self._pub = bus.session.declare_publisher(key, **options)
+        self._lock = threading.Lock()
+        # Zenoh copies the payload during put(), so one buffer serves every message.
+        self._buffer = bytearray()
 
     def put(self, msg: M) -> None:
+        """Publish ``msg`` (thread-safe)."""
         if not isinstance(msg, self.msg_type):
             raise TypeError(f"{self.key} carries {self.msg_type.__name__}, got {type(msg).__name__}")
-        self._pub.put(msg.to_bytes())
+        with self._lock:
+            self._pub.put(msg.to_bytes(self._buffer))
         self._bus.counters.bump(self.key, "published")
 
     def undeclare(self) -> None:

@@ -82,6 +82,11 @@ def stats(robot_id: str, service: str = ANY, instance: str = ANY) -> str:
     return alive(robot_id, service, instance).replace("/alive/", "/stats/", 1)
 
 
+def bench(robot_id: str, name: str) -> str:
+    """Keys private to benchmarks (``ovamos bench``), kept apart from the system's."""
+    return f"{_robot(robot_id)}/bench/{check_chunk(name, 'bench key')}"
+
+
 def robot_all(robot_id: str) -> str:
     """Every key of one robot (used by the monitor)."""
     return f"{_robot(robot_id)}/**"

@@ -20,7 +20,7 @@ from typing import Any, ClassVar, Self
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from shared.codec import DecodeError, pack, unpack
+from shared.codec import DecodeError, loan, pack, unpack
 
 __all__ = ["DecodeError", "JsonMessage", "BinaryMessage", "ArraySpec", "Intrinsics", "RgbdFrame",
            "MapSnapshot", "ObjectInstance", "CounterSet", "ServiceStats"]
@@ -46,8 +46,12 @@ class JsonMessage(BaseModel):
             raise ValueError(f"version {self.v} is not supported (expected {self.VERSION})")
         return self
 
-    def to_bytes(self) -> bytes:
-        return self.model_dump_json().encode()
+    def to_bytes(self, out: bytearray | None = None) -> bytes | bytearray:
+        data = self.model_dump_json().encode()
+        if out is None:
+            return data
+        out[:] = data
+        return out
 
     @classmethod
     def from_bytes(cls, data: bytes | bytearray | memoryview) -> Self:
@@ -65,7 +69,7 @@ class ArraySpec:
     ndim: int
 
     def check(self, name: str, arr: np.ndarray) -> None:
-        if arr.dtype not in [np.dtype(d) for d in self.dtypes] or arr.ndim != self.ndim:
+        if arr.dtype.str not in self.dtypes or arr.ndim != self.ndim:
             raise ValueError(f"{name} must be a {self.ndim}-d array of {'/'.join(self.dtypes)}, "
                              f"got {arr.ndim}-d {arr.dtype}")
 
@@ -92,10 +96,12 @@ class BinaryMessage(BaseModel):
                 spec.check(name, arr)
         return self
 
-    def to_bytes(self) -> bytearray:
-        fields = self.model_dump(mode="json", exclude=set(self.ARRAYS))
+    def to_bytes(self, out: bytearray | None = None) -> bytearray:
+        """The encoded message; ``out`` (a previous payload) is reused when given."""
+        fields = self.model_dump_json(exclude=set(self.ARRAYS)).encode()
         arrays = {n: getattr(self, n) for n in self.ARRAYS if getattr(self, n) is not None}
-        return pack(self.KIND, self.VERSION, fields, arrays, compress_level=self.COMPRESS_LEVEL)
+        return pack(self.KIND, self.VERSION, fields, arrays, compress_level=self.COMPRESS_LEVEL,
+                    out=out)
 
     @classmethod
     def from_bytes(cls, data: bytes | bytearray | memoryview) -> Self:
@@ -157,6 +163,18 @@ class RgbdFrame(BinaryMessage):
         if len(self.camera_pose) != 16:
             raise ValueError("camera_pose must hold 16 numbers (a row-major 4x4 matrix)")
         return self
+
+    @staticmethod
+    def loan(height: int, width: int, *, depth_dtype: str = "<f4", instance_ids: bool = False
+             ) -> dict[str, np.ndarray]:
+        """Zeroed ``rgb``, ``depth`` (and ``instance_ids``) arrays inside a payload buffer.
+
+        A camera or renderer that writes into these publishes without a copy.
+        """
+        specs = {"rgb": ((height, width, 3), "|u1"), "depth": ((height, width), depth_dtype)}
+        if instance_ids:
+            specs["instance_ids"] = ((height, width), "<i4")
+        return loan(specs)
 
     @property
     def pose_matrix(self) -> np.ndarray:

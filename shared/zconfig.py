@@ -18,6 +18,7 @@ import zenoh
 Mode = Literal["client", "peer", "router"]
 DEFAULT_PORT = 7447
 DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
+_DEFAULT_LISTEN = {"client": [], "peer": ["tcp/127.0.0.1:0"], "router": [DEFAULT_ENDPOINT]}
 LEASE_MS = 3000
 _ZENOH_DEFAULT_LEASE_MS = 10000
 RETRY = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}
@@ -65,8 +66,9 @@ def build_config(mode: Mode | None = None, *, file: str | Path | None = None,
         _set(cfg, "listen/endpoints", list(listen))
     if mode == "client" and not _get(cfg, "connect/endpoints"):
         _set(cfg, "connect/endpoints", [DEFAULT_ENDPOINT])
-    if mode == "router" and not _get(cfg, "listen/endpoints"):
-        _set(cfg, "listen/endpoints", [DEFAULT_ENDPOINT])
+    if not isinstance(_get(cfg, "listen/endpoints"), list):
+        # Zenoh's default listens on every interface; ours stays on loopback.
+        _set(cfg, "listen/endpoints", _DEFAULT_LISTEN[mode])
     if _get(cfg, "connect/timeout_ms") is None:
         _set(cfg, "connect/timeout_ms", -1)
     if _get(cfg, "connect/exit_on_failure") is None:

@@ -44,13 +44,14 @@ def test_frame(seq: int, stamp: float, *, width: int = 640, height: int = 480, s
     """Frame ``seq`` of the stream: colour bars with a square that moves with ``seq``;
     depth is a ramp over the depth range with seeded noise. Same (seed, seq) => same frame."""
     rng = np.random.default_rng([seed, seq])
-    cols = np.arange(width) * len(_BARS) // width
-    rgb = np.ascontiguousarray(np.broadcast_to(_BARS[cols], (height, width, 3)))
+    arrays = RgbdFrame.loan(height, width)
+    rgb, depth = arrays["rgb"], arrays["depth"]
+    rgb[:] = _BARS[np.arange(width) * len(_BARS) // width]
     side = max(2, height // 8)
     x0 = (seq * 7) % max(1, width - side)
     rgb[height // 2 - side // 2:height // 2 + side // 2, x0:x0 + side] = 128
     near, far = DEPTH_RANGE_M
-    ramp = np.linspace(far, near, height, dtype=np.float32)[:, None]
-    depth = (ramp + rng.normal(0.0, 0.01, (height, width))).astype(np.float32)
+    depth[:] = np.linspace(far, near, height, dtype=np.float32)[:, None]
+    depth += rng.normal(0.0, 0.01, (height, width)).astype(np.float32)
     return RgbdFrame(seq=seq, stamp=stamp, intrinsics=pinhole(width, height),
-                     camera_pose=camera_pose(seq * TURN_PER_FRAME_RAD), rgb=rgb, depth=depth)
+                     camera_pose=camera_pose(seq * TURN_PER_FRAME_RAD), **arrays)
