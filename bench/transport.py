@@ -22,7 +22,7 @@ from typing import Any, Callable
 from rich.console import Console
 from rich.table import Table
 
-from services.diag.testpattern import test_frame
+from services.diag.testpattern import pattern_frame
 from shared import keys
 from shared.bus import Bus
 from shared.messages import JsonMessage, RgbdFrame
@@ -115,7 +115,7 @@ def _measure(pingers: dict[str, _Pinger], frames: int, gap_s: float) -> dict[str
 def run_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
                   progress: Console | None = None) -> dict[str, Any]:
     endpoint = loopback(free_port())
-    frame = test_frame(0, time.time())
+    frame = pattern_frame(0, time.time())
     ctx = mp.get_context("spawn")
     stop_echo = ctx.Event()
     router = start_cli(["router", "--listen", endpoint, "--log-level", "WARNING"])

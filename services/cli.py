@@ -49,7 +49,8 @@ def _main(version: Annotated[bool, typer.Option("--version", callback=_version, 
 
 
 @app.command()
-def router(config: ZenohFile = None, listen: Listen = None, connect: Connect = None,
+def router(config: Annotated[Optional[Path], typer.Option(help="Zenoh router config (json5).")] = None,
+           listen: Listen = None, connect: Connect = None,
            log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Run a Zenoh router (a Python session in router mode)."""
     from shared.service import install_signal_handlers

@@ -138,15 +138,20 @@ class Subscription:
             self._mailbox.close()
 
 
+def _check_identity(robot_id: str, service: str, instance: str) -> None:
+    keys.check_chunk(robot_id, "robot id")
+    keys.check_chunk(service, "service name")
+    keys.check_chunk(instance, "instance")
+
+
 class Bus:
     """One service instance's Zenoh session, with its liveliness token and stats queryable."""
 
     def __init__(self, session: zenoh.Session, robot_id: str, service: str, instance: str,
                  info: Callable[[], dict[str, Any]] | None = None) -> None:
+        _check_identity(robot_id, service, instance)
         self.session = session
-        self.robot_id = keys.check_chunk(robot_id, "robot id")
-        self.service = keys.check_chunk(service, "service name")
-        self.instance = keys.check_chunk(instance, "instance")
+        self.robot_id, self.service, self.instance = robot_id, service, instance
         self.counters = Counters()
         self.log = logging.getLogger(f"ovamos.{service}.{instance}")
         self.started = time.time()
@@ -159,6 +164,7 @@ class Bus:
     @classmethod
     def open(cls, cfg: zenoh.Config, robot_id: str, service: str, instance: str = "0",
              info: Callable[[], dict[str, Any]] | None = None) -> Bus:
+        _check_identity(robot_id, service, instance)  # first: opening may wait for a router
         return cls(open_session(cfg), robot_id, service, instance, info)
 
     # -- declarations ---------------------------------------------------------------------

@@ -10,7 +10,7 @@ from typing import Any
 from pydantic import Field
 
 from services.diag.monitor import TrafficStats
-from services.diag.testpattern import test_frame
+from services.diag.testpattern import pattern_frame
 from shared import keys
 from shared.bus import Bus
 from shared.messages import RgbdFrame
@@ -41,7 +41,7 @@ class TestPatternService(Service):
 
     def tick(self) -> None:
         c = self.config
-        frame = test_frame(self.seq, 0.0, width=c.width, height=c.height, seed=c.seed)
+        frame = pattern_frame(self.seq, 0.0, width=c.width, height=c.height, seed=c.seed)
         # Stamp when the frame is complete, as a camera driver stamps at capture.
         self.pub.put(frame.model_copy(update={"stamp": time.time()}))
         self.seq += 1

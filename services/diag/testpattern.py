@@ -39,7 +39,7 @@ def camera_pose(yaw: float, height: float = CAMERA_HEIGHT_M) -> tuple[float, ...
     return tuple(float(x) for x in pose.ravel())
 
 
-def test_frame(seq: int, stamp: float, *, width: int = 640, height: int = 480, seed: int = 0
+def pattern_frame(seq: int, stamp: float, *, width: int = 640, height: int = 480, seed: int = 0
                ) -> RgbdFrame:
     """Frame ``seq`` of the stream: colour bars with a square that moves with ``seq``;
     depth is a ramp over the depth range with seeded noise. Same (seed, seq) => same frame."""

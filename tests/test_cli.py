@@ -1,0 +1,61 @@
+"""The ``ovamos`` command line: clear errors, the demo and the benchmark end to end."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from bench.transport import run_benchmark
+from shared import __version__
+
+
+def ovamos(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "services.cli", *args], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def test_version() -> None:
+    out = ovamos("--version")
+    assert out.returncode == 0 and __version__ in out.stdout
+
+
+def test_planned_and_unknown_services_are_clear_errors() -> None:
+    planned = ovamos("run", "mapping")
+    assert planned.returncode == 2
+    assert "not implemented yet (issue #4)" in planned.stderr
+    unknown = ovamos("run", "teleporter")
+    assert unknown.returncode == 2 and "unknown service 'teleporter'" in unknown.stderr
+
+
+def test_bad_service_config_is_a_clear_error(tmp_path: Path) -> None:
+    cfg = tmp_path / "tp.toml"
+    cfg.write_text("rate_hz = -1\nfps = 3\n")
+    out = ovamos("run", "testpattern", "--config", str(cfg), "--connect", "tcp/127.0.0.1:1")
+    assert out.returncode == 2
+    assert "rate_hz" in out.stderr and "fps" in out.stderr
+
+
+def test_multicast_config_is_refused(tmp_path: Path) -> None:
+    cfg = tmp_path / "z.json5"
+    cfg.write_text('{mode: "router", scouting: {multicast: {enabled: true}}}')
+    out = ovamos("router", "--config", str(cfg))
+    assert out.returncode == 2 and "multicast" in out.stderr
+
+
+def test_bad_robot_id_is_a_clear_error() -> None:
+    out = ovamos("run", "monitor", "--robot-id", "a/b", "--connect", "tcp/127.0.0.1:1")
+    assert out.returncode == 2 and "robot id" in out.stderr
+
+
+def test_demo_moves_frames_between_processes_and_cleans_up() -> None:
+    out = ovamos("demo", "--seconds", "3")
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "OK:" in out.stdout and "Not in this demo yet" in out.stdout
+
+
+def test_transport_benchmark_reports_both_paths() -> None:
+    result = run_benchmark(frames=5, runs=1, gap_ms=1.0)
+    assert result["frame_bytes"] > 640 * 480 * 7
+    assert result["raw_median_us"] > 0 and result["ovamos_median_us"] > 0
+    assert result["overhead_ratio"] == round(result["ovamos_median_us"] / result["raw_median_us"], 3)
