@@ -78,15 +78,13 @@ def run(service: Annotated[str, typer.Argument(help="Service to run.")],
     """Run one service until SIGINT / SIGTERM."""
     from services.registry import UnknownServiceError, service_class
     from shared.keys import KeyExprError
-    from shared.service import ServiceConfigError, install_signal_handlers, load_config, run_service
+    from shared.service import ServiceConfigError, load_config, run_service
     setup_logging(json_lines=log_json, level=log_level)
     try:
         cls = service_class(service)
         cfg = load_config(cls, config)
         zcfg = build_config(file=zenoh_file, connect=connect or (), listen=listen or ())
-        stop = threading.Event()
-        install_signal_handlers(stop)
-        run_service(cls, zcfg, cfg, robot_id=robot_id, instance=instance, stop=stop)
+        run_service(cls, zcfg, cfg, robot_id=robot_id, instance=instance, stop=threading.Event())
     except (UnknownServiceError, ServiceConfigError, ZenohConfigError, KeyExprError) as exc:
         raise _fail(str(exc))
 

@@ -2,31 +2,36 @@
 
 Layout of one payload::
 
-    header  <4s B B H Q I>  magic b"OVAM", wire version, flags, reserved,
-                            stored body length, meta length
-    padding                 zeros up to BODY_OFFSET
-    body                    the raw array bytes, each array at an ALIGN-ed offset;
-                            zlib-compressed as a whole when FLAG_ZLIB is set
-    meta    UTF-8 JSON      {"kind", "v", "fields", "arrays": [[name, dtype, shape, offset]],
-                            "body": inflated body length}, then spaces (slack)
+    header  <4s B B H Q I I>  magic b"OVAM", wire version, flags, slack length,
+                              stored body length, layout length, fields length
+    padding                   zeros up to BODY_OFFSET
+    body                      the raw array bytes, each array at an ALIGN-ed offset;
+                              zlib-compressed as a whole when FLAG_ZLIB is set
+    layout  UTF-8 JSON        {"kind", "v", "arrays": [[name, dtype, shape, offset]], "body"}
+    fields  UTF-8 JSON        the message's scalar fields
+    slack                     spaces (room for the fields to change size in a reused buffer)
 
 Why this shape: JSON for the few scalar fields keeps them readable and
 versionable with pydantic, while arrays travel as raw little-endian bytes so the
 receiver gets ``numpy.frombuffer`` views without a copy. The body sits at a
-fixed offset and the variable-length meta after it, so a producer can
+fixed offset and the variable-length parts after it, so a producer can
 :func:`loan` arrays that already live inside a payload buffer, fill them (a
 renderer writes its pixels there) and publish with no copy before Zenoh's own.
+The layout of a stream rarely changes, so both ends cache it: per message only
+the fields are encoded and parsed.
+
 Everything read from the wire is checked before use; any inconsistency raises
 :class:`DecodeError`, the one error a subscriber has to catch.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import struct
 import zlib
-from typing import Any, Mapping
+from typing import Any, Mapping, NamedTuple
 
 import numpy as np
 
@@ -34,26 +39,57 @@ MAGIC = b"OVAM"
 WIRE_VERSION = 1
 FLAG_ZLIB = 0x01
 _KNOWN_FLAGS = FLAG_ZLIB
-HEADER = struct.Struct("<4sBBHQI")
+HEADER = struct.Struct("<4sBBHQII")
 BODY_OFFSET = 64
 ALIGN = 64
-# Room for the meta to grow or shrink while a payload buffer is reused as is;
-# JSON ignores the trailing spaces that fill it.
-META_SLACK = 4096
+# Room for the fields to grow while a payload buffer is reused as is.
+SLACK = 4096
 # Explicit little-endian dtypes only: the wire format must not depend on the host.
 ALLOWED_DTYPES = frozenset(np.dtype(d).str for d in (
     "|b1", "|u1", "|i1", "<u2", "<i2", "<u4", "<i4", "<u8", "<i8", "<f2", "<f4", "<f8"))
-# Bounds a hostile meta or a zip bomb cannot push us past.
+# Bounds a hostile header or a zip bomb cannot push us past.
 MAX_META_BYTES = 1 << 20
 MAX_BODY_BYTES = 1 << 30
+
+Spec = tuple[tuple[int, ...], str]  # (shape, dtype str) of one array
 
 
 class DecodeError(ValueError):
     """A payload that is not a valid message of the expected kind and version."""
 
 
+class _Slot(NamedTuple):
+    name: str
+    dtype: np.dtype
+    shape: tuple[int, ...]
+    offset: int
+    count: int
+
+
+class _Layout(NamedTuple):
+    kind: str
+    version: int
+    slots: tuple[_Slot, ...]
+    body_size: int
+    encoded: bytes
+
+
 def _align(n: int) -> int:
     return (n + ALIGN - 1) // ALIGN * ALIGN
+
+
+@functools.lru_cache(maxsize=256)
+def _layout(kind: str, version: int, specs: tuple[tuple[str, tuple[int, ...], str], ...]) -> _Layout:
+    """Where each array (name, shape, dtype) goes in the body, and that layout as JSON."""
+    slots, offset = [], 0
+    for name, shape, dtype in specs:
+        count = math.prod(shape)
+        slots.append(_Slot(name, np.dtype(dtype), shape, offset, count))
+        offset = _align(offset + count * np.dtype(dtype).itemsize)
+    table = [[s.name, s.dtype.str, list(s.shape), s.offset] for s in slots]
+    encoded = json.dumps({"kind": kind, "v": version, "arrays": table, "body": offset},
+                         separators=(",", ":")).encode()
+    return _Layout(kind, version, tuple(slots), offset, encoded)
 
 
 def _wire_array(name: str, arr: np.ndarray) -> np.ndarray:
@@ -66,68 +102,52 @@ def _wire_array(name: str, arr: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(arr)
 
 
-Table = list[list[Any]]  # [[name, dtype str, shape, offset]] in wire order
-
-
-def _layout(arrays: Mapping[str, tuple[tuple[int, ...], str]]) -> tuple[Table, int]:
-    """Offsets of arrays (name -> (shape, dtype)) in the body, and the body size."""
-    table, offset = [], 0
-    for name, (shape, dtype) in arrays.items():
-        table.append([name, dtype, list(shape), offset])
-        offset = _align(offset + math.prod(shape) * np.dtype(dtype).itemsize)
-    return table, offset
-
-
-def loan(arrays: Mapping[str, tuple[tuple[int, ...], str]]) -> dict[str, np.ndarray]:
+def loan(arrays: Mapping[str, Spec]) -> dict[str, np.ndarray]:
     """Writable arrays (name -> (shape, dtype)) that live inside a fresh payload buffer.
 
     A message built from exactly these arrays, in this order, is packed without
     copying them. Filling them is the producer's job (they start zeroed).
     """
-    table, body_size = _layout(arrays)
-    buffer = bytearray(BODY_OFFSET + body_size + META_SLACK)
-    return {name: np.frombuffer(buffer, dtype, math.prod(shape), BODY_OFFSET + off).reshape(shape)
-            for name, dtype, shape, off in table}
+    layout = _layout("", 0, tuple((n, tuple(shape), np.dtype(d).str) for n, (shape, d) in arrays.items()))
+    buffer = bytearray(BODY_OFFSET + layout.body_size + SLACK)
+    return {s.name: np.frombuffer(buffer, s.dtype, s.count, BODY_OFFSET + s.offset).reshape(s.shape)
+            for s in layout.slots}
 
 
-def _address(obj: np.ndarray | bytearray) -> int:
-    arr = obj if isinstance(obj, np.ndarray) else np.frombuffer(obj, np.uint8)
-    return arr.ctypes.data
-
-
-def _loaned_buffer(wired: Mapping[str, np.ndarray], table: Table) -> bytearray | None:
+def _loaned_buffer(arrays: list[np.ndarray], layout: _Layout) -> bytearray | None:
     """The buffer the arrays were loaned from, if they all sit at their wire offsets in it."""
-    buffer = None
-    for (_, _, _, off), arr in zip(table, wired.values()):
+    buffer, start = None, 0
+    for slot, arr in zip(layout.slots, arrays):
         base = arr.base
         while isinstance(base, np.ndarray):
             base = base.base
         base = base.obj if isinstance(base, memoryview) else base
         if not isinstance(base, bytearray) or (buffer is not None and base is not buffer):
             return None
-        if _address(arr) != _address(base) + BODY_OFFSET + off:
+        if buffer is None:
+            buffer, start = base, np.frombuffer(base, np.uint8).ctypes.data
+        if arr.ctypes.data != start + BODY_OFFSET + slot.offset:
             return None
-        buffer = base
     return buffer
 
 
-def _target(out: bytearray | None, total: int) -> bytearray:
-    """``out`` when it can hold exactly ``total`` bytes (plus slack), else a new buffer."""
+def _target(out: bytearray | None, size: int) -> bytearray:
+    """``out`` when it can hold ``size`` bytes plus at most SLACK, else a buffer that can."""
     if out is None:
-        return bytearray(total)
-    if not total <= len(out) <= total + META_SLACK:
+        return bytearray(size)
+    if not size <= len(out) <= size + SLACK:
         try:
-            del out[total:]
-            out.extend(bytes(max(0, total - len(out))))
-        except BufferError:  # a loaned buffer whose arrays are still alive cannot resize
-            return bytearray(total)
+            del out[size:]
+            out.extend(bytes(size - len(out)))
+        except BufferError:  # a loaned buffer whose arrays are alive cannot be resized
+            return bytearray(size)
     return out
 
 
-def _write_arrays(body: np.ndarray, table: Table, wired: Mapping[str, np.ndarray]) -> None:
-    for (_, _, _, off), arr in zip(table, wired.values()):
-        end = off + arr.nbytes
-        body[off:end] = arr.reshape(-1).view(np.uint8)
+def _write_arrays(body: np.ndarray, layout: _Layout, arrays: list[np.ndarray]) -> None:
+    for slot, arr in zip(layout.slots, arrays):
+        end = slot.offset + arr.nbytes
+        body[slot.offset:end] = arr.reshape(-1).view(np.uint8)
         body[end:_align(end)] = 0  # padding: a reused buffer must not leak old bytes
 
 
@@ -141,33 +161,65 @@ def pack(kind: str, version: int, fields: Mapping[str, Any] | bytes, arrays: Map
     Otherwise ``out`` (the previous payload of a stream) is reused when given,
     which saves allocating and page-faulting megabytes per message.
     """
-    wired = {name: _wire_array(name, a) for name, a in arrays.items()}
-    table, body_size = _layout({n: (a.shape, a.dtype.str) for n, a in wired.items()})
     if not isinstance(fields, bytes):
         fields = json.dumps(fields, separators=(",", ":")).encode()
-    meta = b'{"kind":%s,"v":%d,"fields":%s,"arrays":%s,"body":%d}' % (
-        json.dumps(kind).encode(), version, fields, json.dumps(table, separators=(",", ":")).encode(),
-        body_size)
+    wired = [_wire_array(name, a) for name, a in arrays.items()]
+    layout = _layout(kind, version, tuple((n, a.shape, a.dtype.str) for n, a in zip(arrays, wired)))
+    meta_size = len(layout.encoded) + len(fields)
     if compress_level is None:
-        loaned = _loaned_buffer(wired, table)
-        stored = body_size
-        buf = _target(loaned if loaned is not None else out, BODY_OFFSET + stored + len(meta))
+        loaned = _loaned_buffer(wired, layout)
+        stored = layout.body_size
+        buf = _target(loaned if loaned is not None else out, BODY_OFFSET + stored + meta_size)
         if buf is not loaned:
-            _write_arrays(np.frombuffer(buf, np.uint8, body_size, BODY_OFFSET), table, wired)
+            _write_arrays(np.frombuffer(buf, np.uint8, stored, BODY_OFFSET), layout, wired)
     else:
-        scratch = bytearray(body_size)
-        _write_arrays(np.frombuffer(scratch, np.uint8), table, wired)
+        scratch = bytearray(layout.body_size)
+        _write_arrays(np.frombuffer(scratch, np.uint8), layout, wired)
         compressed = zlib.compress(scratch, compress_level)
         stored = len(compressed)
-        buf = _target(out, BODY_OFFSET + stored + len(meta))
+        buf = _target(out, BODY_OFFSET + stored + meta_size)
         buf[BODY_OFFSET:BODY_OFFSET + stored] = compressed
     flags = 0 if compress_level is None else FLAG_ZLIB
-    buf[:BODY_OFFSET] = bytes(BODY_OFFSET)
-    HEADER.pack_into(buf, 0, MAGIC, WIRE_VERSION, flags, 0, stored, len(buf) - BODY_OFFSET - stored)
     meta_start = BODY_OFFSET + stored
-    buf[meta_start:meta_start + len(meta)] = meta
-    buf[meta_start + len(meta):] = b" " * (len(buf) - meta_start - len(meta))
+    slack = len(buf) - meta_start - meta_size
+    buf[:BODY_OFFSET] = bytes(BODY_OFFSET)
+    HEADER.pack_into(buf, 0, MAGIC, WIRE_VERSION, flags, slack, stored, len(layout.encoded), len(fields))
+    buf[meta_start:] = layout.encoded + fields + b" " * slack
     return buf
+
+
+@functools.lru_cache(maxsize=256)
+def _parse_layout(encoded: bytes) -> _Layout:
+    """A layout read from the wire, checked once per distinct layout (cached)."""
+    try:
+        meta = json.loads(encoded)
+        kind, version, table, body_size = meta["kind"], meta["v"], meta["arrays"], int(meta["body"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise DecodeError(f"layout is not valid: {exc}") from None
+    if not isinstance(kind, str) or not isinstance(version, int) or not isinstance(table, list):
+        raise DecodeError("layout kind/v/arrays have the wrong types")
+    if not 0 <= body_size <= MAX_BODY_BYTES:
+        raise DecodeError(f"body size {body_size} is out of bounds")
+    slots, names, end = [], set(), 0
+    for entry in table:
+        try:
+            name, dtype_str, shape, offset = entry
+            dtype = np.dtype(dtype_str)
+            shape = tuple(int(s) for s in shape)
+            offset = int(offset)
+        except (TypeError, ValueError) as exc:
+            raise DecodeError(f"bad array table entry {entry!r}: {exc}") from None
+        if not isinstance(name, str) or name in names or dtype.str not in ALLOWED_DTYPES:
+            raise DecodeError(f"array {name!r}: duplicate, or dtype {dtype_str!r} not allowed")
+        if any(s < 0 for s in shape) or offset < end or offset % ALIGN:
+            raise DecodeError(f"array {name!r}: bad shape {shape} or offset {offset}")
+        count = math.prod(shape)
+        end = offset + count * dtype.itemsize
+        if end > body_size:
+            raise DecodeError(f"array {name!r} needs body bytes up to {end}, body holds {body_size}")
+        names.add(name)
+        slots.append(_Slot(name, dtype, shape, offset, count))
+    return _Layout(kind, version, tuple(slots), body_size, encoded)
 
 
 def _decompress(data: memoryview, size: int) -> bytes:
@@ -181,26 +233,6 @@ def _decompress(data: memoryview, size: int) -> bytes:
     return body
 
 
-def _array_view(body: bytes | memoryview, entry: Any, end_of_previous: int) -> tuple[str, np.ndarray, int]:
-    try:
-        name, dtype_str, shape, offset = entry
-        dtype = np.dtype(dtype_str)
-        shape = tuple(int(s) for s in shape)
-        offset = int(offset)
-    except (TypeError, ValueError) as exc:
-        raise DecodeError(f"bad array table entry {entry!r}: {exc}") from None
-    if not isinstance(name, str) or dtype.str not in ALLOWED_DTYPES:
-        raise DecodeError(f"array {name!r}: dtype {dtype_str!r} is not allowed")
-    if any(s < 0 for s in shape) or offset < end_of_previous or offset % ALIGN:
-        raise DecodeError(f"array {name!r}: bad shape {shape} or offset {offset}")
-    count = math.prod(shape)
-    end = offset + count * dtype.itemsize
-    if end > len(body):
-        raise DecodeError(f"array {name!r} needs bytes up to {end}, body holds {len(body)}")
-    view = np.frombuffer(body, dtype, count, offset).reshape(shape)
-    return name, view, end
-
-
 def unpack(payload: bytes | bytearray | memoryview, kind: str, version: int
            ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Decode a payload of the given kind and version into (fields, arrays).
@@ -211,41 +243,35 @@ def unpack(payload: bytes | bytearray | memoryview, kind: str, version: int
     data = memoryview(payload)
     if len(data) < BODY_OFFSET:
         raise DecodeError(f"payload of {len(data)} bytes is shorter than the header")
-    magic, wire, flags, _, stored, meta_len = HEADER.unpack_from(data, 0)
+    magic, wire, flags, slack, stored, layout_len, fields_len = HEADER.unpack_from(data, 0)
     if magic != MAGIC:
         raise DecodeError(f"bad magic {bytes(magic)!r}: not an ovamos binary message")
     if wire != WIRE_VERSION:
         raise DecodeError(f"wire version {wire} is not supported (this build reads {WIRE_VERSION})")
     if flags & ~_KNOWN_FLAGS:
         raise DecodeError(f"unknown flags 0x{flags:02x}")
-    if meta_len > MAX_META_BYTES or BODY_OFFSET + stored + meta_len != len(data):
-        raise DecodeError(f"header declares {stored} body + {meta_len} meta bytes, "
-                          f"payload holds {len(data) - BODY_OFFSET}")
+    if layout_len + fields_len > MAX_META_BYTES or \
+            BODY_OFFSET + stored + layout_len + fields_len + slack != len(data):
+        raise DecodeError(f"header declares {stored} + {layout_len} + {fields_len} + {slack} bytes "
+                          f"after the header, payload holds {len(data) - BODY_OFFSET}")
     meta_start = BODY_OFFSET + stored
+    layout = _parse_layout(bytes(data[meta_start:meta_start + layout_len]))
+    if layout.kind != kind:
+        raise DecodeError(f"expected a {kind!r} message, got {layout.kind!r}")
+    if layout.version != version:
+        raise DecodeError(f"{kind} version {layout.version!r} is not supported (expected {version})")
     try:
-        meta = json.loads(bytes(data[meta_start:]))
-        msg_kind, msg_version = meta["kind"], meta["v"]
-        fields, table, body_size = meta["fields"], meta["arrays"], int(meta["body"])
-    except (ValueError, KeyError, TypeError) as exc:
-        raise DecodeError(f"meta is not valid: {exc}") from None
-    if msg_kind != kind:
-        raise DecodeError(f"expected a {kind!r} message, got {msg_kind!r}")
-    if msg_version != version:
-        raise DecodeError(f"{kind} version {msg_version!r} is not supported (expected {version})")
-    if not isinstance(fields, dict) or not isinstance(table, list) or not 0 <= body_size <= MAX_BODY_BYTES:
-        raise DecodeError("meta fields/arrays/body have the wrong types")
+        fields = json.loads(bytes(data[meta_start + layout_len:meta_start + layout_len + fields_len]))
+    except ValueError as exc:
+        raise DecodeError(f"fields are not valid JSON: {exc}") from None
+    if not isinstance(fields, dict):
+        raise DecodeError("fields must be a JSON object")
 
     body: bytes | memoryview = data[BODY_OFFSET:meta_start]
     if flags & FLAG_ZLIB:
-        body = _decompress(body, body_size)
-    elif stored != body_size:
-        raise DecodeError(f"body holds {stored} bytes, meta declares {body_size}")
-
-    arrays: dict[str, np.ndarray] = {}
-    end = 0
-    for entry in table:
-        name, view, end = _array_view(body, entry, end)
-        if name in arrays:
-            raise DecodeError(f"array {name!r} appears twice")
-        arrays[name] = view
+        body = _decompress(body, layout.body_size)
+    elif stored != layout.body_size:
+        raise DecodeError(f"body holds {stored} bytes, layout declares {layout.body_size}")
+    arrays = {s.name: np.frombuffer(body, s.dtype, s.count, s.offset).reshape(s.shape)
+              for s in layout.slots}
     return fields, arrays

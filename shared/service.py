@@ -90,9 +90,16 @@ def install_signal_handlers(stop: threading.Event) -> None:
 
 def run_service(cls: type[Service], zenoh_config: zenoh.Config, config: ServiceConfig, *,
                 robot_id: str, instance: str, stop: threading.Event) -> None:
-    """Run one service instance until ``stop`` is set, then shut it down cleanly."""
+    """Run one service instance until ``stop`` is set, then shut it down cleanly.
+
+    SIGINT / SIGTERM set ``stop`` once the session is open; while it still
+    waits for a router they end the process at once, as there is nothing to
+    clean up yet (a Python handler would not run during Zenoh's blocking open).
+    Call from the main thread.
+    """
     svc: Service | None = None
     bus = Bus.open(zenoh_config, robot_id, cls.name, instance, info=lambda: svc.info() if svc else {})
+    install_signal_handlers(stop)
     try:
         svc = cls(bus, config)
         svc.start()

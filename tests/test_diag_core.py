@@ -15,7 +15,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-# Import the module, not the function: pytest would collect a bare ``test_frame`` as a test.
 from services.diag import testpattern as tp
 from services.diag.monitor import TrafficStats
 from shared.messages import RgbdFrame
@@ -24,7 +23,7 @@ SETTINGS = settings(max_examples=50, deadline=None)
 
 
 def frame(seq: int = 0, *, seed: int = 0, width: int = 64, height: int = 48) -> RgbdFrame:
-    return tp.test_frame(seq, 1.25, width=width, height=height, seed=seed)
+    return tp.pattern_frame(seq, 1.25, width=width, height=height, seed=seed)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -57,7 +56,7 @@ def test_another_seq_moves_the_square_and_turns_the_camera() -> None:
 @SETTINGS
 @given(st.integers(8, 96), st.integers(8, 96), st.integers(0, 10**6), st.integers(0, 2**32))
 def test_frame_has_the_requested_shape_and_depth_range(width: int, height: int, seq: int, seed: int) -> None:
-    f = tp.test_frame(seq, 2.5, width=width, height=height, seed=seed)
+    f = tp.pattern_frame(seq, 2.5, width=width, height=height, seed=seed)
     assert f.rgb.shape == (height, width, 3) and f.rgb.dtype == np.uint8
     assert f.depth.shape == (height, width) and f.depth.dtype == np.float32
     assert f.instance_ids is None

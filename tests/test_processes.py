@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import hashlib
 import multiprocessing as mp
+import signal
 import threading
+import time
 
 from services.diag.testpattern import pattern_frame
 from shared import keys
 from shared.bus import Bus
 from shared.messages import RgbdFrame
-from shared.procs import free_port, kill, loopback
+from shared.procs import free_port, kill, loopback, stop
 from shared.status import live_services
 from shared.zconfig import build_config, open_session
 from tests.conftest import port_open, status_cli, wait_for
@@ -82,6 +84,21 @@ def test_killed_service_disappears_from_status_and_reappears_when_restarted(cli,
     wait_for(lambda: _instances(router_port, "monitor") == [], what="monitor gone from status")
     cli(*args)
     wait_for(lambda: _instances(router_port, "monitor") == ["k1"], what="monitor back in status")
+
+
+def test_sigterm_stops_a_service_cleanly(cli, router_port) -> None:
+    proc = cli("run", "monitor", "--connect", loopback(router_port), "--robot-id", "r1",
+               "--instance", "t1", "--log-level", "WARNING")
+    wait_for(lambda: _instances(router_port, "monitor") == ["t1"], what="monitor up")
+    assert stop(proc, timeout=10) == 0
+    assert _instances(router_port, "monitor") == []
+
+
+def test_a_service_waiting_for_its_router_dies_on_sigterm(cli) -> None:
+    proc = cli("run", "monitor", "--connect", loopback(free_port()), "--log-level", "WARNING")
+    time.sleep(1.0)
+    assert proc.poll() is None  # still waiting for a router that never comes
+    assert stop(proc, timeout=10) == -signal.SIGTERM
 
 
 def test_clients_survive_a_router_restart(cli) -> None:
