@@ -50,6 +50,7 @@ ALLOWED_DTYPES = frozenset(np.dtype(d).str for d in (
 # Bounds a hostile header or a zip bomb cannot push us past.
 MAX_META_BYTES = 1 << 20
 MAX_BODY_BYTES = 1 << 30
+MAX_NDIM = 8
 
 Spec = tuple[tuple[int, ...], str]  # (shape, dtype str) of one array
 
@@ -188,31 +189,39 @@ def pack(kind: str, version: int, fields: Mapping[str, Any] | bytes, arrays: Map
     return buf
 
 
+def _is_count(value: Any) -> bool:
+    """A JSON integer in [0, MAX_BODY_BYTES] (JSON floats, inf and bools are not)."""
+    return type(value) is int and 0 <= value <= MAX_BODY_BYTES
+
+
 @functools.lru_cache(maxsize=256)
 def _parse_layout(encoded: bytes) -> _Layout:
     """A layout read from the wire, checked once per distinct layout (cached)."""
     try:
         meta = json.loads(encoded)
-        kind, version, table, body_size = meta["kind"], meta["v"], meta["arrays"], int(meta["body"])
-    except (ValueError, KeyError, TypeError) as exc:
-        raise DecodeError(f"layout is not valid: {exc}") from None
-    if not isinstance(kind, str) or not isinstance(version, int) or not isinstance(table, list):
+        kind, version, table, body_size = meta["kind"], meta["v"], meta["arrays"], meta["body"]
+    except (ValueError, KeyError, TypeError, RecursionError) as exc:
+        raise DecodeError(f"layout is not valid: {type(exc).__name__}: {exc}") from None
+    if not isinstance(kind, str) or type(version) is not int or not isinstance(table, list):
         raise DecodeError("layout kind/v/arrays have the wrong types")
-    if not 0 <= body_size <= MAX_BODY_BYTES:
-        raise DecodeError(f"body size {body_size} is out of bounds")
+    if not _is_count(body_size):
+        raise DecodeError(f"body size {body_size!r} is not an integer within bounds")
     slots, names, end = [], set(), 0
     for entry in table:
+        if not (isinstance(entry, list) and len(entry) == 4 and isinstance(entry[0], str)
+                and isinstance(entry[1], str) and isinstance(entry[2], list)
+                and len(entry[2]) <= MAX_NDIM and all(map(_is_count, entry[2]))
+                and _is_count(entry[3])):
+            raise DecodeError(f"bad array table entry {str(entry)[:200]}")
+        name, dtype_str, shape, offset = entry[0], entry[1], tuple(entry[2]), entry[3]
         try:
-            name, dtype_str, shape, offset = entry
             dtype = np.dtype(dtype_str)
-            shape = tuple(int(s) for s in shape)
-            offset = int(offset)
-        except (TypeError, ValueError) as exc:
-            raise DecodeError(f"bad array table entry {entry!r}: {exc}") from None
-        if not isinstance(name, str) or name in names or dtype.str not in ALLOWED_DTYPES:
+        except (TypeError, ValueError):
+            raise DecodeError(f"array {name!r}: unknown dtype {dtype_str!r}") from None
+        if name in names or dtype.str not in ALLOWED_DTYPES:
             raise DecodeError(f"array {name!r}: duplicate, or dtype {dtype_str!r} not allowed")
-        if any(s < 0 for s in shape) or offset < end or offset % ALIGN:
-            raise DecodeError(f"array {name!r}: bad shape {shape} or offset {offset}")
+        if offset < end or offset % ALIGN:
+            raise DecodeError(f"array {name!r}: offset {offset} overlaps or is not aligned")
         count = math.prod(shape)
         end = offset + count * dtype.itemsize
         if end > body_size:
@@ -262,7 +271,7 @@ def unpack(payload: bytes | bytearray | memoryview, kind: str, version: int
         raise DecodeError(f"{kind} version {layout.version!r} is not supported (expected {version})")
     try:
         fields = json.loads(bytes(data[meta_start + layout_len:meta_start + layout_len + fields_len]))
-    except ValueError as exc:
+    except (ValueError, RecursionError) as exc:
         raise DecodeError(f"fields are not valid JSON: {exc}") from None
     if not isinstance(fields, dict):
         raise DecodeError("fields must be a JSON object")
