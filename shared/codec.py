@@ -49,6 +49,8 @@ ALLOWED_DTYPES = frozenset(np.dtype(d).str for d in (
     "|b1", "|u1", "|i1", "<u2", "<i2", "<u4", "<i4", "<u8", "<i8", "<f2", "<f4", "<f8"))
 # Bounds a hostile header or a zip bomb cannot push us past.
 MAX_META_BYTES = 1 << 20
+# Layouts are cached; the cap bounds what a hostile peer can make the cache hold.
+MAX_LAYOUT_BYTES = 1 << 14
 MAX_BODY_BYTES = 1 << 30
 MAX_NDIM = 8
 
@@ -107,7 +109,10 @@ def loan(arrays: Mapping[str, Spec]) -> dict[str, np.ndarray]:
     """Writable arrays (name -> (shape, dtype)) that live inside a fresh payload buffer.
 
     A message built from exactly these arrays, in this order, is packed without
-    copying them. Filling them is the producer's job (they start zeroed).
+    copying them: its payload *is* the loan's buffer, so encoding a second
+    message from the same loan rewrites the first payload. Publishing is safe
+    (Zenoh copies during ``put``); a payload kept for later needs ``bytes(...)``.
+    Filling the arrays is the producer's job (they start zeroed).
     """
     layout = _layout("", 0, tuple((n, tuple(shape), np.dtype(d).str) for n, (shape, d) in arrays.items()))
     buffer = bytearray(BODY_OFFSET + layout.body_size + SLACK)
@@ -234,10 +239,10 @@ def _parse_layout(encoded: bytes) -> _Layout:
 def _decompress(data: memoryview, size: int) -> bytes:
     inflater = zlib.decompressobj()
     try:
-        body = inflater.decompress(data, size)
+        body = inflater.decompress(data, size + 1)  # max_length 0 would mean "no limit"
     except zlib.error as exc:
         raise DecodeError(f"compressed body is corrupt: {exc}") from None
-    if len(body) != size or not inflater.eof or inflater.unconsumed_tail:
+    if len(body) != size or not inflater.eof or inflater.unconsumed_tail or inflater.unused_data:
         raise DecodeError(f"compressed body does not inflate to the declared {size} bytes")
     return body
 
@@ -264,6 +269,8 @@ def unpack(payload: bytes | bytearray | memoryview, kind: str, version: int
         raise DecodeError(f"header declares {stored} + {layout_len} + {fields_len} + {slack} bytes "
                           f"after the header, payload holds {len(data) - BODY_OFFSET}")
     meta_start = BODY_OFFSET + stored
+    if layout_len > MAX_LAYOUT_BYTES:
+        raise DecodeError(f"layout of {layout_len} bytes exceeds {MAX_LAYOUT_BYTES}")
     layout = _parse_layout(bytes(data[meta_start:meta_start + layout_len]))
     if layout.kind != kind:
         raise DecodeError(f"expected a {kind!r} message, got {layout.kind!r}")

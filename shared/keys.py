@@ -23,9 +23,10 @@ class KeyExprError(ValueError):
 
 def check_chunk(value: str, what: str) -> str:
     """Return ``value`` if it can be one chunk of a key expression, else raise."""
-    if not value or value != value.strip() or _FORBIDDEN & set(value):
+    if not value or value != value.strip() or _FORBIDDEN & set(value) or value.startswith("@"):
         raise KeyExprError(f"{what} {value!r} is not usable in a Zenoh key: it must be non-empty, "
-                        f"without spaces around it and without any of '/*$?#'")
+                           f"without spaces around it, not start with '@' (a verbatim chunk, "
+                           f"which '*' never matches) and without any of '/*$?#'")
     return value
 
 
@@ -69,17 +70,21 @@ def task_events(robot_id: str) -> str:
     return f"{_robot(robot_id)}/task/events"
 
 
-def alive(robot_id: str, service: str = ANY, instance: str = ANY) -> str:
-    """Liveliness token of one service instance, or a selector over many with ``*``."""
-    parts = [_robot(robot_id), "alive"]
+def _service_key(kind: str, robot_id: str, service: str, instance: str) -> str:
+    parts = [_robot(robot_id), kind]
     for value, what in ((service, "service"), (instance, "instance")):
         parts.append(value if value == ANY else check_chunk(value, what))
     return "/".join(parts)
 
 
+def alive(robot_id: str, service: str = ANY, instance: str = ANY) -> str:
+    """Liveliness token of one service instance, or a selector over many with ``*``."""
+    return _service_key("alive", robot_id, service, instance)
+
+
 def stats(robot_id: str, service: str = ANY, instance: str = ANY) -> str:
     """Queryable answering a service instance's message counters (for ``ovamos status``)."""
-    return alive(robot_id, service, instance).replace("/alive/", "/stats/", 1)
+    return _service_key("stats", robot_id, service, instance)
 
 
 def bench(robot_id: str, name: str) -> str:

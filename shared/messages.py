@@ -109,6 +109,8 @@ class BinaryMessage(BaseModel):
         unknown = set(arrays) - set(cls.ARRAYS)
         if unknown:
             raise DecodeError(f"invalid {cls.__name__}: unexpected arrays {sorted(unknown)}")
+        if clash := set(fields) & set(cls.ARRAYS):
+            raise DecodeError(f"invalid {cls.__name__}: fields named like arrays {sorted(clash)}")
         try:
             return cls.model_validate({**fields, **arrays})
         except ValidationError as exc:

@@ -71,9 +71,12 @@ def load_config(cls: type[Service], path: str | Path | None, overrides: dict[str
         path = Path(path)
         try:
             text = path.read_text()
-            data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text)
+            data = tomllib.loads(text) if path.suffix.lower() == ".toml" else json.loads(text)
         except (OSError, ValueError) as exc:
             raise ServiceConfigError(f"cannot read config {path}: {exc}") from None
+        if not isinstance(data, dict):
+            raise ServiceConfigError(f"config {path} must hold a table/object of settings, "
+                                     f"not {type(data).__name__}")
     data.update(overrides or {})
     try:
         return cls.Config.model_validate(data)

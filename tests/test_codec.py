@@ -218,6 +218,22 @@ def test_reused_out_buffer_gives_the_second_message(first: RgbdFrame, second: Rg
     assert_same_message(RgbdFrame.from_bytes(bytes(again)), second)
 
 
+@SETTINGS
+@given(messages, messages)
+def test_reused_buffer_holds_exactly_the_fresh_encoding(first: RgbdFrame | MapSnapshot,
+                                                        second: RgbdFrame | MapSnapshot) -> None:
+    """Nothing of the old payload survives in a reused one (padding included): no leaks."""
+    buf = first.to_bytes()
+    buf[BODY_OFFSET:] = b"\xff" * (len(buf) - BODY_OFFSET)  # old bytes, easy to spot
+    reused = bytes(second.to_bytes(out=buf))
+    fresh = bytes(second.to_bytes())
+    slack = HEADER.unpack_from(reused, 0)[3]
+    assert reused[BODY_OFFSET:len(reused) - slack] == fresh[BODY_OFFSET:]
+    assert reused[len(reused) - slack:] == b" " * slack
+    assert reused[:BODY_OFFSET].rstrip(b"\x00") != b""  # a header is there
+    assert bytes(reused[HEADER.size:BODY_OFFSET]) == bytes(BODY_OFFSET - HEADER.size)
+
+
 def test_loaned_arrays_are_published_without_a_copy() -> None:
     """Arrays from RgbdFrame.loan become the payload itself, and decode to what was written."""
     arrays = RgbdFrame.loan(6, 7, depth_dtype="<u2", instance_ids=True)
@@ -380,8 +396,11 @@ def test_disallowed_dtype_in_array_table_is_rejected(dtype: Any) -> None:
     def edit(meta: dict[str, Any]) -> None:
         meta["arrays"][1][1] = dtype  # the depth entry
 
+    payload = with_meta(sample_frame().to_bytes(), edit)
     with pytest.raises(DecodeError):
-        RgbdFrame.from_bytes(with_meta(sample_frame().to_bytes(), edit))
+        unpack(payload, RgbdFrame.KIND, RgbdFrame.VERSION)  # the codec itself refuses it
+    with pytest.raises(DecodeError):
+        RgbdFrame.from_bytes(payload)
 
 
 def test_inconsistent_shapes_are_rejected() -> None:
@@ -406,29 +425,69 @@ def test_arrays_a_frame_does_not_accept_are_rejected(arrays: dict[str, np.ndarra
         RgbdFrame.from_bytes(bytes(pack(RgbdFrame.KIND, RgbdFrame.VERSION, RGBD_FIELDS, arrays)))
 
 
-@pytest.mark.parametrize("edit", [
-    lambda m: m["arrays"][1].__setitem__(3, m["arrays"][1][3] + 1),       # misaligned offset
-    lambda m: m["arrays"][1].__setitem__(3, 0),                           # overlaps rgb
-    lambda m: m["arrays"][1].__setitem__(3, 10**6),                       # past the body
-    lambda m: m["arrays"][1].__setitem__(2, [4, -5]),                     # negative dimension
-    lambda m: m["arrays"][1].__setitem__(2, [40, 50]),                    # bigger than the body
-    lambda m: m["arrays"][1].__setitem__(0, "rgb"),                       # duplicate name
-    lambda m: m["arrays"].__setitem__(1, ["depth", "<f4"]),               # short entry
-    lambda m: m.__setitem__("arrays", {"rgb": 1}),                        # table not a list
-    lambda m: m.__setitem__("body", m["body"] + 64),                      # body size lies
-    lambda m: m.__setitem__("body", -1),
-    lambda m: m.__setitem__("fields", [1, 2]),                            # fields not an object
-    lambda m: m["fields"].__setitem__("bogus", 1),                        # unknown field
-    lambda m: m["fields"].pop("intrinsics"),                              # missing field
-    lambda m: m["fields"].__setitem__("seq", -1),                         # invalid value
-    lambda m: m["fields"].__setitem__("camera_pose", [1.0] * 15),
-    lambda m: m.pop("kind"),
-    lambda m: m.pop("v"),
-])
-def test_tampered_meta_is_rejected(edit: Callable[[dict[str, Any]], None]) -> None:
-    """Each inconsistency a corrupt or hostile meta could carry is caught before use."""
+Edit = Callable[[dict[str, Any]], None]
+
+_BAD_LAYOUTS: dict[str, Edit] = {
+    "misaligned-offset": lambda m: m["arrays"][1].__setitem__(3, m["arrays"][1][3] + 1),
+    "overlapping-offset": lambda m: m["arrays"][1].__setitem__(3, 0),
+    # On the last array: an earlier one would trip the overlap check instead.
+    "offset-past-body": lambda m: m["arrays"][-1].__setitem__(3, 10**6),
+    "last-array-one-item-too-long":  # instance_ids, 4 bytes an item, reaching 4 bytes past the body
+        lambda m: m["arrays"][-1].__setitem__(2, [(m["body"] - m["arrays"][-1][3]) // 4 + 1]),
+    "negative-dimension": lambda m: m["arrays"][1].__setitem__(2, [4, -5]),
+    "shape-past-body": lambda m: m["arrays"][-1].__setitem__(2, [40, 50]),
+    "duplicate-name": lambda m: m["arrays"][1].__setitem__(0, "rgb"),
+    "short-entry": lambda m: m["arrays"].__setitem__(1, ["depth", "<f4"]),
+    "table-not-a-list": lambda m: m.__setitem__("arrays", {"rgb": 1}),
+    "body-size-lies": lambda m: m.__setitem__("body", m["body"] + 64),
+    "negative-body-size": lambda m: m.__setitem__("body", -1),
+    "fields-not-an-object": lambda m: m.__setitem__("fields", [1, 2]),
+    "no-kind": lambda m: m.pop("kind"),
+    "no-version": lambda m: m.pop("v"),
+    "kind-not-a-string": lambda m: m.__setitem__("kind", ["rgbd"]),
+}
+_BAD_FIELDS: dict[str, Edit] = {
+    "unknown-field": lambda m: m["fields"].__setitem__("bogus", 1),
+    "missing-field": lambda m: m["fields"].pop("intrinsics"),
+    "negative-seq": lambda m: m["fields"].__setitem__("seq", -1),
+    "short-pose": lambda m: m["fields"].__setitem__("camera_pose", [1.0] * 15),
+}
+
+
+@pytest.mark.parametrize("edit", list(_BAD_LAYOUTS.values()), ids=list(_BAD_LAYOUTS))
+def test_tampered_layout_is_rejected_by_the_codec(edit: Edit) -> None:
+    """Each inconsistency a corrupt or hostile layout could carry is caught before use."""
+    payload = with_meta(sample_frame().to_bytes(), edit)
+    with pytest.raises(DecodeError):
+        unpack(payload, RgbdFrame.KIND, RgbdFrame.VERSION)
+    with pytest.raises(DecodeError):
+        RgbdFrame.from_bytes(payload)
+
+
+@pytest.mark.parametrize("edit", list(_BAD_FIELDS.values()), ids=list(_BAD_FIELDS))
+def test_tampered_fields_are_rejected_by_the_message(edit: Edit) -> None:
     with pytest.raises(DecodeError):
         RgbdFrame.from_bytes(with_meta(sample_frame().to_bytes(), edit))
+
+
+def test_absent_array_smuggled_in_as_a_field_is_rejected() -> None:
+    payload = with_meta(sample_frame(ids=False).to_bytes(),
+                        lambda m: m["fields"].__setitem__("instance_ids", [[1]]))
+    with pytest.raises(DecodeError, match="instance_ids"):
+        RgbdFrame.from_bytes(payload)
+
+
+def test_field_named_like_an_array_is_rejected() -> None:
+    """Unknown or clashing input is rejected, never silently ignored (extra='forbid' spirit)."""
+    payload = with_meta(sample_frame().to_bytes(), lambda m: m["fields"].__setitem__("rgb", [[[0, 0, 0]]]))
+    with pytest.raises(DecodeError):
+        RgbdFrame.from_bytes(payload)
+
+
+def test_untampered_meta_round_trips_through_the_helpers() -> None:
+    """with_meta with a no-op edit gives a valid payload: the edits above are what fail."""
+    frame = sample_frame()
+    assert_same_message(RgbdFrame.from_bytes(with_meta(frame.to_bytes(), lambda m: None)), frame)
 
 
 def test_meta_that_is_not_json_is_rejected() -> None:
@@ -545,39 +604,57 @@ def test_fuzzed_meta_decodes_to_a_valid_message_or_raises_decode_error(data: st.
     assert isinstance(decoded, RgbdFrame)
 
 
-# Known gaps: hostile meta that escapes as another exception. Strict xfail: when the codec is
-# fixed these start passing, and the marker must go.
+# Hostile meta that once escaped as RecursionError, OverflowError or numpy's ValueError.
 _HOSTILE_META = {
     "deeply-nested-layout": b"[" * 100_000,
-    "infinite-body-size": b'{"kind":"rgbd","v":1,"fields":{},"arrays":[],"body":Infinity}',
-    "overflowing-body-size": b'{"kind":"rgbd","v":1,"fields":{},"arrays":[],"body":1e400}',
-    "infinite-dimension": b'{"kind":"rgbd","v":1,"fields":{},"arrays":[["a","|u1",[1e400],0]],"body":0}',
-    "infinite-offset": b'{"kind":"rgbd","v":1,"fields":{},"arrays":[["a","|u1",[0],1e400]],"body":0}',
+    "infinite-body-size": b'{"kind":"rgbd","v":1,"arrays":[],"body":Infinity}',
+    "overflowing-body-size": b'{"kind":"rgbd","v":1,"arrays":[],"body":1e400}',
+    "float-body-size": b'{"kind":"rgbd","v":1,"arrays":[],"body":0.0}',
+    "infinite-dimension": b'{"kind":"rgbd","v":1,"arrays":[["a","|u1",[1e400],0]],"body":0}',
+    "infinite-offset": b'{"kind":"rgbd","v":1,"arrays":[["a","|u1",[0],1e400]],"body":0}',
     "empty-array-with-huge-dims":
-        b'{"kind":"rgbd","v":1,"fields":{},"arrays":[["a","|u1",[0,99999999999999999999999],0]],"body":0}',
+        b'{"kind":"rgbd","v":1,"arrays":[["a","|u1",[0,99999999999999999999999],0]],"body":0}',
     "empty-array-with-70-dims":
-        b'{"kind":"rgbd","v":1,"fields":{},"arrays":[["a","|u1",[' + b",".join([b"0"] * 70) + b'],0]],"body":0}',
+        b'{"kind":"rgbd","v":1,"arrays":[["a","|u1",[' + b",".join([b"0"] * 70) + b'],0]],"body":0}',
+    "version-true": b'{"kind":"rgbd","v":true,"arrays":[],"body":0}',
+    "null-dtype": b'{"kind":"rgbd","v":1,"arrays":[["a",null,[0],0]],"body":0}',
+    "string-shape": b'{"kind":"rgbd","v":1,"arrays":[["a","|u1","12",0]],"body":64}',
+    "string-entry": b'{"kind":"rgbd","v":1,"arrays":["ab10"],"body":64}',
 }
 
 
-@pytest.mark.xfail(strict=True, raises=(RecursionError, OverflowError, ValueError),
-                   reason="codec bug: unpack lets RecursionError/OverflowError/numpy ValueError escape")
-@pytest.mark.parametrize("meta", list(_HOSTILE_META.values()), ids=list(_HOSTILE_META))
-def test_hostile_meta_raises_decode_error(meta: bytes) -> None:
+@pytest.mark.parametrize("layout", list(_HOSTILE_META.values()), ids=list(_HOSTILE_META))
+def test_hostile_layout_raises_decode_error(layout: bytes) -> None:
     """A subscriber catches DecodeError only; anything else would kill its callback."""
-    with pytest.raises(DecodeError):
-        RgbdFrame.from_bytes(assemble(0, b"", meta))
+    for body in (b"", bytes(64)):
+        with pytest.raises(DecodeError):
+            unpack(assemble(0, body, layout), "rgbd", 1)
+        with pytest.raises(DecodeError):
+            RgbdFrame.from_bytes(assemble(0, body, layout))
 
 
-@pytest.mark.xfail(strict=True, raises=RecursionError,
-                   reason="codec bug: unpack lets RecursionError from json.loads(fields) escape")
 def test_deeply_nested_fields_raise_decode_error() -> None:
     parts = split(sample_frame().to_bytes())
     with pytest.raises(DecodeError):
         RgbdFrame.from_bytes(assemble(parts.flags, parts.body, parts.layout, b"[" * 100_000))
 
 
-@pytest.mark.xfail(strict=True, reason="codec bug: bytes after the end of the zlib stream are ignored")
+def test_zip_bomb_declaring_an_empty_body_is_not_inflated() -> None:
+    """A ~64 KiB payload must not make a subscriber allocate 64 MiB (tracemalloc sees zlib's output)."""
+    import tracemalloc
+
+    bomb = zlib.compress(bytes(64 << 20), 9)
+    payload = assemble(FLAG_ZLIB, bomb, b'{"kind":"map","v":1,"arrays":[],"body":0}')
+    tracemalloc.start()
+    try:
+        with pytest.raises(DecodeError):
+            unpack(payload, "map", 1)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 8 << 20, f"decoding a {len(payload)} B payload peaked at {peak >> 20} MiB"
+
+
 def test_bytes_after_the_compressed_stream_are_rejected() -> None:
     """Appended bytes mean the payload is not what the producer wrote."""
     flags, body, layout, fields = split(sample_map().to_bytes())

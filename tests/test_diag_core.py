@@ -160,3 +160,20 @@ def test_streams_are_reported_per_key_in_order() -> None:
     assert rows[0].median_latency_ms == pytest.approx(500.0)
     assert rows[1].rate_hz == pytest.approx(1.0)
     assert TrafficStats().report(now=0.0) == []
+
+
+def test_a_slow_stream_reads_its_rate_between_messages() -> None:
+    stats = TrafficStats(window_s=5.0)
+    for t in (0.0, 2.0, 4.0):
+        stats.observe("slow", 10, now=t, latency_s=9.0 if t == 0.0 else 0.1)
+    (row,) = stats.report(now=5.9)
+    assert row.rate_hz == pytest.approx(0.5)
+
+
+def test_latency_only_counts_the_window() -> None:
+    stats = TrafficStats(window_s=1.0)
+    stats.observe("k", 10, now=0.0, latency_s=9.0)
+    stats.observe("k", 10, now=5.0, latency_s=0.1)
+    stats.observe("k", 10, now=5.5, latency_s=0.3)
+    (row,) = stats.report(now=5.5)
+    assert row.median_latency_ms == pytest.approx(200.0)

@@ -7,12 +7,17 @@ from dataclasses import dataclass, field
 from statistics import median
 
 
+class _Arrival:
+    __slots__ = ("t", "nbytes", "latency")
+
+    def __init__(self, t: float, nbytes: int, latency: float | None) -> None:
+        self.t, self.nbytes, self.latency = t, nbytes, latency
+
+
 @dataclass
 class _Stream:
-    arrivals: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=200))
-    latencies: deque[float] = field(default_factory=lambda: deque(maxlen=200))
+    arrivals: deque[_Arrival] = field(default_factory=lambda: deque(maxlen=1000))
     messages: int = 0
-    bytes: int = 0
 
 
 @dataclass(frozen=True)
@@ -25,7 +30,11 @@ class StreamReport:
 
 
 class TrafficStats:
-    """Counts, rates over a sliding window, and sender-to-receiver latency per key."""
+    """Counts, and over a sliding window: rate, bandwidth and sender-to-receiver latency.
+
+    Rates are measured between the first and last arrival in the window, so a
+    slow stream reads its true rate between messages, not a decaying one.
+    """
 
     def __init__(self, window_s: float = 5.0) -> None:
         self.window_s = window_s
@@ -34,18 +43,16 @@ class TrafficStats:
     def observe(self, key: str, nbytes: int, now: float, latency_s: float | None = None) -> None:
         stream = self._streams.setdefault(key, _Stream())
         stream.messages += 1
-        stream.bytes += nbytes
-        stream.arrivals.append((now, nbytes))
-        if latency_s is not None:
-            stream.latencies.append(latency_s)
+        stream.arrivals.append(_Arrival(now, nbytes, latency_s))
 
     def report(self, now: float) -> list[StreamReport]:
         rows = []
         for key, s in sorted(self._streams.items()):
-            recent = [(t, n) for t, n in s.arrivals if now - t <= self.window_s]
-            span = now - recent[0][0] if len(recent) > 1 else 0.0
+            recent = [a for a in s.arrivals if now - a.t <= self.window_s]
+            span = recent[-1].t - recent[0].t if len(recent) > 1 else 0.0
             rate = (len(recent) - 1) / span if span > 0 else 0.0
-            bandwidth = sum(n for _, n in recent[1:]) / span / 1e6 if span > 0 else 0.0
-            latency = median(s.latencies) * 1e3 if s.latencies else None
+            bandwidth = sum(a.nbytes for a in recent[1:]) / span / 1e6 if span > 0 else 0.0
+            latencies = [a.latency for a in recent if a.latency is not None]
+            latency = median(latencies) * 1e3 if latencies else None
             rows.append(StreamReport(key, s.messages, rate, bandwidth, latency))
         return rows
