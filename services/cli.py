@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 from pathlib import Path
 from typing import Annotated, Optional
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
@@ -20,6 +22,8 @@ app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="OVAMOS multi-object search over Zenoh.")
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks (results print as tables).")
 app.add_typer(bench_app, name="bench")
+sim_app = typer.Typer(no_args_is_help=True, help="The simulated world: scenes, renders.")
+app.add_typer(sim_app, name="sim")
 console = Console()
 err = Console(stderr=True)
 
@@ -142,6 +146,83 @@ def bench_transport(
         print(json.dumps(result))
     else:
         print_table(console, result)
+
+
+@bench_app.command("sim")
+def bench_sim(frames: Annotated[int, typer.Option(help="Frames per run.")] = 50,
+              runs: Annotated[int, typer.Option(help="Runs (the median is reported).")] = 3,
+              as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False
+              ) -> None:
+    """Rendered frames per second of the simulator at 640x480 and 320x240."""
+    from bench.sim import print_table, run_benchmark
+    result = run_benchmark(frames=frames, runs=runs)
+    if as_json:
+        print(json.dumps(result))
+    else:
+        print_table(console, result)
+
+
+SceneSeed = Annotated[int, typer.Option("--seed", help="Scene seed.")]
+SceneFile = Annotated[Optional[Path], typer.Option("--scene", help="Scene JSON (instead of --seed).")]
+
+
+def _scene(seed: int, scene_file: Path | None):
+    from services.sim.generate import generate_scene
+    from services.sim.world import Scene, SceneError
+    if scene_file is None:
+        return generate_scene(seed)
+    try:
+        return Scene.load(scene_file)
+    except SceneError as exc:
+        raise _fail(str(exc))
+
+
+@sim_app.command("scene")
+def sim_scene(out: Annotated[Path, typer.Option(help="Top-down map PNG to write.")],
+              seed: SceneSeed = 0, scene_file: SceneFile = None,
+              save: Annotated[Optional[Path], typer.Option(help="Also save the scene JSON.")] = None
+              ) -> None:
+    """Draw a scene from above: rooms, walls, objects with labels."""
+    import cv2
+    from services.sim.draw import draw_scene
+    scene = _scene(seed, scene_file)
+    cv2.imwrite(str(out), draw_scene(scene))
+    if save is not None:
+        scene.save(save)
+    types = sorted({r.type for r in scene.rooms})
+    console.print(f"scene {scene.seed}: {scene.width:.1f} x {scene.depth:.1f} m ({scene.area:.0f} m2), "
+                  f"{len(scene.rooms)} rooms ({', '.join(types)}), {len(scene.objects)} objects "
+                  f"of {len(scene.classes())} classes -> {out}")
+
+
+@sim_app.command("render")
+def sim_render(out: Annotated[Path, typer.Option(help="PNG to write: RGB | depth | ids.")],
+               seed: SceneSeed = 0, scene_file: SceneFile = None,
+               x: Annotated[Optional[float], typer.Option(help="Camera x (default: a free spot).")] = None,
+               y: Annotated[Optional[float], typer.Option(help="Camera y.")] = None,
+               yaw: Annotated[Optional[float], typer.Option(help="Heading, radians.")] = None,
+               width: int = 640, height: int = 480) -> None:
+    """Render what the robot's camera sees, side by side: RGB, depth, instance ids."""
+    import cv2
+    from services.sim.evaluator import GroundTruth
+    from services.sim.draw import side_by_side
+    from services.sim.render import SceneRenderer
+    scene = _scene(seed, scene_file)
+    truth = GroundTruth(scene)
+    if x is None or y is None:  # default: about 2 m from the biggest object, looking at it
+        biggest = max(scene.objects, key=lambda o: o.sx * o.sy)
+        field = truth.object_field(biggest.id)
+        x, y = truth.grid.to_world(*np.unravel_index(int(np.argmin(np.abs(field - 2.0))), field.shape))
+        yaw = math.atan2(biggest.y - y, biggest.x - x) if yaw is None else yaw
+    elif not truth.is_free(x, y):
+        raise _fail(f"({x}, {y}) is not free space for the robot in this scene")
+    yaw = 0.0 if yaw is None else yaw
+    with SceneRenderer(scene, width, height) as renderer:
+        frame = renderer.render(x, y, yaw)
+    cv2.imwrite(str(out), side_by_side(frame))
+    seen = sorted({scene.object(int(i)).cls for i in np.unique(frame.instance_ids) if i > 0})
+    console.print(f"camera at ({x:.2f}, {y:.2f}) yaw {yaw:.2f}: sees {', '.join(seen) or 'no objects'}"
+                  f" -> {out}")
 
 
 def main() -> None:

@@ -1,0 +1,113 @@
+"""Procedural homes: sizes, room types, doorways, placement, determinism, JSON round trip."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from services.sim.episodes import EpisodeSpec, load_episodes, make_episode, save_episodes
+from services.sim.evaluator import GroundTruth
+from services.sim.generate import generate_scene
+from services.sim.occupancy import box_corners
+from services.sim.prior import ObjectPrior
+from services.sim.world import Scene, SceneError
+
+SEEDS = range(8)
+
+
+@pytest.fixture(scope="module")
+def prior() -> ObjectPrior:
+    return ObjectPrior.load()
+
+
+@pytest.fixture(scope="module")
+def scenes(prior) -> list[Scene]:
+    return [generate_scene(seed, prior) for seed in SEEDS]
+
+
+def test_same_seed_same_scene_and_another_seed_another(prior, scenes) -> None:
+    assert generate_scene(3, prior).to_json() == scenes[3].to_json()
+    assert scenes[3].to_json() != scenes[4].to_json()
+
+
+def test_homes_have_the_promised_size_and_room_types(scenes) -> None:
+    for scene in scenes:
+        assert 40 <= scene.area <= 150
+        assert len({r.type for r in scene.rooms}) >= 5
+        assert sum(r.area for r in scene.rooms) == pytest.approx(scene.area)
+
+
+def test_every_room_is_reachable_through_doorways(scenes) -> None:
+    for scene in scenes:
+        truth = GroundTruth(scene)
+        _, labels = cv2.connectedComponents(truth.free.astype(np.uint8), connectivity=8)
+        rows, cols = np.nonzero(truth.free)
+        xs, ys = truth.grid.to_world(rows, cols)
+        reached = set()
+        for room in scene.rooms:
+            inside = (xs > room.x0) & (xs < room.x1) & (ys > room.y0) & (ys < room.y1)
+            assert inside.any(), f"room {room.id} of scene {scene.seed} has no free space"
+            reached.add(int(np.bincount(labels[rows[inside], cols[inside]]).argmax()))
+        assert len(reached) == 1, f"scene {scene.seed}: rooms split into {len(reached)} regions"
+
+
+def test_objects_stay_in_their_room_and_do_not_overlap(scenes, prior) -> None:
+    for scene in scenes:
+        floor = [o for o in scene.objects if o.z == 0]
+        for obj in scene.objects:
+            room = next(r for r in scene.rooms if r.id == obj.room)
+            corners = box_corners(obj.x, obj.y, obj.sx, obj.sy, obj.yaw)
+            assert (corners[:, 0] >= room.x0 - 1e-6).all() and (corners[:, 0] <= room.x1 + 1e-6).all()
+            assert (corners[:, 1] >= room.y0 - 1e-6).all() and (corners[:, 1] <= room.y1 + 1e-6).all()
+            if obj.on is not None:
+                host = scene.object(obj.on)
+                assert obj.z == pytest.approx(host.z + host.sz, abs=1e-3)
+                assert host.cls in prior[obj.cls].receptacles
+        for i, a in enumerate(floor):
+            for b in floor[i + 1:]:
+                ca, cb = box_corners(a.x, a.y, a.sx, a.sy, a.yaw), box_corners(b.x, b.y, b.sx, b.sy, b.yaw)
+                overlap = (ca.min(0) < cb.max(0)).all() and (ca.max(0) > cb.min(0)).all()
+                assert not overlap, f"scene {scene.seed}: {a.cls} overlaps {b.cls}"
+
+
+def test_placement_follows_the_prior(scenes, prior) -> None:
+    rooms_of = {}
+    for scene in scenes:
+        types = {r.id: r.type for r in scene.rooms}
+        for obj in scene.objects:
+            assert prior[obj.cls].rooms[types[obj.room]] > 0, f"{obj.cls} in a {types[obj.room]}"
+            rooms_of.setdefault(obj.cls, set()).add(types[obj.room])
+    assert rooms_of.get("fridge") == {"kitchen"} and rooms_of.get("toilet") == {"bathroom"}
+    assert len(rooms_of) >= 30  # the homes use a wide vocabulary
+
+
+def test_some_small_objects_are_tucked_beside_furniture(scenes, prior) -> None:
+    tucked = [o for s in scenes for o in s.objects if prior[o.cls].small and o.on is None]
+    on_furniture = [o for s in scenes for o in s.objects if o.on is not None]
+    assert tucked and on_furniture
+
+
+def test_scenes_round_trip_through_json_files(tmp_path, scenes) -> None:
+    path = tmp_path / "scene.json"
+    scenes[0].save(path)
+    assert Scene.load(path) == scenes[0]
+    path.write_text(path.read_text().replace('"rooms"', '"roomz"'))
+    with pytest.raises(SceneError, match="roomz"):
+        Scene.load(path)
+
+
+def test_episodes_are_seeded_reachable_and_have_a_small_target(tmp_path, prior) -> None:
+    episodes = [make_episode(11, i, prior) for i in range(4)]
+    again = make_episode(11, 2, prior)[0]
+    assert again == episodes[2][0]
+    for spec, scene, truth in episodes:
+        assert len(set(spec.targets)) == 3 and any(prior[t].small for t in spec.targets)
+        assert truth.is_free(spec.start.x, spec.start.y)
+        assert math.isfinite(truth.shortest_tour((spec.start.x, spec.start.y), spec.targets))
+    path = tmp_path / "episodes.jsonl"
+    save_episodes([e[0] for e in episodes], path)
+    assert load_episodes(path) == [e[0] for e in episodes]
+    assert isinstance(load_episodes(path)[0], EpisodeSpec)
