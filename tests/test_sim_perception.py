@@ -1,0 +1,92 @@
+"""Simulated perception reads the rendered frame only, and is deterministic."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
+from services.sim.prior import ObjectPrior
+from services.sim.render import SceneRenderer
+from services.sim.world import Scene
+from tests.sim_scenes import two_rooms
+
+POSE = (1.6, 1.2, math.atan2(3.0 - 1.2, 0.4 - 1.6))  # kitchen, looking at the fridge
+TARGETS = ["fridge", "cup", "toilet"]
+
+
+@pytest.fixture(scope="module")
+def prior() -> ObjectPrior:
+    return ObjectPrior.load()
+
+
+def render(scene: Scene):
+    with SceneRenderer(scene, 160, 120) as renderer:
+        return renderer.render(*POSE, seq=5)
+
+
+def perceive(scene: Scene, prior: ObjectPrior, frame, **config):
+    perception = SimPerception(FrameLabels.of(scene), prior, SimPerceptionConfig(**config))
+    return perception.score(frame, TARGETS), perception.detect(frame, TARGETS)
+
+
+def test_a_visible_target_scores_high_and_is_detected_with_its_mask(prior) -> None:
+    scene = two_rooms()
+    frame = render(scene)
+    scores, detections = perceive(scene, prior, frame, score_noise=0.0, p_max=1.0, fp_rate=0.0,
+                                  reliable_distance_m=10.0, full_size_pixels=1)
+    assert scores["fridge"] == pytest.approx(0.5)  # base 0.15 + gain 0.35 * relatedness 1
+    assert scores["toilet"] < scores["fridge"]
+    (fridge,) = [d for d in detections if d.label == "fridge"]
+    assert np.array_equal(fridge.mask, frame.instance_ids == 1)
+    x0, y0, x1, y1 = fridge.box
+    assert fridge.mask[y0:y1, x0:x1].sum() == fridge.mask.sum()
+    assert not [d for d in detections if d.label == "cup"]  # the cup is in the other room
+
+
+def test_output_is_deterministic_per_seed_and_frame(prior) -> None:
+    scene = two_rooms()
+    frame = render(scene)
+    first, again = perceive(scene, prior, frame), perceive(scene, prior, frame)
+    assert first[0] == again[0]
+    assert [(d.label, d.score, d.box) for d in first[1]] == [(d.label, d.score, d.box) for d in again[1]]
+    assert perceive(scene, prior, frame, seed=1)[0] != first[0]
+
+
+def test_hidden_objects_do_not_change_the_output(prior) -> None:
+    scene = two_rooms()
+    frame = render(scene)
+    before = perceive(scene, prior, frame)
+    # move the out-of-view cup and turn the out-of-view table into a toilet
+    objects = tuple(o.model_copy(update={"x": 4.0}) if o.cls == "cup" else
+                    o.model_copy(update={"cls": "toilet"}) if o.cls == "table" else o
+                    for o in scene.objects)
+    moved = scene.model_copy(update={"objects": objects})
+    frame_after = render(moved)
+    assert np.array_equal(frame_after.rgb, frame.rgb)
+    assert np.array_equal(frame_after.instance_ids, frame.instance_ids)
+    after = perceive(moved, prior, frame_after)
+    assert after[0] == before[0]
+    assert [(d.label, d.box) for d in after[1]] == [(d.label, d.box) for d in before[1]]
+
+
+def test_occluded_and_far_objects_are_detected_less(prior) -> None:
+    scene = two_rooms()
+    frame = render(scene)
+    perception = SimPerception(FrameLabels.of(scene), prior)
+    objects, _ = perception._visible(frame)
+    (fridge,) = [o for o in objects if o.cls == "fridge"]
+    p = perception.detect_probability(frame, fridge)
+    half = fridge.__class__(fridge.id, fridge.cls, fridge.pixels // 2, fridge.depth, fridge.box)
+    far = fridge.__class__(fridge.id, fridge.cls, fridge.pixels, fridge.depth + 3.0, fridge.box)
+    assert perception.detect_probability(frame, half) < p
+    assert perception.detect_probability(frame, far) < p
+
+
+def test_frames_without_instance_ids_are_refused(prior) -> None:
+    scene = two_rooms()
+    frame = render(scene).model_copy(update={"instance_ids": None})
+    with pytest.raises(ValueError, match="simulated frames"):
+        SimPerception(FrameLabels.of(scene), prior).score(frame, TARGETS)
