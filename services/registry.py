@@ -17,7 +17,7 @@ SERVICES: dict[str, str] = {
 
 # Services of the design that are not built yet, with the issue that builds them.
 PLANNED: dict[str, int] = {
-    "sim": 3, "mapping": 4, "planner": 5, "perception": 7, "base_driver": 8, "gateway": 9,
+    "sim": 8, "mapping": 4, "planner": 5, "perception": 7, "base_driver": 8, "gateway": 9,
 }
 
 

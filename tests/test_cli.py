@@ -59,3 +59,26 @@ def test_transport_benchmark_reports_both_paths() -> None:
     assert result["frame_bytes"] > 640 * 480 * 7
     assert result["raw_median_us"] > 0 and result["ovamos_median_us"] > 0
     assert result["overhead_ratio"] == round(result["ovamos_median_us"] / result["raw_median_us"], 3)
+
+
+def test_sim_benchmark_reports_both_resolutions() -> None:
+    from bench.sim import run_benchmark as run_sim_benchmark
+    result = run_sim_benchmark(frames=3, runs=1)
+    assert result["fps_640x480"] > 0 and result["fps_320x240"] > 0
+    assert result["objects"] > 0
+
+
+def test_sim_commands_write_pictures(tmp_path: Path) -> None:
+    scene = ovamos("sim", "scene", "--seed", "2", "--out", str(tmp_path / "map.png"),
+                   "--save", str(tmp_path / "scene.json"))
+    assert scene.returncode == 0, scene.stderr
+    render = ovamos("sim", "render", "--scene", str(tmp_path / "scene.json"), "--width", "160",
+                    "--height", "120", "--out", str(tmp_path / "frame.png"))
+    assert render.returncode == 0, render.stderr
+    assert "sees" in render.stdout
+    import cv2
+    assert cv2.imread(str(tmp_path / "map.png")).shape[2] == 3
+    assert cv2.imread(str(tmp_path / "frame.png")).shape[:2] == (120, 480)
+    blocked = ovamos("sim", "render", "--seed", "2", "--x", "-5", "--y", "-5", "--out",
+                     str(tmp_path / "x.png"))
+    assert blocked.returncode == 2 and "not free space" in blocked.stderr
