@@ -17,7 +17,8 @@ import multiprocessing as mp
 import statistics
 import threading
 import time
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from rich.console import Console
 from rich.table import Table

@@ -63,7 +63,7 @@ def router(config: Annotated[Optional[Path], typer.Option(help="Zenoh router con
         cfg = build_config("router", file=config, listen=listen or (), connect=connect or ())
         session = open_session(cfg)
     except ZenohConfigError as exc:
-        raise _fail(str(exc))
+        raise _fail(str(exc)) from None
     stop = threading.Event()
     install_signal_handlers(stop)
     logging.getLogger("ovamos.router").info("router %s listening on %s", session.zid(),
@@ -90,7 +90,7 @@ def run(service: Annotated[str, typer.Argument(help="Service to run.")],
         zcfg = build_config(file=zenoh_file, connect=connect or (), listen=listen or ())
         run_service(cls, zcfg, cfg, robot_id=robot_id, instance=instance, stop=threading.Event())
     except (UnknownServiceError, ServiceConfigError, ZenohConfigError, KeyExprError) as exc:
-        raise _fail(str(exc))
+        raise _fail(str(exc)) from None
 
 
 @app.command()
@@ -102,7 +102,7 @@ def status(robot_id: RobotId = "*", zenoh_file: ZenohFile = None, connect: Conne
     try:
         session = open_session(build_config("client", file=zenoh_file, connect=connect or ()))
     except ZenohConfigError as exc:
-        raise _fail(str(exc))
+        raise _fail(str(exc)) from None
     try:
         services = live_services(session, robot_id, timeout)
     finally:
@@ -174,7 +174,7 @@ def _scene(seed: int, scene_file: Path | None):
     try:
         return Scene.load(scene_file)
     except SceneError as exc:
-        raise _fail(str(exc))
+        raise _fail(str(exc)) from None
 
 
 @sim_app.command("scene")

@@ -20,7 +20,8 @@ import os
 import threading
 import time
 from collections import defaultdict
-from typing import Any, Callable, Generic, Protocol, Self, TypeVar
+from typing import Any, Generic, Protocol, Self, TypeVar
+from collections.abc import Callable
 
 import zenoh
 

@@ -31,7 +31,8 @@ import json
 import math
 import struct
 import zlib
-from typing import Any, Mapping, NamedTuple
+from typing import Any, NamedTuple
+from collections.abc import Mapping
 
 import numpy as np
 

@@ -12,7 +12,8 @@ import signal
 import socket
 import subprocess
 import sys
-from typing import IO, Sequence
+from typing import IO
+from collections.abc import Sequence
 
 
 def free_port() -> int:

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import json
 import zlib
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
+from collections.abc import Callable
 
 import numpy as np
 import pytest

@@ -7,7 +7,7 @@ are built. Zenoh itself is the judge of what a key matches.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import pytest
 import zenoh

@@ -7,7 +7,7 @@ writes, and later benchmarks draw trajectories on it.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
