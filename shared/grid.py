@@ -8,6 +8,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
+import cv2
 import numpy as np
 
 
@@ -49,3 +52,10 @@ class GridGeometry:
         """World x and y of every cell centre, each shaped like the grid."""
         cols, rows = np.meshgrid(np.arange(self.cols), np.arange(self.rows))
         return self.to_world(rows, cols)
+
+
+def inflate(occupied: np.ndarray, radius: float, resolution: float) -> np.ndarray:
+    """Occupied cells grown by ``radius``: where a disc of that radius cannot be centred."""
+    r = int(math.ceil(radius / resolution))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    return cv2.dilate(occupied.astype(np.uint8), kernel).astype(bool)

@@ -200,7 +200,8 @@ class MapSnapshot(BinaryMessage):
     """The mapping service's state as the planner and gateway need it.
 
     Grids are H x W over a square-cell grid whose cell (0, 0) has its corner at
-    ``origin`` (world metres); ``values`` has one layer per name in ``layers``.
+    ``origin`` (world metres); ``values`` has one layer per name in ``layers``
+    (raw fused values: readers apply the decay with ``counts``).
     Compressed on the wire: most of a map is empty early in a search.
     """
 
@@ -211,6 +212,7 @@ class MapSnapshot(BinaryMessage):
         "explored": ArraySpec(("|b1",), 2),
         "counts": ArraySpec(("<u2",), 2),
         "values": ArraySpec(("<f4",), 3),
+        "confidence": ArraySpec(("<f4",), 3),
         "frontiers": ArraySpec(("<f8",), 2),
     }
     seq: int = Field(ge=-1, description="seq of the last fused frame, -1 before the first")
@@ -224,6 +226,8 @@ class MapSnapshot(BinaryMessage):
     counts: np.ndarray
     values: np.ndarray
     frontiers: np.ndarray
+    confidence: np.ndarray | None = None  # per-layer fusion confidence: checkpoints carry it
+
 
     @model_validator(mode="after")
     def _check_shapes(self) -> Self:
@@ -231,8 +235,10 @@ class MapSnapshot(BinaryMessage):
         for name in ("explored", "counts"):
             if getattr(self, name).shape != shape:
                 raise ValueError(f"{name} shape {getattr(self, name).shape} != obstacle {shape}")
-        if self.values.shape != (len(self.layers), *shape):
-            raise ValueError(f"values shape {self.values.shape} != {(len(self.layers), *shape)}")
+        for name in ("values", "confidence"):
+            layers = getattr(self, name)
+            if layers is not None and layers.shape != (len(self.layers), *shape):
+                raise ValueError(f"{name} shape {layers.shape} != {(len(self.layers), *shape)}")
         if self.frontiers.shape[1:] != (2,):
             raise ValueError(f"frontiers must be N x 2 (x, y), got {self.frontiers.shape}")
         return self

@@ -79,6 +79,7 @@ def map_snapshots(draw: st.DrawFn) -> MapSnapshot:
         counts=draw(hnp.arrays(np.dtype("<u2"), (h, w))),
         values=draw(hnp.arrays(np.dtype("<f4"), (len(layers), h, w))),
         frontiers=draw(hnp.arrays(np.dtype("<f8"), (n, 2))),
+        confidence=draw(st.none() | hnp.arrays(np.dtype("<f4"), (len(layers), h, w))),
     )
 
 
@@ -306,6 +307,9 @@ def test_decoded_map_arrays_are_read_only(snapshot: MapSnapshot) -> None:
     bases = set()
     for name in MapSnapshot.ARRAYS:
         arr = getattr(decoded, name)
+        if arr is None:
+            assert getattr(snapshot, name) is None
+            continue
         assert not arr.flags.writeable
         assert not arr.flags.owndata
         base = arr

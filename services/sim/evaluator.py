@@ -24,8 +24,9 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from services.sim.occupancy import (RESOLUTION, ROBOT_RADIUS, closest_point_on_box, distance_to_box,
-                                    grid_for, inflate, rasterize, rasterize_walls)
+                                    grid_for, rasterize, rasterize_walls)
 from services.sim.world import Scene, SceneObject
+from shared.grid import inflate
 
 SUCCESS_DISTANCE = 1.0
 SUPPORT_REACH_CELLS = 4  # beyond the robot radius: how far from its support an object is "reached"

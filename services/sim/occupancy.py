@@ -70,10 +70,3 @@ def rasterize(scene: Scene, grid: GridGeometry) -> np.ndarray:
     xs, ys = grid.cell_centres()
     outside = (xs < 0) | (xs > scene.width) | (ys < 0) | (ys > scene.depth)
     return mask.astype(bool) | outside
-
-
-def inflate(occupied: np.ndarray, radius: float, resolution: float) -> np.ndarray:
-    """Occupied cells grown by ``radius``: where a disc of that radius cannot be centred."""
-    r = int(math.ceil(radius / resolution))
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    return cv2.dilate(occupied.astype(np.uint8), kernel).astype(bool)

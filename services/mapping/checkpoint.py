@@ -1,0 +1,50 @@
+"""Map checkpoints: written atomically, read back with a clear error when damaged.
+
+A checkpoint is a compressed :class:`MapSnapshot` that also carries the
+per-layer fusion confidences, so a restarted mapping service resumes exactly.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from services.mapping.config import MappingConfig
+from services.mapping.state import MapState
+from shared.messages import DecodeError, MapSnapshot
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be used (damaged, or made for another grid)."""
+
+
+def save_checkpoint(state: MapState, path: str | Path, stamp: float) -> None:
+    """Write to a temporary file in the same folder, then rename: a crash never leaves half a file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = state.snapshot(stamp).to_bytes()
+    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(payload)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_checkpoint(path: str | Path, config: MappingConfig) -> MapState:
+    try:
+        snapshot = MapSnapshot.from_bytes(Path(path).read_bytes())
+    except (OSError, DecodeError) as exc:
+        raise CheckpointError(f"checkpoint {path} is unusable: {exc}") from None
+    if snapshot.confidence is None:
+        raise CheckpointError(f"checkpoint {path} has no confidences (a published snapshot, "
+                              "not a checkpoint)")
+    try:
+        return MapState.from_snapshot(snapshot, config)
+    except ValueError as exc:
+        raise CheckpointError(f"checkpoint {path}: {exc}") from None

@@ -1,0 +1,28 @@
+"""Every parameter of the mapping module (paper values as defaults)."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from shared.service import ServiceConfig
+
+
+class MappingConfig(ServiceConfig):
+    grid_cells: int = Field(default=1000, ge=10, description="the grid is square, this many cells a side")
+    resolution: float = Field(default=0.05, gt=0, description="metres per cell")
+    center: tuple[float, float] = Field(default=(0.0, 0.0), description="world xy of the grid centre")
+    min_obstacle_height: float = Field(default=0.15, description="points between these heights are obstacles")
+    max_obstacle_height: float = Field(default=1.5)
+    depth_min: float = Field(default=0.5, gt=0)
+    depth_max: float = Field(default=5.0, gt=0)
+    pixel_stride: int = Field(default=2, ge=1, description="use every n-th pixel row and column")
+    confidence_floor: float = Field(default=0.25, ge=0, le=1,
+                                    description="readings with a lower FOV confidence are ignored")
+    decision_threshold: float = Field(default=0.35, ge=0, le=1,
+                                      description="detection score from which a detection counts")
+    decay_tau: float = Field(default=6.0, description="update count at which the value halves")
+    decay_kappa: float = Field(default=2.0, gt=0)
+    robot_radius: float = Field(default=0.18, ge=0, description="frontiers keep this far from obstacles")
+    frontier_min_cells: int = Field(default=5, ge=1, description="smaller frontier segments are dropped")
+    object_merge_distance_m: float = Field(default=0.5, gt=0)
+    object_confirm_hits: int = Field(default=2, ge=1)

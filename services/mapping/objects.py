@@ -1,0 +1,203 @@
+"""The object map: where the detector has seen each target class, as a set of instances.
+
+Every detection's mask is projected with the frame's depth into world points;
+the median point is the detection's position (the median, not the mean, because
+a mask's edge pixels often miss the object and hit the wall behind it). A
+detection joins the nearest instance of its label within ``merge_distance_m``,
+otherwise it starts a new one. The planner stops at an instance only once it is
+*confirmed*: seen ``confirm_hits`` times with a best score of at least
+``decision_threshold`` (one lucky frame is not enough).
+
+Decisions (DESIGN.md section 2, "Object map"):
+
+* Detections scoring below ``decision_threshold`` are ignored entirely: they do
+  not create instances and do not count as hits, so the detector's low-score
+  false positives never reach the map, however often they repeat.
+* Association uses the distance in the floor plane (x, y): the map is top down,
+  and the height of the median point depends on how much of an object a view
+  shows (a fridge seen whole from afar vs. its lower half from close by).
+* An instance's position is the hit-weighted running mean of its detections'
+  positions; its score the best one seen. Both only grow, so once confirmed an
+  instance stays confirmed.
+
+This module knows nothing of Zenoh: the mapping service feeds it frames and
+detections and publishes :meth:`ObjectMap.instances` in its snapshots.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Self
+
+import numpy as np
+
+from shared.detections import Detection
+from shared.messages import ObjectInstance, RgbdFrame
+
+__all__ = ["ObjectMap", "mask_points", "detection_position"]
+
+
+def mask_points(mask: np.ndarray, frame: RgbdFrame, max_points: int = 2000) -> np.ndarray:
+    """World points (N x 3) of the mask's pixels that have a valid depth reading.
+
+    At most ``max_points`` pixels are used, evenly spaced in row-major order, so
+    the same mask always gives the same points (and a large mask costs no more
+    than a small one). Pixels with no reading (0, NaN, inf) are dropped first.
+    """
+    if mask.shape != frame.depth.shape:
+        raise ValueError(f"mask shape {mask.shape} does not match the frame's depth "
+                         f"{frame.depth.shape}")
+    if max_points < 1:
+        raise ValueError(f"max_points must be >= 1, got {max_points}")
+    v, u = np.nonzero(mask)
+    if v.size == 0:
+        return np.empty((0, 3))
+    # Metres as the rest of the map reads them: depth * depth_scale (1.0 on float32 frames).
+    z = frame.depth[v, u].astype(np.float64) * frame.depth_scale
+    ok = np.isfinite(z) & (z > 0)
+    v, u, z = v[ok], u[ok], z[ok]
+    if z.size > max_points:
+        keep = np.linspace(0, z.size - 1, max_points).round().astype(np.int64)
+        v, u, z = v[keep], u[keep], z[keep]
+    k = frame.intrinsics
+    cam = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z])  # optical frame, 3 x N
+    pose = frame.pose_matrix
+    return (pose[:3, :3] @ cam + pose[:3, 3:4]).T
+
+
+def detection_position(detection: Detection, frame: RgbdFrame, max_points: int = 2000
+                       ) -> np.ndarray | None:
+    """The detection's world position (x, y, z): component-wise median of its mask's points.
+
+    ``None`` when no mask pixel has a valid depth (nothing to place it with).
+    The median of each coordinate lies within the range of the object's points
+    when most of the mask is on the object, whatever a few edge pixels hit.
+    """
+    points = mask_points(np.asarray(detection.mask, dtype=bool), frame, max_points)
+    if len(points) == 0:
+        return None
+    return np.median(points, axis=0)
+
+
+@dataclass
+class _Track:
+    """One instance while it is being updated (``ObjectInstance`` is frozen)."""
+
+    label: str
+    position: np.ndarray  # x, y, z
+    score: float
+    hits: int
+
+
+class ObjectMap:
+    """Object instances per label, built from detections projected with depth (see module doc).
+
+    ``merge_distance_m``: a detection within this floor-plane distance of an
+    instance of its label is the same object. ``confirm_hits`` and
+    ``decision_threshold``: when an instance counts as found; the threshold also
+    filters detections (lower scores are ignored). ``max_points``: mask pixels
+    projected per detection (evenly subsampled).
+    """
+
+    def __init__(self, merge_distance_m: float = 0.5, confirm_hits: int = 2,
+                 decision_threshold: float = 0.35, *, max_points: int = 2000) -> None:
+        if not merge_distance_m > 0:
+            raise ValueError(f"merge_distance_m must be > 0, got {merge_distance_m}")
+        if confirm_hits < 1:
+            raise ValueError(f"confirm_hits must be >= 1, got {confirm_hits}")
+        if max_points < 1:
+            raise ValueError(f"max_points must be >= 1, got {max_points}")
+        self.merge_distance_m = float(merge_distance_m)
+        self.confirm_hits = int(confirm_hits)
+        self.decision_threshold = float(decision_threshold)
+        self.max_points = int(max_points)
+        self._tracks: list[_Track] = []  # creation order: the order instances() reports
+
+    # -- updating ----------------------------------------------------------------------------
+
+    def add(self, detections: Iterable[Detection], frame: RgbdFrame) -> list[ObjectInstance]:
+        """Fuse one frame's detections; returns the instances they created or updated.
+
+        One entry per detection that was used, in the detections' order, each
+        as it stands after that detection. Detections below the decision
+        threshold, with a non-finite score, or whose mask has no valid depth
+        are skipped (and have no entry).
+        """
+        updated: list[ObjectInstance] = []
+        for det in detections:
+            score = float(det.score)
+            if not math.isfinite(score) or score < self.decision_threshold:
+                continue
+            position = detection_position(det, frame, self.max_points)
+            if position is None:
+                continue
+            track = self._nearest(det.label, position)
+            if track is None:
+                track = _Track(det.label, position, score, 1)
+                self._tracks.append(track)
+            else:
+                track.position = (track.position * track.hits + position) / (track.hits + 1)
+                track.hits += 1
+                track.score = max(track.score, score)
+            updated.append(self._instance(track))
+        return updated
+
+    def _nearest(self, label: str, position: np.ndarray) -> _Track | None:
+        """The closest instance of ``label`` within the merge distance (floor plane), if any."""
+        best, best_d = None, math.inf
+        for track in self._tracks:  # creation order: ties go to the older instance
+            if track.label != label:
+                continue
+            d = math.hypot(track.position[0] - position[0], track.position[1] - position[1])
+            if d <= self.merge_distance_m and d < best_d:
+                best, best_d = track, d
+        return best
+
+    def remove_label(self, label: str) -> int:
+        """Forget every instance of ``label`` (a found target); returns how many there were."""
+        before = len(self._tracks)
+        self._tracks = [t for t in self._tracks if t.label != label]
+        return before - len(self._tracks)
+
+    # -- reading -----------------------------------------------------------------------------
+
+    def _instance(self, track: _Track) -> ObjectInstance:
+        x, y, z = (float(c) for c in track.position)
+        confirmed = track.hits >= self.confirm_hits and track.score >= self.decision_threshold
+        return ObjectInstance(label=track.label, x=x, y=y, z=z, score=track.score,
+                              hits=track.hits, confirmed=confirmed)
+
+    def instances(self) -> tuple[ObjectInstance, ...]:
+        """Every instance, in creation order (deterministic for the same inputs)."""
+        return tuple(self._instance(t) for t in self._tracks)
+
+    def confirmed(self, label: str) -> list[ObjectInstance]:
+        """Confirmed instances of ``label``, most hits first (then best score, then oldest)."""
+        found = [i for i in self.instances() if i.label == label and i.confirmed]
+        return sorted(found, key=lambda i: (-i.hits, -i.score))  # stable: oldest first on ties
+
+    def labels(self) -> list[str]:
+        """Labels with at least one instance, sorted."""
+        return sorted({t.label for t in self._tracks})
+
+    def __len__(self) -> int:
+        return len(self._tracks)
+
+    # -- checkpoints -------------------------------------------------------------------------
+
+    @classmethod
+    def from_instances(cls, instances: Sequence[ObjectInstance], merge_distance_m: float = 0.5,
+                       confirm_hits: int = 2, decision_threshold: float = 0.35, *,
+                       max_points: int = 2000) -> Self:
+        """A map holding ``instances`` (e.g. a snapshot's ``objects``), in their order.
+
+        ``confirmed`` is recomputed with this map's rule, not copied: the
+        thresholds may have changed since the checkpoint was written.
+        """
+        obj_map = cls(merge_distance_m, confirm_hits, decision_threshold, max_points=max_points)
+        for inst in instances:
+            obj_map._tracks.append(_Track(inst.label, np.array([inst.x, inst.y, inst.z], float),
+                                          float(inst.score), int(inst.hits)))
+        return obj_map

@@ -1,0 +1,171 @@
+"""The map: obstacles, explored area, one value layer per target, update counts, objects.
+
+Each frame touches only the cells inside its field of view (a window around
+the view polygon), so an update costs what the frame sees, not the grid size.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import cv2
+import numpy as np
+
+from services.mapping.config import MappingConfig
+from services.mapping.layers import aggregate, decay, fov_confidence, fuse
+from services.mapping.objects import ObjectMap
+from services.mapping.projection import View, project
+from shared.detections import Detection
+from shared.grid import GridGeometry, inflate
+from shared.messages import MapSnapshot, RgbdFrame
+
+
+class MapState:
+    def __init__(self, config: MappingConfig | None = None, targets: Sequence[str] = ()) -> None:
+        self.config = c = config or MappingConfig()
+        half = c.grid_cells * c.resolution / 2
+        self.grid = GridGeometry(c.resolution, c.center[0] - half, c.center[1] - half,
+                                 c.grid_cells, c.grid_cells)
+        self.obstacle = np.zeros(self.grid.shape, bool)
+        self.explored = np.zeros(self.grid.shape, bool)
+        self.counts = np.zeros(self.grid.shape, np.uint16)
+        self.values: dict[str, np.ndarray] = {}
+        self.confidence: dict[str, np.ndarray] = {}
+        self.objects = ObjectMap(c.object_merge_distance_m, c.object_confirm_hits, c.decision_threshold)
+        self.seq = -1
+        for target in targets:
+            self.add_layer(target)
+
+    # -- targets ------------------------------------------------------------------------------
+    @property
+    def layers(self) -> tuple[str, ...]:
+        return tuple(self.values)
+
+    def add_layer(self, target: str) -> None:
+        """Start a value layer for a new target (no-op if it exists)."""
+        if target not in self.values:
+            self.values[target] = np.zeros(self.grid.shape, np.float32)
+            self.confidence[target] = np.zeros(self.grid.shape, np.float32)
+
+    def remove_layer(self, target: str) -> None:
+        """Drop a target's layer (found, or removed from the task)."""
+        self.values.pop(target, None)
+        self.confidence.pop(target, None)
+
+    # -- integration --------------------------------------------------------------------------
+    def integrate(self, frame: RgbdFrame, scores: Mapping[str, float] | None = None,
+                  detections: Sequence[Detection] = ()) -> None:
+        """Fuse one frame: obstacles and explored area always; values and objects when given."""
+        c = self.config
+        view = project(frame, c.pixel_stride, c.depth_min, c.depth_max)
+        self._mark_obstacles(view)
+        window, seen, theta = self._view_cells(view)
+        if window is not None:
+            rows, cols = window
+            self.explored[rows, cols] |= seen
+            confidence = np.where(seen, fov_confidence(theta, view.hfov), 0.0).astype(np.float32)
+            confidence[confidence < c.confidence_floor] = 0.0
+            counted = confidence > 0
+            self.counts[rows, cols] += counted.astype(np.uint16)
+            for target, score in (scores or {}).items():
+                if target in self.values:
+                    v, conf = self.values[target][rows, cols], self.confidence[target][rows, cols]
+                    self.values[target][rows, cols], self.confidence[target][rows, cols] = \
+                        fuse(v, conf, float(score), confidence)
+        if detections:
+            self.objects.add([d for d in detections if d.label in self.values], frame)
+        self.seq = max(self.seq, frame.seq)
+
+    def _mark_obstacles(self, view: View) -> None:
+        c = self.config
+        z = view.points[:, 2]
+        pts = view.points[(z >= c.min_obstacle_height) & (z <= c.max_obstacle_height)]
+        rows, cols = self.grid.to_cell(pts[:, 0], pts[:, 1])
+        inside = (rows >= 0) & (rows < self.grid.rows) & (cols >= 0) & (cols < self.grid.cols)
+        self.obstacle[rows[inside], cols[inside]] = True
+
+    def _view_cells(self, view: View) -> tuple[tuple[slice, slice] | None, np.ndarray, np.ndarray]:
+        """The window of cells around the view polygon, which of them it covers, and their
+        angle to the optical axis."""
+        g = self.grid
+        cells = (view.polygon - (g.x0, g.y0)) / g.resolution
+        lo = np.maximum(np.floor(cells.min(axis=0)).astype(int), 0)
+        hi = np.minimum(np.ceil(cells.max(axis=0)).astype(int) + 1, (g.cols, g.rows))
+        if (hi <= lo).any():
+            return None, np.zeros((0, 0), bool), np.zeros((0, 0))
+        mask = np.zeros((hi[1] - lo[1], hi[0] - lo[0]), np.uint8)
+        local = np.round((cells - lo - 0.5) * 16).astype(np.int32)
+        cv2.fillPoly(mask, [local], 1, cv2.LINE_8, shift=4)
+        xs = g.x0 + (np.arange(lo[0], hi[0]) + 0.5) * g.resolution
+        ys = g.y0 + (np.arange(lo[1], hi[1]) + 0.5) * g.resolution
+        theta = np.arctan2(ys[:, None] - view.camera[1], xs[None, :] - view.camera[0]) - view.heading
+        theta = (theta + math.pi) % (2 * math.pi) - math.pi
+        return (slice(lo[1], hi[1]), slice(lo[0], hi[0])), mask.astype(bool), theta
+
+    # -- reading ------------------------------------------------------------------------------
+    def decayed(self, target: str) -> np.ndarray:
+        c = self.config
+        return decay(self.values[target], self.counts, c.decay_tau, c.decay_kappa)
+
+    def aggregated(self) -> np.ndarray | None:
+        """The planner's value map: decayed, normalised layers of the remaining targets, summed."""
+        return aggregate(self.decayed(t) for t in self.values)
+
+    def frontiers(self) -> np.ndarray:
+        """N x 2 world waypoints, one per frontier segment between explored-free and unexplored."""
+        rows, cols = np.nonzero(self.explored)
+        if rows.size == 0:
+            return np.zeros((0, 2))
+        pad = 2 + math.ceil(self.config.robot_radius / self.grid.resolution)
+        r0, r1 = max(rows.min() - pad, 0), min(rows.max() + pad + 1, self.grid.rows)
+        c0, c1 = max(cols.min() - pad, 0), min(cols.max() + pad + 1, self.grid.cols)
+        # Obstacles grown by the robot radius: cells the robot cannot stand on are neither
+        # free nor unknown, so walls (and the gaps between their sampled points) make no frontier.
+        blocked = inflate(self.obstacle[r0:r1, c0:c1], self.config.robot_radius, self.grid.resolution)
+        explored = self.explored[r0:r1, c0:c1]
+        unknown = (~explored & ~blocked).astype(np.uint8)
+        near_unknown = cv2.dilate(unknown, np.ones((3, 3), np.uint8)).astype(bool)
+        frontier = explored & ~blocked & near_unknown
+        n, labels, stats, centroids = cv2.connectedComponentsWithStats(frontier.astype(np.uint8),
+                                                                       connectivity=8)
+        points = []
+        for k in range(1, n):
+            if stats[k, cv2.CC_STAT_AREA] < self.config.frontier_min_cells:
+                continue
+            fr, fc = np.nonzero(labels == k)
+            i = int(np.argmin((fc - centroids[k][0]) ** 2 + (fr - centroids[k][1]) ** 2))
+            points.append(self.grid.to_world(fr[i] + r0, fc[i] + c0))
+        return np.array(points, dtype=np.float64).reshape(-1, 2)
+
+    # -- snapshots and checkpoints --------------------------------------------------------------
+    def snapshot(self, stamp: float) -> MapSnapshot:
+        layers = self.layers
+        values = (np.stack([self.values[t] for t in layers]) if layers
+                  else np.zeros((0, *self.grid.shape), np.float32))
+        confidence = (np.stack([self.confidence[t] for t in layers]) if layers
+                      else np.zeros((0, *self.grid.shape), np.float32))
+        return MapSnapshot(seq=self.seq, stamp=stamp, resolution=self.grid.resolution,
+                           origin=(self.grid.x0, self.grid.y0), layers=layers,
+                           objects=self.objects.instances(), obstacle=self.obstacle,
+                           explored=self.explored, counts=self.counts, values=values,
+                           confidence=confidence, frontiers=self.frontiers())
+
+    @classmethod
+    def from_snapshot(cls, snapshot: MapSnapshot, config: MappingConfig) -> MapState:
+        """Resume from a snapshot (a checkpoint); it must fit the configured grid."""
+        state = cls(config)
+        if (snapshot.obstacle.shape != state.grid.shape or snapshot.resolution != state.grid.resolution
+                or tuple(snapshot.origin) != (state.grid.x0, state.grid.y0)):
+            raise ValueError("the snapshot's grid does not match the configured grid")
+        state.obstacle = snapshot.obstacle.copy()
+        state.explored = snapshot.explored.copy()
+        state.counts = snapshot.counts.copy()
+        for i, target in enumerate(snapshot.layers):
+            state.values[target] = snapshot.values[i].copy()
+            state.confidence[target] = snapshot.confidence[i].copy()
+        state.objects = ObjectMap.from_instances(
+            snapshot.objects, config.object_merge_distance_m, config.object_confirm_hits,
+            config.decision_threshold)
+        state.seq = snapshot.seq
+        return state
