@@ -162,6 +162,20 @@ def bench_sim(frames: Annotated[int, typer.Option(help="Frames per run.")] = 50,
         print_table(console, result)
 
 
+@bench_app.command("mapping")
+def bench_mapping(frames: Annotated[int, typer.Option(help="Frames per run.")] = 40,
+                  runs: Annotated[int, typer.Option(help="Runs (the median is reported).")] = 3,
+                  as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False
+                  ) -> None:
+    """Milliseconds per 640x480 frame for a full map update with 1, 3 and 10 target layers."""
+    from bench.mapping import print_table, run_benchmark
+    result = run_benchmark(frames=frames, runs=runs, progress=None if as_json else err)
+    if as_json:
+        print(json.dumps(result))
+    else:
+        print_table(console, result)
+
+
 SceneSeed = Annotated[int, typer.Option("--seed", help="Scene seed.")]
 SceneFile = Annotated[Optional[Path], typer.Option("--scene", help="Scene JSON (instead of --seed).")]
 

@@ -34,6 +34,8 @@ class MapState:
         self.confidence: dict[str, np.ndarray] = {}
         self.objects = ObjectMap(c.object_merge_distance_m, c.object_confirm_hits, c.decision_threshold)
         self.seq = -1
+        # bounding box (row0, row1, col0, col1) of everything explored: frontier search stays in it
+        self._bbox: tuple[int, int, int, int] | None = None
         for target in targets:
             self.add_layer(target)
 
@@ -64,6 +66,7 @@ class MapState:
         if window is not None:
             rows, cols = window
             self.explored[rows, cols] |= seen
+            self._grow_bbox(rows, cols)
             confidence = np.where(seen, fov_confidence(theta, view.hfov), 0.0).astype(np.float32)
             confidence[confidence < c.confidence_floor] = 0.0
             counted = confidence > 0
@@ -76,6 +79,13 @@ class MapState:
         if detections:
             self.objects.add([d for d in detections if d.label in self.values], frame)
         self.seq = max(self.seq, frame.seq)
+
+    def _grow_bbox(self, rows: slice, cols: slice) -> None:
+        box = (rows.start, rows.stop, cols.start, cols.stop)
+        if self._bbox is not None:
+            box = (min(box[0], self._bbox[0]), max(box[1], self._bbox[1]),
+                   min(box[2], self._bbox[2]), max(box[3], self._bbox[3]))
+        self._bbox = box
 
     def _mark_obstacles(self, view: View) -> None:
         c = self.config
@@ -114,12 +124,11 @@ class MapState:
 
     def frontiers(self) -> np.ndarray:
         """N x 2 world waypoints, one per frontier segment between explored-free and unexplored."""
-        rows, cols = np.nonzero(self.explored)
-        if rows.size == 0:
+        if self._bbox is None:
             return np.zeros((0, 2))
         pad = 2 + math.ceil(self.config.robot_radius / self.grid.resolution)
-        r0, r1 = max(rows.min() - pad, 0), min(rows.max() + pad + 1, self.grid.rows)
-        c0, c1 = max(cols.min() - pad, 0), min(cols.max() + pad + 1, self.grid.cols)
+        r0, r1 = max(self._bbox[0] - pad, 0), min(self._bbox[1] + pad, self.grid.rows)
+        c0, c1 = max(self._bbox[2] - pad, 0), min(self._bbox[3] + pad, self.grid.cols)
         # Obstacles grown by the robot radius: cells the robot cannot stand on are neither
         # free nor unknown, so walls (and the gaps between their sampled points) make no frontier.
         blocked = inflate(self.obstacle[r0:r1, c0:c1], self.config.robot_radius, self.grid.resolution)
@@ -129,14 +138,18 @@ class MapState:
         frontier = explored & ~blocked & near_unknown
         n, labels, stats, centroids = cv2.connectedComponentsWithStats(frontier.astype(np.uint8),
                                                                        connectivity=8)
-        points = []
-        for k in range(1, n):
-            if stats[k, cv2.CC_STAT_AREA] < self.config.frontier_min_cells:
-                continue
-            fr, fc = np.nonzero(labels == k)
-            i = int(np.argmin((fc - centroids[k][0]) ** 2 + (fr - centroids[k][1]) ** 2))
-            points.append(self.grid.to_world(fr[i] + r0, fc[i] + c0))
-        return np.array(points, dtype=np.float64).reshape(-1, 2)
+        keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= self.config.frontier_min_cells) + 1
+        if keep.size == 0:
+            return np.zeros((0, 2))
+        fr, fc = np.nonzero(np.isin(labels, keep))
+        lab = labels[fr, fc]
+        # one waypoint per segment: its cell nearest to the segment's centroid
+        dist = (fc - centroids[lab, 0]) ** 2 + (fr - centroids[lab, 1]) ** 2
+        order = np.lexsort((dist, lab))
+        _, first = np.unique(lab[order], return_index=True)
+        pick = order[first]
+        xs, ys = self.grid.to_world(fr[pick] + r0, fc[pick] + c0)
+        return np.stack([xs, ys], axis=1).astype(np.float64).reshape(-1, 2)
 
     # -- snapshots and checkpoints --------------------------------------------------------------
     def snapshot(self, stamp: float) -> MapSnapshot:
@@ -168,4 +181,7 @@ class MapState:
             snapshot.objects, config.object_merge_distance_m, config.object_confirm_hits,
             config.decision_threshold)
         state.seq = snapshot.seq
+        rows, cols = np.nonzero(state.explored)
+        if rows.size:
+            state._bbox = (int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1)
         return state
