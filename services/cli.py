@@ -132,6 +132,33 @@ def demo(seconds: Annotated[float, typer.Option(help="How long to run.")] = 6.0,
     raise typer.Exit(run_demo(console, seconds=seconds, robot_id=robot_id))
 
 
+@app.command("map")
+def map_png(out: Annotated[Path, typer.Option(help="PNG to write.")],
+            robot_id: RobotId = "robot1", zenoh_file: ZenohFile = None, connect: Connect = None,
+            layer: Annotated[Optional[str], typer.Option(help="One target's layer (default: all).")] = None,
+            timeout: Annotated[float, typer.Option(help="Seconds to wait for the map.")] = 5.0) -> None:
+    """Fetch the mapping service's current map and draw it (obstacles, values, frontiers, objects)."""
+    from services.mapping.render import render_map, write_png
+    from shared import keys
+    from shared.messages import DecodeError, MapSnapshot
+    try:
+        session = open_session(build_config("client", file=zenoh_file, connect=connect or ()))
+    except ZenohConfigError as exc:
+        raise _fail(str(exc)) from None
+    try:
+        replies = [r.ok for r in session.get(keys.map_snapshot(robot_id), timeout=timeout) if r.ok]
+        if not replies:
+            raise _fail(f"no mapping service answered for robot {robot_id!r} within {timeout} s")
+        snapshot = MapSnapshot.from_bytes(replies[0].payload.to_bytes())
+        write_png(out, render_map(snapshot, layer=layer))
+    except (DecodeError, ValueError) as exc:
+        raise _fail(str(exc)) from None
+    finally:
+        session.close()
+    console.print(f"map of {robot_id} (last frame {snapshot.seq}, layers {', '.join(snapshot.layers) or '-'}, "
+                  f"{len(snapshot.frontiers)} frontiers, {len(snapshot.objects)} objects) -> {out}")
+
+
 @bench_app.command("transport")
 def bench_transport(
         frames: Annotated[int, typer.Option(help="Round trips per run.")] = 200,

@@ -21,9 +21,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from shared.codec import DecodeError, loan, pack, unpack
+from shared.detections import Detection
 
 __all__ = ["DecodeError", "JsonMessage", "BinaryMessage", "ArraySpec", "Intrinsics", "RgbdFrame",
-           "MapSnapshot", "ObjectInstance", "CounterSet", "ServiceStats"]
+           "MapSnapshot", "ObjectInstance", "PerceptionResult", "CounterSet", "ServiceStats"]
 
 
 def _validation_error(cls: type, exc: ValidationError) -> DecodeError:
@@ -242,6 +243,56 @@ class MapSnapshot(BinaryMessage):
         if self.frontiers.shape[1:] != (2,):
             raise ValueError(f"frontiers must be N x 2 (x, y), got {self.frontiers.shape}")
         return self
+
+
+class PerceptionResult(BinaryMessage):
+    """Perception's output for one frame: a value score per target and detections with masks.
+
+    ``targets`` is the target list the frame was scored for; consumers (the map)
+    follow it, so adding or removing a target needs no other message.
+    """
+
+    KIND: ClassVar[str] = "perception"
+    COMPRESS_LEVEL: ClassVar[int | None] = 1  # masks are mostly zeros
+    ARRAYS: ClassVar[dict[str, ArraySpec]] = {
+        "boxes": ArraySpec(("<i4",), 2),
+        "masks": ArraySpec(("|b1",), 3),
+    }
+    seq: int = Field(ge=0, description="seq of the frame this result is for")
+    stamp: float
+    targets: tuple[str, ...]
+    scores: tuple[float, ...]
+    labels: tuple[str, ...] = ()
+    detection_scores: tuple[float, ...] = ()
+    boxes: np.ndarray
+    masks: np.ndarray
+
+    @model_validator(mode="after")
+    def _check_lengths(self) -> Self:
+        if len(self.scores) != len(self.targets):
+            raise ValueError("one score per target")
+        n = len(self.labels)
+        if len(self.detection_scores) != n or self.boxes.shape != (n, 4) or self.masks.shape[0] != n:
+            raise ValueError("labels, detection_scores, boxes and masks must describe the same detections")
+        return self
+
+    @classmethod
+    def build(cls, seq: int, stamp: float, scores: dict[str, float], detections: list[Detection],
+              image_shape: tuple[int, int]) -> PerceptionResult:
+        masks = (np.stack([d.mask for d in detections]) if detections
+                 else np.zeros((0, *image_shape), bool))
+        return cls(seq=seq, stamp=stamp, targets=tuple(scores), scores=tuple(scores.values()),
+                   labels=tuple(d.label for d in detections),
+                   detection_scores=tuple(d.score for d in detections),
+                   boxes=np.array([d.box for d in detections], np.int32).reshape(-1, 4), masks=masks)
+
+    def score_map(self) -> dict[str, float]:
+        return dict(zip(self.targets, self.scores))
+
+    def detections(self) -> list[Detection]:
+        return [Detection(label, score, tuple(int(v) for v in box), mask)  # type: ignore[arg-type]
+                for label, score, box, mask in zip(self.labels, self.detection_scores, self.boxes,
+                                                   self.masks)]
 
 
 class CounterSet(BaseModel):

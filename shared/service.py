@@ -86,7 +86,11 @@ def load_config(cls: type[Service], path: str | Path | None, overrides: dict[str
 
 
 def install_signal_handlers(stop: threading.Event) -> None:
-    """SIGINT / SIGTERM end the run gracefully (main thread only, as Python requires)."""
+    """SIGINT / SIGTERM end the run gracefully. Python allows handlers only in the main
+    thread; elsewhere (a service run in a thread by tests or an embedding program) the
+    caller stops it through ``stop``."""
+    if threading.current_thread() is not threading.main_thread():
+        return
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
 
@@ -98,7 +102,6 @@ def run_service(cls: type[Service], zenoh_config: zenoh.Config, config: ServiceC
     SIGINT / SIGTERM set ``stop`` once the session is open; while it still
     waits for a router they end the process at once, as there is nothing to
     clean up yet (a Python handler would not run during Zenoh's blocking open).
-    Call from the main thread.
     """
     svc: Service | None = None
     bus = Bus.open(zenoh_config, robot_id, cls.name, instance, info=lambda: svc.info() if svc else {})

@@ -152,12 +152,16 @@ class MapState:
         return np.stack([xs, ys], axis=1).astype(np.float64).reshape(-1, 2)
 
     # -- snapshots and checkpoints --------------------------------------------------------------
-    def snapshot(self, stamp: float) -> MapSnapshot:
+    def snapshot(self, stamp: float, *, with_confidence: bool = True) -> MapSnapshot:
+        """The map as a message; checkpoints need the confidences, the planner does not."""
         layers = self.layers
-        values = (np.stack([self.values[t] for t in layers]) if layers
-                  else np.zeros((0, *self.grid.shape), np.float32))
-        confidence = (np.stack([self.confidence[t] for t in layers]) if layers
-                      else np.zeros((0, *self.grid.shape), np.float32))
+
+        def stacked(grids: dict[str, np.ndarray]) -> np.ndarray:
+            return (np.stack([grids[t] for t in layers]) if layers
+                    else np.zeros((0, *self.grid.shape), np.float32))
+
+        values = stacked(self.values)
+        confidence = stacked(self.confidence) if with_confidence else None
         return MapSnapshot(seq=self.seq, stamp=stamp, resolution=self.grid.resolution,
                            origin=(self.grid.x0, self.grid.y0), layers=layers,
                            objects=self.objects.instances(), obstacle=self.obstacle,

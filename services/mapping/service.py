@@ -1,0 +1,142 @@
+"""The mapping service: frames + perception results in, map snapshots out.
+
+Frames and perception results arrive on separate keys and are matched by
+frame seq. A frame whose result has not come within ``match_timeout_s`` is
+fused without values (obstacles, explored area, frontiers still grow), so a
+slow or absent perception service never stalls the map. The value layers
+follow the target list of the newest perception result.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field
+
+from services.mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from services.mapping.config import MappingConfig
+from services.mapping.state import MapState
+from shared import keys
+from shared.bus import Bus
+from shared.messages import MapSnapshot, PerceptionResult, RgbdFrame
+from shared.service import Service
+
+
+class MappingServiceConfig(MappingConfig):
+    publish_hz: float = Field(default=2.0, gt=0, description="snapshot publication rate")
+    match_timeout_s: float = Field(default=1.0, gt=0, description="wait this long for a frame's result")
+    max_pending: int = Field(default=16, ge=1, description="frames or results waiting for their pair")
+    checkpoint_path: Path | None = None
+    checkpoint_every_s: float = Field(default=5.0, gt=0)
+
+
+class MappingService(Service):
+    name = "mapping"
+    Config = MappingServiceConfig
+    config: MappingServiceConfig
+
+    def __init__(self, bus: Bus, config: MappingServiceConfig) -> None:
+        super().__init__(bus, config)
+        self.tick_hz = config.publish_hz
+        self._lock = threading.Lock()
+        self._frames: dict[int, tuple[RgbdFrame, float]] = {}
+        self._results: dict[int, PerceptionResult] = {}
+        self._published_seq = -2
+        self._last_checkpoint = time.monotonic()
+        self.state = self._initial_state()
+
+    def _initial_state(self) -> MapState:
+        path = self.config.checkpoint_path
+        if path is not None and path.exists():
+            try:
+                state = load_checkpoint(path, self.config)
+                self.log.info("resumed the map from %s (last frame seq %d)", path, state.seq)
+                return state
+            except CheckpointError as exc:
+                self.log.error("%s; starting a fresh map", exc)
+        return MapState(self.config)
+
+    def start(self) -> None:
+        robot = self.bus.robot_id
+        self.snapshots = self.bus.publisher(keys.map_snapshot(robot), MapSnapshot)
+        self.bus.subscribe(keys.rgbd(robot), RgbdFrame, self._on_frame, latest_only=True)
+        self.bus.subscribe(keys.perception_result(robot), PerceptionResult, self._on_result)
+        self.bus.queryable(keys.map_snapshot(robot), lambda _query: self.snapshot())
+
+    # -- inputs --------------------------------------------------------------------------------
+    def _on_frame(self, frame: RgbdFrame) -> None:
+        with self._lock:
+            result = self._results.pop(frame.seq, None)
+            if result is None:
+                self._frames.setdefault(frame.seq, (frame, time.monotonic()))  # a repeat keeps its wait
+                _trim(self._frames, self.config.max_pending)
+                return
+            self._fuse(frame, result)
+
+    def _on_result(self, result: PerceptionResult) -> None:
+        with self._lock:
+            pending = self._frames.pop(result.seq, None)
+            if pending is None:
+                self._results[result.seq] = result
+                _trim(self._results, self.config.max_pending)
+                return
+            self._fuse(pending[0], result)
+
+    def _fuse(self, frame: RgbdFrame, result: PerceptionResult | None) -> None:
+        if result is not None:
+            for target in set(self.state.layers) - set(result.targets):
+                self.state.remove_layer(target)
+            for target in result.targets:
+                self.state.add_layer(target)
+            self.state.integrate(frame, result.score_map(), result.detections())
+        else:
+            self.state.integrate(frame)
+
+    # -- periodic work -------------------------------------------------------------------------
+    def tick(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            expired = sorted(s for s, (_, t) in self._frames.items()
+                             if now - t > self.config.match_timeout_s)
+            for seq in expired:
+                self._fuse(self._frames.pop(seq)[0], None)
+            changed = self.state.seq != self._published_seq
+            snapshot = self._snapshot() if changed else None
+        if snapshot is not None:
+            self.snapshots.put(snapshot)
+            self._published_seq = snapshot.seq
+        if self.config.checkpoint_path and now - self._last_checkpoint >= self.config.checkpoint_every_s:
+            self._checkpoint()
+
+    def _snapshot(self) -> MapSnapshot:
+        return self.state.snapshot(time.time(), with_confidence=False)
+
+    def snapshot(self) -> MapSnapshot:
+        with self._lock:
+            return self._snapshot()
+
+    def _checkpoint(self) -> None:
+        assert self.config.checkpoint_path is not None
+        with self._lock:
+            save_checkpoint(self.state, self.config.checkpoint_path, time.time())
+        self._last_checkpoint = time.monotonic()
+
+    def info(self) -> dict[str, Any]:
+        with self._lock:
+            return {"seq": self.state.seq, "layers": list(self.state.layers),
+                    "explored_m2": round(float(self.state.explored.sum()) * self.config.resolution ** 2, 2),
+                    "objects": len(self.state.objects.instances()),
+                    "pending_frames": len(self._frames), "pending_results": len(self._results)}
+
+    def stop(self) -> None:
+        if self.config.checkpoint_path:
+            self._checkpoint()
+
+
+def _trim(pending: dict[int, Any], limit: int) -> None:
+    """Drop the oldest (lowest seq) entries beyond ``limit``."""
+    for seq in sorted(pending)[:max(0, len(pending) - limit)]:
+        del pending[seq]

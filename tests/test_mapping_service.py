@@ -1,0 +1,158 @@
+"""The mapping service over real Zenoh sessions: matching by seq, timeouts, snapshots, checkpoints."""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+import zenoh
+
+from services.mapping.service import MappingService, MappingServiceConfig
+from services.sim.render import SceneRenderer
+from shared import keys
+from shared.bus import Bus
+from shared.messages import MapSnapshot, PerceptionResult, RgbdFrame
+from shared.service import run_service
+from shared.zconfig import build_config
+from tests.conftest import wait_for
+from tests.sim_scenes import two_rooms
+
+ROBOT = "r1"
+
+
+@pytest.fixture(scope="module")
+def frames() -> list[RgbdFrame]:
+    with SceneRenderer(two_rooms(), 160, 120) as renderer:
+        return [renderer.render(1.5, 2.0, i * math.pi / 3, seq=i) for i in range(6)]
+
+
+class Running:
+    def __init__(self, endpoint: str, config: MappingServiceConfig) -> None:
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=run_service, args=(
+            MappingService, build_config(connect=[endpoint]), config),
+            kwargs={"robot_id": ROBOT, "instance": "0", "stop": self.stop})
+        self.thread.start()
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(20)
+        assert not self.thread.is_alive()
+
+
+@pytest.fixture
+def service(inproc_router: str, tmp_path) -> Iterator[tuple[str, MappingServiceConfig]]:
+    config = MappingServiceConfig(grid_cells=300, publish_hz=10, match_timeout_s=0.5,
+                                  checkpoint_path=tmp_path / "map.ckpt", checkpoint_every_s=0.5)
+    running = Running(inproc_router, config)
+    yield inproc_router, config
+    running.close()
+
+
+@pytest.fixture
+def sender(inproc_router: str) -> Iterator[Bus]:
+    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-sender") as bus:
+        yield bus
+
+
+def query_snapshot(session: zenoh.Session) -> MapSnapshot | None:
+    for reply in session.get(keys.map_snapshot(ROBOT), timeout=2.0):
+        if reply.ok is not None:
+            return MapSnapshot.from_bytes(reply.ok.payload.to_bytes())
+    return None
+
+
+def result_for(frame: RgbdFrame, scores: dict[str, float]) -> PerceptionResult:
+    return PerceptionResult.build(frame.seq, frame.stamp, scores, [], frame.depth.shape)
+
+
+def test_frames_and_results_are_matched_by_seq(service, sender, client, frames) -> None:
+    pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
+    pub_r = sender.publisher(keys.perception_result(ROBOT), PerceptionResult)
+    wait_for(lambda: query_snapshot(client), what="the service answers")
+    # result before its frame, then a frame before its result
+    pub_r.put(result_for(frames[0], {"fridge": 0.6}))
+    wait_for(lambda: pub_f.put(frames[0]) or (s := query_snapshot(client)) and s.seq == 0, what="seq 0")
+    pub_f.put(frames[1])
+    pub_r.put(result_for(frames[1], {"fridge": 0.3, "cup": 0.2}))
+    snap = wait_for(lambda: (s := query_snapshot(client)) and s.seq == 1 and s, what="seq 1")
+    assert snap.layers == ("fridge", "cup")
+    assert snap.confidence is None  # published snapshots leave them out
+    assert snap.values[0].max() == pytest.approx(0.6) and snap.explored.any()
+    # the target list shrinks: the layer goes
+    pub_f.put(frames[2])
+    pub_r.put(result_for(frames[2], {"cup": 0.2}))
+    snap = wait_for(lambda: (s := query_snapshot(client)) and s.seq == 2 and s, what="seq 2")
+    assert snap.layers == ("cup",)
+
+
+def test_a_frame_without_result_still_maps_after_the_timeout(service, sender, client, frames) -> None:
+    pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
+    wait_for(lambda: query_snapshot(client), what="the service answers")
+    pub_f.put(frames[3])  # the service is declared (it answered), so one put reaches it
+    wait_for(lambda: (s := query_snapshot(client)) and s.seq == 3, what="frame 3 fused without a result")
+    snap = query_snapshot(client)
+    assert snap.explored.any() and snap.obstacle.any() and snap.layers == ()
+
+
+def test_snapshots_are_published_and_malformed_input_is_counted(service, sender, client,
+                                                                 frames) -> None:
+    got: list[MapSnapshot] = []
+    sender.subscribe(keys.map_snapshot(ROBOT), MapSnapshot, got.append)
+    pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
+    wait_for(lambda: query_snapshot(client), what="the service answers")
+    client.put(keys.perception_result(ROBOT), b"garbage")
+    wait_for(lambda: pub_f.put(frames[4]) or any(s.seq == 4 for s in got), what="a published snapshot")
+    from shared.status import live_services
+    (svc,) = [s for s in live_services(client, ROBOT) if s.service == "mapping"]
+    assert svc.stats.counters[keys.perception_result(ROBOT)].malformed == 1
+    assert svc.stats.info["seq"] == 4
+
+
+def test_a_restarted_service_resumes_from_its_checkpoint(inproc_router, tmp_path, sender, client,
+                                                         frames) -> None:
+    config = MappingServiceConfig(grid_cells=300, publish_hz=10, match_timeout_s=0.2,
+                                  checkpoint_path=tmp_path / "map.ckpt", checkpoint_every_s=60)
+    first = Running(inproc_router, config)
+    pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
+    wait_for(lambda: pub_f.put(frames[5]) or (s := query_snapshot(client)) and s.seq == 5, what="seq 5")
+    before = query_snapshot(client)
+    first.close()  # writes the checkpoint on shutdown
+    assert config.checkpoint_path.exists()
+    second = Running(inproc_router, config)
+    try:
+        after = wait_for(lambda: query_snapshot(client), what="the restarted service")
+        assert after.seq == 5 and np.array_equal(after.explored, before.explored)
+    finally:
+        second.close()
+    config.checkpoint_path.write_bytes(b"not a checkpoint")
+    third = Running(inproc_router, config)
+    try:
+        fresh = wait_for(lambda: query_snapshot(client), what="a fresh map after a corrupt checkpoint")
+        assert fresh.seq == -1 and not fresh.explored.any()
+    finally:
+        third.close()
+
+
+def test_the_map_command_draws_the_current_map(service, sender, client, frames, tmp_path) -> None:
+    import subprocess
+    import sys
+
+    import cv2
+    pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
+    wait_for(lambda: query_snapshot(client), what="the service answers")
+    pub_f.put(frames[0])
+    wait_for(lambda: (s := query_snapshot(client)) and s.seq == 0, what="frame 0 fused")
+    endpoint = service[0]
+    out = subprocess.run([sys.executable, "-m", "services.cli", "map", "--robot-id", ROBOT,
+                          "--connect", endpoint, "--out", str(tmp_path / "map.png")],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert cv2.imread(str(tmp_path / "map.png")) is not None
+    missing = subprocess.run([sys.executable, "-m", "services.cli", "map", "--robot-id", "nobody",
+                              "--connect", endpoint, "--timeout", "1", "--out", str(tmp_path / "x.png")],
+                             capture_output=True, text=True, timeout=60)
+    assert missing.returncode == 2 and "no mapping service" in missing.stderr
