@@ -12,20 +12,21 @@ from shared.messages import RgbdFrame
 
 @dataclass(frozen=True)
 class View:
-    """What one frame tells the map: 3-D points, and the seen area as a polygon.
+    """What one frame tells the map: obstacle points, and the seen area as a polygon.
 
     ``polygon`` starts at the camera and follows, column by column, the
     farthest horizontal distance at which that column saw something.
     """
 
-    points: np.ndarray   # N x 3 world points with a valid depth
+    obstacles: np.ndarray  # N x 2 world xy of points within the obstacle height band
     camera: tuple[float, float]
-    heading: float       # yaw of the optical axis in the world
+    heading: float         # yaw of the optical axis in the world
     hfov: float
-    polygon: np.ndarray  # M x 2 world xy
+    polygon: np.ndarray    # M x 2 world xy
 
 
-def project(frame: RgbdFrame, stride: int, depth_min: float, depth_max: float) -> View:
+def project(frame: RgbdFrame, stride: int, depth_range: tuple[float, float],
+            obstacle_band: tuple[float, float]) -> View:
     k = frame.intrinsics
     depth = frame.depth[::stride, ::stride].astype(np.float32)
     if frame.depth_scale != 1.0:
@@ -33,22 +34,27 @@ def project(frame: RgbdFrame, stride: int, depth_min: float, depth_max: float) -
     rows, cols = depth.shape
     u = np.arange(cols, dtype=np.float32) * stride
     v = np.arange(rows, dtype=np.float32) * stride
-    valid = (depth >= depth_min) & (depth <= depth_max)
-    x_cam = (u[None, :] - k.cx) / k.fx * depth
-    y_cam = (v[:, None] - k.cy) / k.fy * depth
+    valid = (depth >= depth_range[0]) & (depth <= depth_range[1])
+    x_cam = ((u - k.cx) / k.fx)[None, :] * depth
+    y_cam = ((v - k.cy) / k.fy)[:, None] * depth
     pose = frame.pose_matrix
     r, t = pose[:3, :3].astype(np.float32), pose[:3, 3].astype(np.float32)
-    world = (np.stack([x_cam, y_cam, depth], -1) @ r.T) + t  # rows x cols x 3
+    # world = R @ p + t, one coordinate at a time (no N x 3 temporaries)
+    wx = r[0, 0] * x_cam + r[0, 1] * y_cam + r[0, 2] * depth + t[0]
+    wy = r[1, 0] * x_cam + r[1, 1] * y_cam + r[1, 2] * depth + t[1]
+    wz = r[2, 0] * x_cam + r[2, 1] * y_cam + r[2, 2] * depth + t[2]
+    band = valid & (wz >= obstacle_band[0]) & (wz <= obstacle_band[1])
+    obstacles = np.stack([wx[band], wy[band]], axis=1)
+
     cam_x, cam_y = float(t[0]), float(t[1])
     forward, right = pose[:3, 2], pose[:3, 0]
     heading = math.atan2(forward[1], forward[0])
     hfov = 2 * math.atan(frame.depth.shape[1] / (2 * k.fx))
-
-    horizontal = np.hypot(world[..., 0] - cam_x, world[..., 1] - cam_y)
+    horizontal = np.hypot(wx - cam_x, wy - cam_y)
     reach = np.where(valid, horizontal, 0.0).max(axis=0)  # per column; 0 = saw nothing
     # direction of each column's rays projected on the floor
     dirs = forward[None, :2] + right[None, :2] * ((u - k.cx) / k.fx)[:, None]
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     edge = np.array([cam_x, cam_y]) + dirs * reach[:, None]
     polygon = np.vstack([[cam_x, cam_y], edge])
-    return View(world[valid], (cam_x, cam_y), heading, hfov, polygon)
+    return View(obstacles, (cam_x, cam_y), heading, hfov, polygon)

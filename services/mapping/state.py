@@ -60,7 +60,8 @@ class MapState:
                   detections: Sequence[Detection] = ()) -> None:
         """Fuse one frame: obstacles and explored area always; values and objects when given."""
         c = self.config
-        view = project(frame, c.pixel_stride, c.depth_min, c.depth_max)
+        view = project(frame, c.pixel_stride, (c.depth_min, c.depth_max),
+                       (c.min_obstacle_height, c.max_obstacle_height))
         self._mark_obstacles(view)
         window, seen, theta = self._view_cells(view)
         if window is not None:
@@ -88,10 +89,7 @@ class MapState:
         self._bbox = box
 
     def _mark_obstacles(self, view: View) -> None:
-        c = self.config
-        z = view.points[:, 2]
-        pts = view.points[(z >= c.min_obstacle_height) & (z <= c.max_obstacle_height)]
-        rows, cols = self.grid.to_cell(pts[:, 0], pts[:, 1])
+        rows, cols = self.grid.to_cell(view.obstacles[:, 0], view.obstacles[:, 1])
         inside = (rows >= 0) & (rows < self.grid.rows) & (cols >= 0) & (cols < self.grid.cols)
         self.obstacle[rows[inside], cols[inside]] = True
 
