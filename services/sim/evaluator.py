@@ -20,17 +20,15 @@ from dataclasses import dataclass
 from collections.abc import Iterable, Sequence
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import dijkstra
 
 from services.sim.occupancy import (RESOLUTION, ROBOT_RADIUS, closest_point_on_box, distance_to_box,
                                     grid_for, rasterize, rasterize_walls)
 from services.sim.world import Scene, SceneObject
+from shared.geodesic import FreeSpaceGraph
 from shared.grid import inflate
 
 SUCCESS_DISTANCE = 1.0
 SUPPORT_REACH_CELLS = 4  # beyond the robot radius: how far from its support an object is "reached"
-_NEIGHBOURS = ((0, 1), (1, 0), (1, 1), (1, -1))  # the other four are the same edges reversed
 
 
 @dataclass(frozen=True)
@@ -51,28 +49,8 @@ class GroundTruth:
         self.walls = rasterize_walls(scene, self.grid)
         self.free = ~inflate(self.occupied, robot_radius, resolution)
         self.robot_radius = robot_radius
-        self._index = np.full(self.grid.shape, -1, np.int64)
-        self._index[self.free] = np.arange(int(self.free.sum()))
-        self._edges = self._free_space_edges()
+        self._graph = FreeSpaceGraph(self.free, resolution)
         self._fields: dict[int, np.ndarray] = {}
-
-    def _free_space_edges(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        free, idx, res = self.free, self._index, self.grid.resolution
-        rows, cols = free.shape
-        src, dst, w = [], [], []
-        for dr, dc in _NEIGHBOURS:
-            r0, r1 = max(0, -dr), rows - max(0, dr)
-            c0, c1 = max(0, -dc), cols - max(0, dc)
-            a = free[r0:r1, c0:c1]
-            b = free[r0 + dr:r1 + dr, c0 + dc:c1 + dc]
-            ok = a & b
-            if dr and dc:  # diagonal: both orthogonal neighbours free, so no corner is cut
-                ok &= free[r0 + dr:r1 + dr, c0:c1] & free[r0:r1, c0 + dc:c1 + dc]
-            src.append(idx[r0:r1, c0:c1][ok])
-            dst.append(idx[r0 + dr:r1 + dr, c0 + dc:c1 + dc][ok])
-            w.append(np.full(int(ok.sum()), res * math.hypot(dr, dc)))
-        s, d, ww = np.concatenate(src), np.concatenate(dst), np.concatenate(w)
-        return np.concatenate([s, d]), np.concatenate([d, s]), np.concatenate([ww, ww])
 
     # -- distance fields --------------------------------------------------------------------
     def object_field(self, object_id: int) -> np.ndarray:
@@ -88,9 +66,8 @@ class GroundTruth:
         near = self.free & (distance_to_box(support, xs, ys) <= reach)
         cx, cy = xs[near], ys[near]
         visible = self._wall_free(cx, cy, *closest_point_on_box(support, cx, cy))
-        seeds = self._index[near][visible]
-        seed_cost = distance_to_box(obj, cx[visible], cy[visible])
-        return self._field(seeds, seed_cost)
+        seeds = self._graph.index[near][visible]
+        return self._graph.field(seeds, distance_to_box(obj, cx[visible], cy[visible]))
 
     def _wall_free(self, x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray
                    ) -> np.ndarray:
@@ -101,21 +78,6 @@ class GroundTruth:
             rows, cols = self.grid.to_cell(x0 + (x1 - x0) * t, y0 + (y1 - y0) * t)
             clear &= ~self.walls[np.clip(rows, 0, self.grid.rows - 1), np.clip(cols, 0, self.grid.cols - 1)]
         return clear
-
-    def _field(self, seeds: np.ndarray, seed_cost: np.ndarray) -> np.ndarray:
-        """Multi-source shortest paths with a start cost per source (via one virtual node)."""
-        n = int(self.free.sum())
-        field = np.full(self.grid.shape, np.inf)
-        if seeds.size == 0:
-            return field
-        src, dst, w = self._edges
-        src = np.concatenate([src, np.full(seeds.size, n)])
-        dst = np.concatenate([dst, seeds])
-        w = np.concatenate([w, np.maximum(seed_cost, 1e-9)])  # csgraph drops zero weights
-        graph = csr_matrix((w, (src, dst)), shape=(n + 1, n + 1))
-        dist = dijkstra(graph, directed=True, indices=n)
-        field[self.free] = dist[:n]
-        return field
 
     def class_field(self, cls: str) -> np.ndarray:
         """Distance to the nearest instance of a class."""
