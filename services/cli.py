@@ -203,6 +203,19 @@ def bench_mapping(frames: Annotated[int, typer.Option(help="Frames per run.")] =
         print_table(console, result)
 
 
+@bench_app.command("planner")
+def bench_planner(runs: Annotated[int, typer.Option(help="Instances per size (median).")] = 5,
+                  as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False
+                  ) -> None:
+    """POUCT simulations per second and decision latency for 5, 10 and 20 candidates."""
+    from bench.planner import print_table, run_benchmark
+    result = run_benchmark(runs=runs, progress=None if as_json else err)
+    if as_json:
+        print(json.dumps(result))
+    else:
+        print_table(console, result)
+
+
 SceneSeed = Annotated[int, typer.Option("--seed", help="Scene seed.")]
 SceneFile = Annotated[Optional[Path], typer.Option("--scene", help="Scene JSON (instead of --seed).")]
 

@@ -72,6 +72,6 @@ class FreeSpaceGraph:
               if 0 <= r < self.shape[0] and 0 <= c < self.shape[1] and self.free[r, c]]
         if ok:
             nodes = [int(self.index[cells[i]]) for i in ok]
-            out[ok] = self._to_grid(np.atleast_2d(dijkstra(self._matrix(), directed=False,
+            out[ok] = self._to_grid(np.atleast_2d(dijkstra(self._matrix(), directed=True,
                                                            indices=nodes)))
         return out

@@ -1,0 +1,202 @@
+"""One decision step: from a map snapshot and the robot pose to the next goal.
+
+Order of business (paper, Sec. III): a confirmed object of a remaining target
+wins (go there and STOP); otherwise candidates and the best frontier are
+taken from the (decayed, aggregated) value map, path lengths between the robot
+and every action point are computed once, and a policy picks the goal. The
+policies behind one interface are the full method and its ablations;
+baselines that differ in the map they read (finder, vlfm, random) plug in the
+same way.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from services.mapping.layers import aggregate, decay
+from services.planner.candidates import CandidateConfig, Candidates, best_frontier, find_candidates
+from services.planner.pomdp import POMDPConfig, SearchPOMDP, root_particles
+from services.planner.pouct import POUCT
+from shared.geodesic import FreeSpaceGraph
+from shared.grid import GridGeometry, inflate
+from shared.messages import MapSnapshot
+
+
+class Policy(str, Enum):
+    OVAMOS = "ovamos"
+    GREEDY = "ovamos-greedy"      # no POMDP: the highest value among candidates and frontier
+    NO_DECAY = "ovamos-nodecay"   # POMDP on the value map without decay
+
+
+class DecisionConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    policy: Policy = Policy.OVAMOS
+    candidates: CandidateConfig = Field(default_factory=CandidateConfig)
+    pomdp: POMDPConfig = Field(default_factory=POMDPConfig)
+    decay_tau: float = 6.0
+    decay_kappa: float = 2.0
+    robot_radius: float = Field(default=0.18, ge=0)
+    distance_coarsening: int = Field(default=4, ge=1, description="path lengths on cells this many times larger")
+    window_margin_m: float = Field(default=1.0, ge=0, description="path search beyond the explored area")
+    snap_radius_m: float = Field(default=0.5, ge=0, description="action points in obstacles move this far at most")
+    seed: int = 0
+
+
+class GoalKind(str, Enum):
+    OBJECT = "object"        # a confirmed instance: go there and STOP
+    CANDIDATE = "candidate"
+    FRONTIER = "frontier"
+
+
+@dataclass(frozen=True)
+class Decision:
+    kind: GoalKind
+    x: float
+    y: float
+    label: str | None = None   # the target, for OBJECT goals
+    candidates: int = 0        # how many candidates the step considered
+
+
+def explored_window(snapshot: MapSnapshot) -> tuple[slice, slice, GridGeometry]:
+    """The bounding box of the explored area (the whole grid before anything is explored),
+    and its geometry: value maps are only ever non-zero inside it."""
+    explored = snapshot.explored
+    rows = np.flatnonzero(explored.any(axis=1))
+    cols = np.flatnonzero(explored.any(axis=0))
+    r0, r1 = (int(rows[0]), int(rows[-1]) + 1) if rows.size else (0, explored.shape[0])
+    c0, c1 = (int(cols[0]), int(cols[-1]) + 1) if cols.size else (0, explored.shape[1])
+    res = snapshot.resolution
+    grid = GridGeometry(res, snapshot.origin[0] + c0 * res, snapshot.origin[1] + r0 * res, r1 - r0, c1 - c0)
+    return slice(r0, r1), slice(c0, c1), grid
+
+
+def value_map(snapshot: MapSnapshot, remaining: Sequence[str], config: DecisionConfig,
+              window: tuple[slice, slice] = (slice(None), slice(None))) -> np.ndarray | None:
+    """Aggregated value of the remaining targets' layers (decayed unless the ablation says
+    not), over ``window`` of the grid."""
+    counts, explored = snapshot.counts[window], snapshot.explored[window]
+    layers = []
+    for i, name in enumerate(snapshot.layers):
+        if name in remaining:
+            layer = snapshot.values[i][window]
+            if config.policy is not Policy.NO_DECAY:
+                layer = decay(layer, counts, config.decay_tau, config.decay_kappa)
+            layers.append(layer * explored)
+    return aggregate(layers)
+
+
+class PathLengths:
+    """Path lengths between a handful of points on one map (robot-radius-inflated obstacles,
+    unexplored space optimistic), on a coarsened window around the explored area so a
+    decision step stays cheap."""
+
+    def __init__(self, snapshot: MapSnapshot, config: DecisionConfig,
+                 include: np.ndarray | None = None) -> None:
+        k = config.distance_coarsening
+        res = snapshot.resolution
+        explored = snapshot.explored
+        rows = np.flatnonzero(explored.any(axis=1))
+        cols = np.flatnonzero(explored.any(axis=0))
+        if rows.size == 0:
+            rows, cols = np.arange(explored.shape[0]), np.arange(explored.shape[1])
+        fine = GridGeometry(res, snapshot.origin[0], snapshot.origin[1], *explored.shape)
+        r_lo, r_hi, c_lo, c_hi = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+        if include is not None and len(include):  # points (e.g. the robot) outside the explored box
+            pr, pc = fine.to_cell(include[:, 0], include[:, 1])
+            r_lo, r_hi = min(r_lo, pr.min()), max(r_hi, pr.max() + 1)
+            c_lo, c_hi = min(c_lo, pc.min()), max(c_hi, pc.max() + 1)
+        margin = int(np.ceil(config.window_margin_m / res))
+        r0, c0 = max(int(r_lo) - margin, 0), max(int(c_lo) - margin, 0)
+        r1, c1 = min(int(r_hi) + margin, explored.shape[0]), min(int(c_hi) + margin, explored.shape[1])
+        r1, c1 = r0 + (r1 - r0) // k * k, c0 + (c1 - c0) // k * k
+        blocked = inflate(snapshot.obstacle[r0:r1, c0:c1], config.robot_radius, res)
+        h, w = blocked.shape
+        # a coarse cell is free when any of its fine cells is: doorways stay open, and walls
+        # (blocked over their thickness plus twice the robot radius) stay closed
+        coarse = blocked.reshape(h // k, k, w // k, k).all(axis=(1, 3))
+        self.grid = GridGeometry(res * k, fine.x0 + c0 * res, fine.y0 + r0 * res, h // k, w // k)
+        self.graph = FreeSpaceGraph(~coarse, self.grid.resolution)
+        self.snap_cells = int(np.ceil(config.snap_radius_m / self.grid.resolution))
+
+    def _snap(self, x: float, y: float) -> tuple[int, int]:
+        """The free coarse cell nearest to (x, y), within the snap radius (else the cell itself)."""
+        r, c = self.grid.to_cell(x, y)
+        free, s = self.graph.free, self.snap_cells
+        r0, c0 = max(r - s, 0), max(c - s, 0)
+        window = free[r0:r + s + 1, c0:c + s + 1]
+        if not window.any():
+            return r, c
+        rr, cc = np.nonzero(window)
+        i = int(np.argmin((rr + r0 - r) ** 2 + (cc + c0 - c) ** 2))
+        return int(rr[i] + r0), int(cc[i] + c0)
+
+    def matrix(self, points: np.ndarray) -> np.ndarray:
+        """P x P path lengths (inf when unreachable)."""
+        cells = [self._snap(x, y) for x, y in points]
+        fields = self.graph.from_cells(cells)
+        rows = np.array([r for r, _ in cells])
+        cols = np.array([c for _, c in cells])
+        inside = (rows >= 0) & (rows < self.grid.rows) & (cols >= 0) & (cols < self.grid.cols)
+        out = np.full((len(cells), len(cells)), np.inf)
+        out[:, inside] = fields[:, rows[inside], cols[inside]]
+        return np.minimum(out, out.T)
+
+
+def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequence[str],
+           config: DecisionConfig) -> Decision | None:
+    """The next goal, or None when there is nothing left to go to."""
+    for obj in snapshot.objects:
+        if obj.confirmed and obj.label in remaining:
+            return Decision(GoalKind.OBJECT, obj.x, obj.y, obj.label)
+    rows, cols, grid = explored_window(snapshot)
+    values = value_map(snapshot, remaining, config, (rows, cols))
+    if values is None:
+        values = np.zeros(grid.shape, np.float32)
+    cands = find_candidates(values, grid, config.candidates)
+    f = best_frontier(snapshot.frontiers, values, grid, config.candidates.frontier_radius_m)
+    frontier = None if f is None else snapshot.frontiers[f]
+    if len(cands.points) == 0:
+        return None if frontier is None else Decision(GoalKind.FRONTIER, *map(float, frontier))
+    if config.policy is Policy.GREEDY:
+        return _greedy(cands, frontier, values, grid, config)
+    return _pouct(cands, frontier, robot_xy, snapshot, config)
+
+
+def _greedy(cands: Candidates, frontier: np.ndarray | None, values: np.ndarray, grid: GridGeometry,
+            config: DecisionConfig) -> Decision:
+    best = int(np.argmax(cands.values))
+    if frontier is not None:
+        frontier_value = values[grid.to_cell(*frontier)]
+        if frontier_value > cands.values[best]:
+            return Decision(GoalKind.FRONTIER, *map(float, frontier), candidates=len(cands.points))
+    return Decision(GoalKind.CANDIDATE, *map(float, cands.points[best]), candidates=len(cands.points))
+
+
+def _pouct(cands: Candidates, frontier: np.ndarray | None, robot_xy: tuple[float, float],
+           snapshot: MapSnapshot, config: DecisionConfig) -> Decision:
+    points = np.vstack([np.asarray(robot_xy, float)[None], cands.points,
+                        *([frontier[None]] if frontier is not None else [])])
+    distances = PathLengths(snapshot, config, include=points).matrix(points)
+    n = len(cands.points)
+    reachable = [i for i in range(1, n + 1) if np.isfinite(distances[0, i])]
+    frontier_index = n + 1 if frontier is not None and np.isfinite(distances[0, n + 1]) else None
+    if not reachable:
+        if frontier_index is None:
+            return Decision(GoalKind.FRONTIER, *map(float, frontier)) if frontier is not None \
+                else Decision(GoalKind.CANDIDATE, *map(float, cands.points[0]), candidates=n)
+        return Decision(GoalKind.FRONTIER, *map(float, points[frontier_index]), candidates=n)
+    belief = cands.belief[[i - 1 for i in reachable]]
+    belief = belief / belief.sum()
+    c = config.pomdp
+    model = SearchPOMDP(np.where(np.isfinite(distances), distances, 1e6), reachable,
+                        frontier_index, c)
+    planner = POUCT(model, num_sims=c.num_sims, max_depth=c.max_depth, discount=c.gamma,
+                    exploration=c.exploration, seed=config.seed)
+    action = planner.plan(root_particles(reachable, belief, c.particles, config.seed))
+    kind = GoalKind.FRONTIER if action == frontier_index else GoalKind.CANDIDATE
+    return Decision(kind, float(points[action][0]), float(points[action][1]), candidates=n)

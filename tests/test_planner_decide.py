@@ -1,0 +1,70 @@
+"""Decision steps on hand-made maps: the POMDP weighs distance against belief; greedy does not."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from services.planner.decide import DecisionConfig, GoalKind, PathLengths, Policy, decide
+from shared.messages import MapSnapshot, ObjectInstance
+
+N = 200  # 10 x 10 m at 5 cm
+
+
+def snapshot(values: dict[tuple[float, float], float], frontiers: list[tuple[float, float]],
+             obstacles: list[tuple[slice, slice]] = (), objects=()) -> MapSnapshot:
+    layer = np.zeros((N, N), np.float32)
+    for (x, y), v in values.items():
+        r, c = int(y / 0.05), int(x / 0.05)
+        layer[r - 2:r + 3, c - 2:c + 3] = v
+    obstacle = np.zeros((N, N), bool)
+    for rows, cols in obstacles:
+        obstacle[rows, cols] = True
+    return MapSnapshot(seq=0, stamp=0.0, resolution=0.05, origin=(0.0, 0.0), layers=("cup",),
+                       objects=tuple(objects), obstacle=obstacle, explored=np.ones((N, N), bool),
+                       counts=np.zeros((N, N), np.uint16), values=layer[None],
+                       frontiers=np.array(frontiers, float).reshape(-1, 2))
+
+
+def test_a_near_likely_candidate_beats_a_far_frontier() -> None:
+    snap = snapshot({(6.0, 5.0): 0.9}, [(9.5, 9.5)])
+    d = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig())
+    assert d.kind is GoalKind.CANDIDATE and (d.x, d.y) == pytest.approx((6.0, 5.0), abs=0.1)
+
+
+def test_weak_scattered_candidates_lose_to_a_near_frontier_but_not_for_greedy() -> None:
+    weak = {(1.0, 1.0): 0.3, (9.0, 1.0): 0.3, (1.0, 9.0): 0.3, (9.0, 9.0): 0.32, (5.0, 9.5): 0.3}
+    snap = snapshot(weak, [(5.6, 5.0)])
+    full = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig())
+    assert full.kind is GoalKind.FRONTIER
+    greedy = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig(policy=Policy.GREEDY))
+    assert greedy.kind is GoalKind.CANDIDATE and (greedy.x, greedy.y) == pytest.approx((9.0, 9.0), abs=0.1)
+
+
+def test_a_confirmed_object_of_a_remaining_target_wins() -> None:
+    cup = ObjectInstance(label="cup", x=2.0, y=3.0, score=0.8, hits=3, confirmed=True)
+    snap = snapshot({(6.0, 5.0): 0.9}, [(9.5, 9.5)], objects=[cup])
+    assert decide(snap, (5.0, 5.0), ["cup"], DecisionConfig()).kind is GoalKind.OBJECT
+    assert decide(snap, (5.0, 5.0), ["bed"], DecisionConfig()).kind is not GoalKind.OBJECT
+
+
+def test_nothing_to_go_to_is_none_and_only_a_frontier_is_the_frontier() -> None:
+    assert decide(snapshot({}, []), (5.0, 5.0), ["cup"], DecisionConfig()) is None
+    d = decide(snapshot({}, [(1.0, 1.0)]), (5.0, 5.0), ["cup"], DecisionConfig())
+    assert d.kind is GoalKind.FRONTIER
+
+
+def test_path_lengths_go_around_walls() -> None:
+    wall = (slice(0, 180), slice(100, 102))  # x = 5.0 .. 5.1, from y = 0 to 9 m
+    snap = snapshot({}, [], obstacles=[wall])
+    d = PathLengths(snap, DecisionConfig()).matrix(np.array([[4.0, 1.0], [6.0, 1.0]]))
+    assert d[0, 0] == 0 and d[0, 1] == pytest.approx(d[1, 0])
+    assert d[0, 1] > 2 * 8.0  # up and over the wall's end at y = 9 m, and back down
+    assert np.isfinite(d).all()
+
+
+def test_decisions_are_deterministic_for_a_seed() -> None:
+    weak = {(1.0, 1.0): 0.3, (9.0, 1.0): 0.35, (3.0, 8.0): 0.3}
+    snap = snapshot(weak, [(5.6, 7.0)])
+    first = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig(seed=3))
+    assert decide(snap, (5.0, 5.0), ["cup"], DecisionConfig(seed=3)) == first
