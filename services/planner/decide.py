@@ -31,6 +31,13 @@ class Policy(str, Enum):
     OVAMOS = "ovamos"
     GREEDY = "ovamos-greedy"      # no POMDP: the highest value among candidates and frontier
     NO_DECAY = "ovamos-nodecay"   # POMDP on the value map without decay
+    FINDER = "finder"             # all targets' layers, always the best frontier
+    VLFM = "vlfm"                 # one target at a time, always the best frontier
+    RANDOM = "random"             # a random frontier (same stop logic for found objects)
+
+
+FRONTIER_ONLY = (Policy.FINDER, Policy.VLFM)
+NO_DECAY = (Policy.NO_DECAY, Policy.FINDER, Policy.VLFM)
 
 
 class DecisionConfig(BaseModel):
@@ -80,11 +87,12 @@ def value_map(snapshot: MapSnapshot, remaining: Sequence[str], config: DecisionC
     """Aggregated value of the remaining targets' layers (decayed unless the ablation says
     not), over ``window`` of the grid."""
     counts, explored = snapshot.counts[window], snapshot.explored[window]
+    wanted = remaining[:1] if config.policy is Policy.VLFM else remaining
     layers = []
     for i, name in enumerate(snapshot.layers):
-        if name in remaining:
+        if name in wanted:
             layer = snapshot.values[i][window]
-            if config.policy is not Policy.NO_DECAY:
+            if config.policy not in NO_DECAY:
                 layer = decay(layer, counts, config.decay_tau, config.decay_kappa)
             layers.append(layer * explored)
     return aggregate(layers)
@@ -153,6 +161,8 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     for obj in snapshot.objects:
         if obj.confirmed and obj.label in remaining:
             return Decision(GoalKind.OBJECT, obj.x, obj.y, obj.label)
+    if config.policy is Policy.RANDOM:
+        return _random(snapshot, config)
     rows, cols, grid = explored_window(snapshot)
     values = value_map(snapshot, remaining, config, (rows, cols))
     if values is None:
@@ -160,11 +170,20 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     cands = find_candidates(values, grid, config.candidates)
     f = best_frontier(snapshot.frontiers, values, grid, config.candidates.frontier_radius_m)
     frontier = None if f is None else snapshot.frontiers[f]
-    if len(cands.points) == 0:
+    if config.policy in FRONTIER_ONLY or len(cands.points) == 0:
         return None if frontier is None else Decision(GoalKind.FRONTIER, *map(float, frontier))
     if config.policy is Policy.GREEDY:
         return _greedy(cands, frontier, values, grid, config)
     return _pouct(cands, frontier, robot_xy, snapshot, config)
+
+
+def _random(snapshot: MapSnapshot, config: DecisionConfig) -> Decision | None:
+    """A uniformly drawn frontier, seeded by the config seed and the snapshot's frame seq."""
+    if len(snapshot.frontiers) == 0:
+        return None
+    rng = np.random.default_rng([config.seed, snapshot.seq + 1])
+    x, y = snapshot.frontiers[int(rng.integers(len(snapshot.frontiers)))]
+    return Decision(GoalKind.FRONTIER, float(x), float(y))
 
 
 def _greedy(cands: Candidates, frontier: np.ndarray | None, values: np.ndarray, grid: GridGeometry,
