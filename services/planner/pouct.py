@@ -32,7 +32,7 @@ from typing import Generic, Protocol, TypeVar, runtime_checkable
 
 S = TypeVar("S")
 A = TypeVar("A")
-O = TypeVar("O")  # noqa: E741 (O for observation, as in the POMDP literature)
+O = TypeVar("O", covariant=True)  # noqa: E741 (observation; only ever returned by the model)
 
 
 @runtime_checkable
@@ -52,7 +52,9 @@ class GenerativeModel(Protocol[S, A, O]):
 
     def step(self, state: S, action: A, rng: random.Random) -> tuple[S, O, float, bool]:
         """Sample ``(next_state, observation, reward, terminal)``. ``terminal=True`` ends the
-        simulated episode: nothing is simulated after it and no belief node is grown below it."""
+        simulated episode: nothing is simulated after it and no belief node is grown below it
+        (its observation is ignored). Return terminal for a state with no legal action, or
+        the rollout policy would be asked to choose from nothing."""
         ...
 
     def rollout(self, state: S, rng: random.Random) -> A:
