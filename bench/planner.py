@@ -21,7 +21,7 @@ from rich.console import Console
 from rich.table import Table
 
 from services.planner.decide import DecisionConfig, PathLengths, decide
-from services.planner.pomdp import POMDPConfig, SearchPOMDP, root_particles
+from services.planner.pomdp import SearchPOMDP, root_particles
 from services.planner.pouct import POUCT
 from shared.messages import MapSnapshot
 

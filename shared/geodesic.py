@@ -42,14 +42,14 @@ class FreeSpaceGraph:
         s, d, ww = np.concatenate(src), np.concatenate(dst), np.concatenate(w)
         return np.concatenate([s, d]), np.concatenate([d, s]), np.concatenate([ww, ww])
 
-    def _matrix(self, extra_src: np.ndarray = np.zeros(0, np.int64),
-                extra_dst: np.ndarray = np.zeros(0, np.int64),
-                extra_w: np.ndarray = np.zeros(0)) -> csr_matrix:
+    def _matrix(self, extra: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> csr_matrix:
+        """The graph, optionally with extra (src, dst, weight) edges from one virtual node."""
         src, dst, w = self._edges
-        n = self.nodes + (1 if extra_src.size else 0)
-        return csr_matrix((np.concatenate([w, extra_w]),
-                           (np.concatenate([src, extra_src]), np.concatenate([dst, extra_dst]))),
-                          shape=(n, n))
+        n = self.nodes
+        if extra is not None:
+            src, dst, w = (np.concatenate([a, b]) for a, b in zip((src, dst, w), extra))
+            n += 1
+        return csr_matrix((w, (src, dst)), shape=(n, n))
 
     def _to_grid(self, dist: np.ndarray) -> np.ndarray:
         out = np.full(dist.shape[:-1] + self.shape, np.inf)
@@ -62,7 +62,7 @@ class FreeSpaceGraph:
         if seeds.size == 0:
             return np.full(self.shape, np.inf)
         virtual = np.full(seeds.size, self.nodes)
-        graph = self._matrix(virtual, seeds, np.maximum(seed_cost, 1e-9))  # csgraph drops zeros
+        graph = self._matrix((virtual, seeds, np.maximum(seed_cost, 1e-9)))  # csgraph drops zeros
         return self._to_grid(dijkstra(graph, directed=True, indices=self.nodes))
 
     def from_cells(self, cells: Sequence[tuple[int, int]]) -> np.ndarray:

@@ -13,11 +13,11 @@ new belief node it reaches, finishes with a rollout to ``max_depth``, and backs 
 
 Why the code looks the way it does: the planner runs thousands of simulations per decision
 in plain Python, so the hot loop is one function with everything bound to locals, the
-descent is iterative (no recursion, no per-step frames), the path is kept in preallocated lists,
-nodes are ``__slots__`` objects holding parallel lists (counts, values, children) indexed by
-action position, children dicts are created only when a transition first happens, and the UCB
-square roots come from a lookup table. No numpy: array calls on 2-5 actions cost more than
-the arithmetic they would replace.
+descent is iterative (no recursion, no per-step frames), the path is kept in preallocated
+lists, nodes are ``__slots__`` objects holding parallel lists (counts, values, children)
+indexed by action position, children dicts are created only when a transition first happens,
+and UCB1's square roots and logarithms come from lookup tables. No numpy: array calls on 2-5
+actions cost more than the arithmetic they would replace.
 """
 
 from __future__ import annotations
@@ -45,9 +45,10 @@ class GenerativeModel(Protocol[S, A, O]):
     """
 
     def actions(self, state: S) -> Sequence[A]:
-        """Legal actions. A belief node keeps the list of the first state that reached it, as
-        in POMCP: the list must depend only on what the agent knows (its history), not on the
-        hidden part of the state. An empty list makes the state a dead end (value 0)."""
+        """Legal actions. A belief node keeps the sequence returned for the first state that
+        reached it (as in POMCP; do not mutate it afterwards), so it must depend only on what
+        the agent knows (its history), not on the hidden part of the state. An empty
+        sequence makes the state a dead end (value 0)."""
         ...
 
     def step(self, state: S, action: A, rng: random.Random) -> tuple[S, O, float, bool]:
@@ -144,11 +145,13 @@ class POUCT(Generic[S, A, O]):
         max_depth: the most steps in one simulated trajectory, tree and rollout together,
             counted from the root (the root's action is step 1). The horizon of the plan.
         discount: gamma applied per step.
-        exploration: the UCB1 constant c in ``Q + c * sqrt(ln N / n)``. Q is in reward units,
-            so c must be on the same scale: the default 1.0 suits rewards in [0, 1]; for the
-            search POMDP or the Tiger problem, whose rewards span hundreds, set c to about the
-            range of returns (max - min, e.g. 110 for Tiger's +10 / -100) or exploration
-            effectively stops after the first visit of each action.
+        exploration: the UCB1 constant c in ``Q + c * sqrt(ln N / n)``. Q is a discounted
+            return in reward units, so c must be on that scale: the default 1.0 suits returns
+            within [0, 1]. With rewards in the hundreds (the search POMDP, the Tiger problem)
+            set c to about the spread of a simulation's return, max - min: 110 for Tiger when
+            opening a door ends the episode (+10 vs -100), several times that when rewards
+            accumulate over ``max_depth`` steps. With c far too small exploration stops after
+            one unlucky visit of an action; far too large, the search spreads evenly.
         seed: every :meth:`plan` starts a fresh ``random.Random(seed)``, so a plan is a pure
             function of (particles, settings): the same inputs give the same action and the
             same action values, and any decision can be replayed from its belief alone.
@@ -232,7 +235,9 @@ class POUCT(Generic[S, A, O]):
         rand = rng.random
         node_cls = _Node
         npart = len(particles)
-        inv_sqrt, sqrt_log = _ucb_tables(limit + 1 if limit > 0 else 4096)
+        # tables as long as the simulation count, grown by doubling as the search goes on
+        # (never sized from num_sims alone: a huge num_sims with a time budget is legitimate)
+        inv_sqrt, sqrt_log = _ucb_tables(min(limit + 1, _SHARED_CAP) if limit > 0 else 4096)
         table_size = len(inv_sqrt)
         # the path of the current simulation: node, action position, reward per tree step
         path_nodes: list[_Node] = [root] * max_depth
@@ -243,7 +248,7 @@ class POUCT(Generic[S, A, O]):
         while sims != limit:
             if deadline is not None and clock() >= deadline:
                 break
-            if sims >= table_size - 1:          # only under a time budget: counts <= sims
+            if sims >= table_size - 1:          # counts and N never exceed sims
                 inv_sqrt, sqrt_log = _ucb_tables(2 * table_size)
                 table_size = len(inv_sqrt)
             sims += 1
@@ -284,9 +289,11 @@ class POUCT(Generic[S, A, O]):
                 child = kids.get(obs)
                 if child is None:
                     # a new belief node: add it, then estimate its value with a rollout
-                    kids[obs] = node_cls(actions_of(state))
+                    # (none from a dead end: a state without legal actions is worth 0)
+                    legal = actions_of(state)
+                    kids[obs] = node_cls(legal)
                     nodes += 1
-                    depth = t
+                    depth = t if legal else max_depth
                     discount = 1.0
                     while depth < max_depth:
                         state, obs, reward, terminal = step(state, rollout_policy(state, rng), rng)
