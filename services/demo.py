@@ -23,6 +23,7 @@ from shared.status import LiveService, live_services
 from shared.zconfig import build_config, open_session
 
 DEMO_SERVICES = ("testpattern", "monitor")
+STARTUP_TIMEOUT_S = 30.0
 
 
 def _table(services: list[LiveService], elapsed: float) -> Table:
@@ -59,7 +60,9 @@ def run_demo(console: Console, *, seconds: float, robot_id: str) -> int:
     session = open_session(build_config(connect=[endpoint]))
     services: list[LiveService] = []
     try:
-        start = time.monotonic()
+        with console.status("waiting for the services to come up"):
+            _wait_until_up(session, robot_id)
+        start = time.monotonic()  # the clock starts once everything runs: slow start-ups don't count
         with Live(console=console, refresh_per_second=4) as live:
             while (elapsed := time.monotonic() - start) < seconds:
                 services = live_services(session, robot_id, timeout_s=1.0)
@@ -76,6 +79,15 @@ def run_demo(console: Console, *, seconds: float, robot_id: str) -> int:
                   ". The full demo (simulated robot searching a home for targets submitted over "
                   "HTTP) replaces this one with the gateway issue.")
     return 0 if ok else 1
+
+
+def _wait_until_up(session: Any, robot_id: str, timeout_s: float = STARTUP_TIMEOUT_S) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        up = {s.service for s in live_services(session, robot_id, timeout_s=1.0)}
+        if up >= set(DEMO_SERVICES):
+            return
+        time.sleep(0.2)
 
 
 def _verdict(console: Console, services: list[LiveService], robot_id: str) -> bool:
