@@ -6,6 +6,7 @@ import json
 import logging
 import math
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -33,6 +34,7 @@ Listen = Annotated[Optional[list[str]], typer.Option(help="Endpoint to listen on
 RobotId = Annotated[str, typer.Option("--robot-id", help="Robot whose keys to use.")]
 LogJson = Annotated[bool, typer.Option("--log-json", help="Log JSON lines.")]
 LogLevel = Annotated[str, typer.Option("--log-level")]
+AsJson = Annotated[bool, typer.Option("--json", help="Print one JSON object.")]
 
 
 def _fail(message: str) -> typer.Exit:
@@ -159,61 +161,57 @@ def map_png(out: Annotated[Path, typer.Option(help="PNG to write.")],
                   f"{len(snapshot.frontiers)} frontiers, {len(snapshot.objects)} objects) -> {out}")
 
 
+def _report(result: dict, as_json: bool, print_table: Callable[[Console, dict], None]) -> None:
+    """Benchmarks print one JSON object for scripts, or their table for people."""
+    if as_json:
+        print(json.dumps(result))
+    else:
+        print_table(console, result)
+
+
 @bench_app.command("transport")
 def bench_transport(
         frames: Annotated[int, typer.Option(help="Round trips per run.")] = 200,
         runs: Annotated[int, typer.Option(help="Runs (the median of run medians is reported).")] = 5,
         gap_ms: Annotated[float, typer.Option(help="Pause before each round trip.")] = 5.0,
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False
+        as_json: AsJson = False
 ) -> None:
     """Latency of a 640x480 RGB-D frame through a router: raw Zenoh vs. the ovamos bus."""
     from bench.transport import print_table, run_benchmark
     result = run_benchmark(frames=frames, runs=runs, gap_ms=gap_ms, progress=None if as_json else err)
-    if as_json:
-        print(json.dumps(result))
-    else:
-        print_table(console, result)
+    _report(result, as_json, print_table)
 
 
 @bench_app.command("sim")
 def bench_sim(frames: Annotated[int, typer.Option(help="Frames per run.")] = 50,
               runs: Annotated[int, typer.Option(help="Runs (the median is reported).")] = 3,
-              as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False
+              as_json: AsJson = False
               ) -> None:
     """Rendered frames per second of the simulator at 640x480 and 320x240."""
     from bench.sim import print_table, run_benchmark
     result = run_benchmark(frames=frames, runs=runs)
-    if as_json:
-        print(json.dumps(result))
-    else:
-        print_table(console, result)
+    _report(result, as_json, print_table)
 
 
 @bench_app.command("mapping")
 def bench_mapping(frames: Annotated[int, typer.Option(help="Frames per run.")] = 40,
                   runs: Annotated[int, typer.Option(help="Runs (the median is reported).")] = 3,
-                  as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False
+                  as_json: AsJson = False
                   ) -> None:
     """Milliseconds per 640x480 frame for a full map update with 1, 3 and 10 target layers."""
     from bench.mapping import print_table, run_benchmark
     result = run_benchmark(frames=frames, runs=runs, progress=None if as_json else err)
-    if as_json:
-        print(json.dumps(result))
-    else:
-        print_table(console, result)
+    _report(result, as_json, print_table)
 
 
 @bench_app.command("planner")
 def bench_planner(runs: Annotated[int, typer.Option(help="Instances per size (median).")] = 5,
-                  as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False
+                  as_json: AsJson = False
                   ) -> None:
     """POUCT simulations per second and decision latency for 5, 10 and 20 candidates."""
     from bench.planner import print_table, run_benchmark
     result = run_benchmark(runs=runs, progress=None if as_json else err)
-    if as_json:
-        print(json.dumps(result))
-    else:
-        print_table(console, result)
+    _report(result, as_json, print_table)
 
 
 SceneSeed = Annotated[int, typer.Option("--seed", help="Scene seed.")]
