@@ -128,10 +128,11 @@ def status(robot_id: RobotId = "*", zenoh_file: ZenohFile = None, connect: Conne
 
 @app.command()
 def demo(seconds: Annotated[float, typer.Option(help="How long to run.")] = 6.0,
-         robot_id: RobotId = "demo") -> None:
+         robot_id: RobotId = "demo",
+         out: Annotated[Path, typer.Option(help="Folder for the map PNG.")] = Path("out")) -> None:
     """Run a router and services on this machine over real Zenoh, and show what flows."""
     from services.demo import run_demo
-    raise typer.Exit(run_demo(console, seconds=seconds, robot_id=robot_id))
+    raise typer.Exit(run_demo(console, seconds=seconds, robot_id=robot_id, out_dir=out))
 
 
 @app.command("map")

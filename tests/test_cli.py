@@ -48,10 +48,11 @@ def test_bad_robot_id_is_a_clear_error() -> None:
     assert out.returncode == 2 and "robot id" in out.stderr
 
 
-def test_demo_moves_frames_between_processes_and_cleans_up() -> None:
-    out = ovamos("demo", "--seconds", "3")
+def test_demo_moves_frames_between_processes_and_cleans_up(tmp_path: Path) -> None:
+    out = ovamos("demo", "--seconds", "3", "--out", str(tmp_path))
     assert out.returncode == 0, out.stdout + out.stderr
     assert "OK:" in out.stdout and "Not in this demo yet" in out.stdout
+    assert (tmp_path / "demo_map.png").stat().st_size > 0
 
 
 def test_transport_benchmark_reports_both_paths() -> None:
