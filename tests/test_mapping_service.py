@@ -73,9 +73,11 @@ def test_frames_and_results_are_matched_by_seq(service, sender, client, frames) 
     pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
     pub_r = sender.publisher(keys.perception_result(ROBOT), PerceptionResult)
     wait_for(lambda: query_snapshot(client), what="the service answers")
-    # result before its frame, then a frame before its result
-    pub_r.put(result_for(frames[0], {"fridge": 0.6}))
-    wait_for(lambda: pub_f.put(frames[0]) or (s := query_snapshot(client)) and s.seq == 0, what="seq 0")
+    # result before its frame (repeated until both publishers know the service), then a frame
+    # before its result
+    first = result_for(frames[0], {"fridge": 0.6})
+    wait_for(lambda: pub_r.put(first) or pub_f.put(frames[0]) or (s := query_snapshot(client))
+             and s.seq == 0 and s.layers == ("fridge",), what="seq 0 with its result")
     pub_f.put(frames[1])
     pub_r.put(result_for(frames[1], {"fridge": 0.3, "cup": 0.2}))
     snap = wait_for(lambda: (s := query_snapshot(client)) and s.seq == 1 and s, what="seq 1")
@@ -92,8 +94,10 @@ def test_frames_and_results_are_matched_by_seq(service, sender, client, frames) 
 def test_a_frame_without_result_still_maps_after_the_timeout(service, sender, client, frames) -> None:
     pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
     wait_for(lambda: query_snapshot(client), what="the service answers")
-    pub_f.put(frames[3])  # the service is declared (it answered), so one put reaches it
-    wait_for(lambda: (s := query_snapshot(client)) and s.seq == 3, what="frame 3 fused without a result")
+    # repeated puts (a new publisher learns of subscribers asynchronously); a repeated frame
+    # keeps its first arrival time, so the timeout still runs out
+    wait_for(lambda: pub_f.put(frames[3]) or (s := query_snapshot(client)) and s.seq == 3,
+             what="frame 3 fused without a result")
     snap = query_snapshot(client)
     assert snap.explored.any() and snap.obstacle.any() and snap.layers == ()
 
@@ -144,8 +148,8 @@ def test_the_map_command_draws_the_current_map(service, sender, client, frames, 
     import cv2
     pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
     wait_for(lambda: query_snapshot(client), what="the service answers")
-    pub_f.put(frames[0])
-    wait_for(lambda: (s := query_snapshot(client)) and s.seq == 0, what="frame 0 fused")
+    wait_for(lambda: pub_f.put(frames[0]) or (s := query_snapshot(client)) and s.seq == 0,
+             what="frame 0 fused")
     endpoint = service[0]
     out = subprocess.run([sys.executable, "-m", "services.cli", "map", "--robot-id", ROBOT,
                           "--connect", endpoint, "--out", str(tmp_path / "map.png")],

@@ -137,19 +137,22 @@ def test_malformed_frames_are_counted_by_a_running_service(cli, router_port) -> 
     wait_for(lambda: _instances(router_port, "monitor"), what="monitor up")
     session = open_session(build_config(connect=[loopback(router_port)]))
     try:
-        good = pattern_frame(0, 0.0, width=16, height=12)
-        bad = bytearray(good.to_bytes())
+        good = bytes(pattern_frame(0, 0.0, width=16, height=12).to_bytes())
+        bad = bytearray(good)
         bad[0:4] = b"JUNK"
-        for payload in (bytes(bad), b"not a frame", bytes(good.to_bytes())[:100]):
-            session.put(keys.rgbd("r1"), payload)
 
         def rgbd_counters():
             (monitor,) = [s for s in status_cli(router_port, "r1") if s["service"] == "monitor"]
             return monitor["stats"]["counters"].get(keys.rgbd("r1"))
 
-        wait_for(lambda: (c := rgbd_counters()) and c["malformed"] == 3, what="3 malformed counted")
-        session.put(keys.rgbd("r1"), good.to_bytes())
-        wait_for(lambda: rgbd_counters()["received"] == 4, what="the good frame after the bad ones")
+        # a new session learns of subscribers asynchronously: warm the route with good frames
+        warm = wait_for(lambda: session.put(keys.rgbd("r1"), good) or rgbd_counters(),
+                        what="a good frame reaching the monitor")["received"]
+        for payload in (bytes(bad), b"not a frame", good[:100]):
+            session.put(keys.rgbd("r1"), payload)
+        wait_for(lambda: rgbd_counters()["malformed"] == 3, what="3 malformed counted")
+        session.put(keys.rgbd("r1"), good)
+        wait_for(lambda: rgbd_counters()["received"] >= warm + 4, what="a good frame after the bad ones")
         assert rgbd_counters()["malformed"] == 3
     finally:
         session.close()
