@@ -35,6 +35,8 @@ demo: $(VENV)/.installed
 bench: $(VENV)/.installed egl
 	$(VENV)/bin/ovamos bench transport
 	$(VENV)/bin/ovamos bench sim
+	$(VENV)/bin/ovamos bench mapping
+	$(VENV)/bin/ovamos bench planner
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis
