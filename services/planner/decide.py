@@ -108,12 +108,9 @@ class PathLengths:
         k = config.distance_coarsening
         res = snapshot.resolution
         explored = snapshot.explored
-        rows = np.flatnonzero(explored.any(axis=1))
-        cols = np.flatnonzero(explored.any(axis=0))
-        if rows.size == 0:
-            rows, cols = np.arange(explored.shape[0]), np.arange(explored.shape[1])
+        rows, cols, _ = explored_window(snapshot)
         fine = GridGeometry(res, snapshot.origin[0], snapshot.origin[1], *explored.shape)
-        r_lo, r_hi, c_lo, c_hi = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+        r_lo, r_hi, c_lo, c_hi = rows.start, rows.stop, cols.start, cols.stop
         if include is not None and len(include):  # points (e.g. the robot) outside the explored box
             pr, pc = fine.to_cell(include[:, 0], include[:, 1])
             r_lo, r_hi = min(r_lo, pr.min()), max(r_hi, pr.max() + 1)
