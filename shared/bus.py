@@ -232,10 +232,14 @@ class Bus:
             try:
                 fn(arg)
             except Exception:
-                n = self.counters.bump(key, "errors")
-                if sampled(n):
-                    self.log.exception("handler failed", extra=fields(key=key, count=n))
+                self.record_failure(key)
         return guarded
+
+    def record_failure(self, key: str) -> None:
+        """Count, and log (sampled), the exception being handled: call it in an except block."""
+        n = self.counters.bump(key, "errors")
+        if sampled(n):
+            self.log.exception("%s: handler failed", key, extra=fields(key=key, count=n))
 
     def decode(self, key: str, msg_type: type[M], payload: bytes) -> M | None:
         """The message in ``payload``, or None (logged and counted) when it is malformed."""

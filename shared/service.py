@@ -21,7 +21,6 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from shared.bus import Bus
-from shared.log import sampled
 
 log = logging.getLogger("ovamos.service")
 
@@ -129,6 +128,4 @@ def _tick(svc: Service) -> None:
     try:
         svc.tick()
     except Exception:
-        n = svc.bus.counters.bump("tick", "errors")
-        if sampled(n):
-            svc.log.exception("tick failed (%d so far)", n)
+        svc.bus.record_failure("tick")
