@@ -62,6 +62,11 @@ def driver_state(robot_id: str) -> str:
     return f"{_robot(robot_id)}/driver/state"
 
 
+def estop(robot_id: str) -> str:
+    """Emergency stop requests (engage or clear), from any service or the gateway."""
+    return f"{_robot(robot_id)}/driver/estop"
+
+
 def task_current(robot_id: str) -> str:
     return f"{_robot(robot_id)}/task/current"
 

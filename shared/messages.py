@@ -15,16 +15,19 @@ version or an inconsistent payload raises :class:`DecodeError` and nothing else.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar, Self
+from enum import Enum
+from typing import Any, ClassVar, Literal, Self
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from shared.codec import DecodeError, loan, pack, unpack
 from shared.detections import Detection
+from shared.motion import Action
 
 __all__ = ["DecodeError", "JsonMessage", "BinaryMessage", "ArraySpec", "Intrinsics", "RgbdFrame",
-           "MapSnapshot", "ObjectInstance", "PerceptionResult", "CounterSet", "ServiceStats"]
+           "MapSnapshot", "ObjectInstance", "PerceptionResult", "CounterSet", "ServiceStats", "Odometry", "PlanCommand", "DriverMode",
+           "DriverState", "EStop", "TaskSpec", "TaskStatus", "FoundObject", "TaskEvent"]
 
 
 def _validation_error(cls: type, exc: ValidationError) -> DecodeError:
@@ -316,3 +319,119 @@ class ServiceStats(JsonMessage):
     started: float
     counters: dict[str, CounterSet]
     info: dict[str, Any] = {}
+
+
+class Odometry(JsonMessage):
+    """The base's pose estimate (odometry frame, metres/radians) and body velocities."""
+
+    seq: int = Field(ge=0)
+    stamp: float
+    x: float
+    y: float
+    yaw: float
+    v: float = 0.0  # forward, m/s
+    w: float = 0.0  # yaw rate, rad/s
+
+
+class PlanCommand(JsonMessage):
+    """One command for the base, identified so that a re-sent copy is executed once.
+
+    ``action`` is a discrete primitive (the planner's); ``velocity`` a teleop
+    command held for ``duration_s`` at most (the deadman still applies).
+    Action ids grow within a session; a driver executes an id only once.
+    """
+
+    action_id: int = Field(ge=1)
+    stamp: float
+    task_id: str | None = None
+    action: Action | None = None
+    linear: float = 0.0   # m/s, velocity commands only
+    angular: float = 0.0  # rad/s, velocity commands only
+    duration_s: float = Field(default=0.0, ge=0)
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> Self:
+        if self.action is not None and (self.linear or self.angular):
+            raise ValueError("a command is either a discrete action or a velocity, not both")
+        return self
+
+
+class DriverMode(str, Enum):
+    IDLE = "idle"          # not enabled (start-up, or after a fault was cleared)
+    READY = "ready"        # closed loop, holding zero velocity, accepting commands
+    MOVING = "moving"      # executing a command
+    FAULT = "fault"        # a CAN/motor error; see ``faults``
+    ESTOP = "estop"        # latched until an explicit clear
+
+
+class DriverState(JsonMessage):
+    """What the base reports: its mode, why it is not moving, and how far the commands got.
+
+    Lock-step: ``frame_seq`` is the seq of the first camera frame taken after
+    ``last_completed`` finished, when the driver knows it (the simulated robot
+    does); otherwise a planner waits for a map built from a frame newer than
+    ``completed_stamp``.
+    """
+
+    stamp: float
+    mode: DriverMode
+    faults: tuple[str, ...] = ()
+    estop_latched: bool = False
+    active_action: int | None = None
+    last_completed: int = Field(default=0, ge=0)
+    last_outcome: Literal["done", "blocked", "aborted", "rejected"] | None = None
+    completed_stamp: float = 0.0
+    frame_seq: int | None = None
+
+
+class EStop(JsonMessage):
+    """Engage (any service, the gateway, a person) or clear (explicitly) the emergency stop."""
+
+    engage: bool
+    source: str = Field(min_length=1, max_length=64)
+    reason: str = Field(default="", max_length=256)
+    stamp: float
+
+
+class TaskStatus(str, Enum):
+    QUEUED = "queued"
+    SEARCHING = "searching"
+    DONE = "done"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
+
+
+class TaskSpec(JsonMessage):
+    """The task a robot should work on (re-published by its owner until it ends).
+
+    ``cancelled`` tells the planner to stop; targets may change while searching.
+    """
+
+    task_id: str = Field(min_length=1, max_length=64)
+    targets: tuple[str, ...] = Field(min_length=1, max_length=16)
+    max_steps: int = Field(default=500, ge=1, le=100_000)
+    cancelled: bool = False
+    stamp: float
+
+
+class FoundObject(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    label: str
+    x: float
+    y: float
+    step: int = Field(ge=0)
+
+
+class TaskEvent(JsonMessage):
+    """The planner's view of a task after each step: progress, found objects, the end."""
+
+    task_id: str
+    status: TaskStatus
+    targets: tuple[str, ...]
+    found: tuple[FoundObject, ...] = ()
+    steps: int = Field(ge=0)
+    distance_m: float = Field(ge=0)
+    stamp: float
+    message: str = ""
+    x: float | None = None  # robot position when the event was made
+    y: float | None = None

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from services.sim.evaluator import GroundTruth, spl
-from services.sim.robot import Action, MotionConfig, Pose, SimRobot
+from services.sim.robot import MotionConfig, SimRobot
+from shared.motion import Action, Pose
 from tests.sim_scenes import two_rooms
 
 

@@ -33,7 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from services.sim.robot import Action, Pose
+from shared.motion import Action, Pose
 from shared.grid import GridGeometry, inflate
 from shared.messages import MapSnapshot
 

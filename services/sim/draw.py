@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from services.sim.occupancy import box_corners, wall_corners
-from services.sim.robot import Pose
+from shared.motion import Pose
 from services.sim.world import Scene
 from shared.camera import DEPTH_RANGE_M
 from shared.messages import RgbdFrame

@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from services.sim.evaluator import GroundTruth
 from services.sim.generate import generate_scene
 from services.sim.prior import ObjectPrior
-from services.sim.robot import Pose
+from shared.motion import Pose
 from services.sim.world import Scene, SceneError
 
 TARGETS_PER_EPISODE = 3

@@ -10,24 +10,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from enum import Enum
 from collections.abc import Callable
 
 from pydantic import BaseModel, ConfigDict, Field
 
-
-class Action(str, Enum):
-    MOVE_FORWARD = "MOVE_FORWARD"
-    TURN_LEFT = "TURN_LEFT"
-    TURN_RIGHT = "TURN_RIGHT"
-    STOP = "STOP"
-
-
-class Pose(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    x: float
-    y: float
-    yaw: float = 0.0
+from shared.motion import Action, Pose, wrap_angle
 
 
 class MotionConfig(BaseModel):
@@ -39,10 +26,6 @@ class MotionConfig(BaseModel):
     wheel_radius_m: float = Field(default=0.033, gt=0)
     track_width_m: float = Field(default=0.287, gt=0)
     collision_step_m: float = Field(default=0.02, gt=0, description="spacing of collision checks")
-
-
-def wrap_angle(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 @dataclass
