@@ -19,7 +19,8 @@ from pydantic import ValidationError
 from services.planner.navigation import (NavigationConfig, NavMap, Navigator, Unreachable,
                                          auto_window, distance_field, path_lengths,
                                          segment_cells, traversable)
-from shared.motion import Action, Pose, SimRobot
+from services.sim.robot import SimRobot
+from shared.motion import Action, Pose
 from shared.grid import GridGeometry, inflate
 from shared.messages import MapSnapshot
 
