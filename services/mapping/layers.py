@@ -30,7 +30,10 @@ def fuse(value: np.ndarray, confidence: np.ndarray, new_value: float, new_confid
 
 def decay(values: np.ndarray, counts: np.ndarray, tau: float, kappa: float) -> np.ndarray:
     """v' = v / (1 + exp((u - tau) / kappa)): places looked at often without success fade."""
-    return (values / (1.0 + np.exp((counts.astype(np.float32) - tau) / kappa))).astype(np.float32)
+    # exp saturates (to inf, harmlessly: v' -> 0) from an argument of 88 on in float32; clip
+    # it so that a cell seen a few hundred times does not raise an overflow warning
+    exponent = np.minimum((counts.astype(np.float32) - tau) / kappa, 80.0)
+    return (values / (1.0 + np.exp(exponent))).astype(np.float32)
 
 
 def aggregate(layers: Iterable[np.ndarray]) -> np.ndarray | None:

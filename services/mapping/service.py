@@ -74,7 +74,7 @@ class MappingService(Service):
                 self._frames.setdefault(frame.seq, (frame, time.monotonic()))  # a repeat keeps its wait
                 _trim(self._frames, self.config.max_pending)
                 return
-            self._fuse(frame, result)
+            self.state.apply(frame, result)
 
     def _on_result(self, result: PerceptionResult) -> None:
         with self._lock:
@@ -83,17 +83,8 @@ class MappingService(Service):
                 self._results[result.seq] = result
                 _trim(self._results, self.config.max_pending)
                 return
-            self._fuse(pending[0], result)
+            self.state.apply(pending[0], result)
 
-    def _fuse(self, frame: RgbdFrame, result: PerceptionResult | None) -> None:
-        if result is not None:
-            for target in set(self.state.layers) - set(result.targets):
-                self.state.remove_layer(target)
-            for target in result.targets:
-                self.state.add_layer(target)
-            self.state.integrate(frame, result.score_map(), result.detections())
-        else:
-            self.state.integrate(frame)
 
     # -- periodic work -------------------------------------------------------------------------
     def tick(self) -> None:
@@ -102,7 +93,7 @@ class MappingService(Service):
             expired = sorted(s for s, (_, t) in self._frames.items()
                              if now - t > self.config.match_timeout_s)
             for seq in expired:
-                self._fuse(self._frames.pop(seq)[0], None)
+                self.state.apply(self._frames.pop(seq)[0], None)
             changed = self.state.seq != self._published_seq
             snapshot = self._snapshot() if changed else None
         if snapshot is not None:

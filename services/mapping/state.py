@@ -18,7 +18,7 @@ from services.mapping.objects import ObjectMap
 from services.mapping.projection import View, project
 from shared.detections import Detection
 from shared.grid import GridGeometry, inflate
-from shared.messages import MapSnapshot, RgbdFrame
+from shared.messages import MapSnapshot, PerceptionResult, RgbdFrame
 
 
 class MapState:
@@ -56,6 +56,18 @@ class MapState:
         self.confidence.pop(target, None)
 
     # -- integration --------------------------------------------------------------------------
+    def apply(self, frame: RgbdFrame, result: PerceptionResult | None = None) -> None:
+        """Fuse a frame with its perception result; the layers follow the result's target list
+        (a found or removed target's layer goes, a new one starts), so no other message is needed."""
+        if result is None:
+            self.integrate(frame)
+            return
+        for target in set(self.layers) - set(result.targets):
+            self.remove_layer(target)
+        for target in result.targets:
+            self.add_layer(target)
+        self.integrate(frame, result.score_map(), result.detections())
+
     def integrate(self, frame: RgbdFrame, scores: Mapping[str, float] | None = None,
                   detections: Sequence[Detection] = ()) -> None:
         """Fuse one frame: obstacles and explored area always; values and objects when given."""

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from sklearn.cluster import DBSCAN
 
 from shared.grid import GridGeometry
@@ -34,6 +36,34 @@ class Candidates:
     belief: np.ndarray  # N, sums to 1 (empty when N = 0)
 
 
+def grid_clusters(rows: np.ndarray, cols: np.ndarray, eps_cells: float) -> np.ndarray:
+    """DBSCAN with min_samples 1 on grid cells, exactly, in milliseconds.
+
+    With min_samples 1 every point is a core point, so DBSCAN's clusters are the connected
+    components of the graph joining cells at most eps apart. On a grid those pairs are a
+    handful of fixed offsets, found by one sorted lookup per offset; sklearn's DBSCAN
+    spends ~0.1 s per decision on the tens of thousands of cells a value map passes.
+    """
+    n = rows.size
+    r = int(np.floor(eps_cells + 1e-9))
+    offsets = [(dr, dc) for dr in range(0, r + 1) for dc in range(-r, r + 1)
+               if (dr, dc) > (0, 0) and dr * dr + dc * dc <= eps_cells * eps_cells + 1e-9]
+    width = int(cols.max()) + 2 * r + 2
+    codes = (rows.astype(np.int64) + r) * width + (cols.astype(np.int64) + r)
+    order = np.argsort(codes)
+    sorted_codes = codes[order]
+    src, dst = [np.arange(n)], [np.arange(n)]
+    for dr, dc in offsets:
+        wanted = codes + dr * width + dc
+        at = np.minimum(np.searchsorted(sorted_codes, wanted), n - 1)
+        hit = sorted_codes[at] == wanted
+        src.append(np.flatnonzero(hit))
+        dst.append(order[at[hit]])
+    i, j = np.concatenate(src), np.concatenate(dst)
+    graph = coo_matrix((np.ones(i.size, np.int8), (i, j)), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
 def find_candidates(value_map: np.ndarray, grid: GridGeometry, config: CandidateConfig
                     ) -> Candidates:
     rows, cols = np.nonzero(value_map > config.value_threshold)
@@ -41,8 +71,11 @@ def find_candidates(value_map: np.ndarray, grid: GridGeometry, config: Candidate
         empty = np.zeros(0)
         return Candidates(np.zeros((0, 2)), empty, empty)
     xs, ys = grid.to_world(rows, cols)
-    labels = DBSCAN(eps=config.dbscan_eps_m, min_samples=config.dbscan_min_samples).fit_predict(
-        np.stack([xs, ys], axis=1))
+    if config.dbscan_min_samples == 1:
+        labels = grid_clusters(rows, cols, config.dbscan_eps_m / grid.resolution)
+    else:
+        labels = DBSCAN(eps=config.dbscan_eps_m, min_samples=config.dbscan_min_samples).fit_predict(
+            np.stack([xs, ys], axis=1))
     values = value_map[rows, cols]
     order = np.lexsort((-values, labels))  # per cluster, best value first
     _, first = np.unique(labels[order], return_index=True)

@@ -51,6 +51,7 @@ class DecisionConfig(BaseModel):
     distance_coarsening: int = Field(default=4, ge=1, description="path lengths on cells this many times larger")
     window_margin_m: float = Field(default=1.0, ge=0, description="path search beyond the explored area")
     snap_radius_m: float = Field(default=0.5, ge=0, description="action points in obstacles move this far at most")
+    avoid_radius_m: float = Field(default=0.5, ge=0, description="unreachable goals block this much")
     seed: int = 0
 
 
@@ -152,21 +153,41 @@ class PathLengths:
         return np.minimum(out, out.T)
 
 
+def _away(points: np.ndarray, avoid: np.ndarray, radius: float) -> np.ndarray:
+    """Mask of the points farther than ``radius`` from every avoided point."""
+    if len(avoid) == 0 or len(points) == 0:
+        return np.ones(len(points), bool)
+    d2 = ((points[:, None, :] - avoid[None, :, :]) ** 2).sum(axis=2)
+    return (d2 > radius * radius).all(axis=1)
+
+
 def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequence[str],
-           config: DecisionConfig) -> Decision | None:
-    """The next goal, or None when there is nothing left to go to."""
+           config: DecisionConfig, avoid: np.ndarray | None = None) -> Decision | None:
+    """The next goal, or None when there is nothing left to go to.
+
+    ``avoid`` (K x 2 world xy) are goals that proved unreachable: objects, candidates and
+    frontiers within ``config.avoid_radius_m`` of one are not chosen again.
+    """
+    avoid = np.zeros((0, 2)) if avoid is None else np.asarray(avoid, float).reshape(-1, 2)
+    radius = config.avoid_radius_m
     for obj in snapshot.objects:
-        if obj.confirmed and obj.label in remaining:
+        if obj.confirmed and obj.label in remaining and _away(np.array([[obj.x, obj.y]]), avoid,
+                                                              radius)[0]:
             return Decision(GoalKind.OBJECT, obj.x, obj.y, obj.label)
+    frontiers = snapshot.frontiers[_away(snapshot.frontiers, avoid, radius)]
     if config.policy is Policy.RANDOM:
-        return _random(snapshot, config)
+        return _random(frontiers, snapshot.seq, config)
     rows, cols, grid = explored_window(snapshot)
     values = value_map(snapshot, remaining, config, (rows, cols))
     if values is None:
         values = np.zeros(grid.shape, np.float32)
     cands = find_candidates(values, grid, config.candidates)
-    f = best_frontier(snapshot.frontiers, values, grid, config.candidates.frontier_radius_m)
-    frontier = None if f is None else snapshot.frontiers[f]
+    keep = _away(cands.points, avoid, radius)
+    if not keep.all():
+        cands = Candidates(cands.points[keep], cands.values[keep],
+                           cands.belief[keep] / max(cands.belief[keep].sum(), 1e-12))
+    f = best_frontier(frontiers, values, grid, config.candidates.frontier_radius_m)
+    frontier = None if f is None else frontiers[f]
     if config.policy in FRONTIER_ONLY or len(cands.points) == 0:
         return None if frontier is None else Decision(GoalKind.FRONTIER, *map(float, frontier))
     if config.policy is Policy.GREEDY:
@@ -174,12 +195,12 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     return _pouct(cands, frontier, robot_xy, snapshot, config)
 
 
-def _random(snapshot: MapSnapshot, config: DecisionConfig) -> Decision | None:
+def _random(frontiers: np.ndarray, seq: int, config: DecisionConfig) -> Decision | None:
     """A uniformly drawn frontier, seeded by the config seed and the snapshot's frame seq."""
-    if len(snapshot.frontiers) == 0:
+    if len(frontiers) == 0:
         return None
-    rng = np.random.default_rng([config.seed, snapshot.seq + 1])
-    x, y = snapshot.frontiers[int(rng.integers(len(snapshot.frontiers)))]
+    rng = np.random.default_rng([config.seed, seq + 1])
+    x, y = frontiers[int(rng.integers(len(frontiers)))]
     return Decision(GoalKind.FRONTIER, float(x), float(y))
 
 

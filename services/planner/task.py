@@ -43,6 +43,7 @@ class Task:
     steps: int = 0
     distance: float = 0.0
     found: dict[str, Found] = field(default_factory=dict)
+    reason: str = ""  # why the task failed
 
     def __post_init__(self) -> None:
         if not self.targets or len(set(self.targets)) != len(self.targets):
@@ -61,13 +62,16 @@ class Task:
         self._require(TaskState.IDLE)
         self.state = TaskState.SEARCHING
 
-    def record_step(self, distance: float) -> None:
-        """One executed command; the task fails when the step limit is reached."""
+    def record_step(self, distance: float, found: Found | None = None) -> None:
+        """One executed command (a STOP that declared ``found`` included); the task fails
+        when the step limit is reached with targets left."""
         self._require(TaskState.SEARCHING)
         self.steps += 1
         self.distance += distance
-        if self.steps >= self.max_steps and self.remaining:
-            self.state = TaskState.FAILED
+        if found is not None:
+            self.mark_found(found.label, found.x, found.y)
+        if self.state is TaskState.SEARCHING and self.steps >= self.max_steps:
+            self.fail(f"step limit {self.max_steps} reached")
 
     def mark_found(self, label: str, x: float, y: float) -> None:
         self._require(TaskState.SEARCHING)
@@ -76,6 +80,11 @@ class Task:
         self.found[label] = Found(label, x, y, self.steps)
         if not self.remaining:
             self.state = TaskState.DONE
+
+    def fail(self, reason: str) -> None:
+        self._require(TaskState.SEARCHING)
+        self.state = TaskState.FAILED
+        self.reason = reason
 
     def add_targets(self, labels: list[str]) -> None:
         self._require(TaskState.IDLE, TaskState.SEARCHING)

@@ -1,0 +1,153 @@
+"""One search episode in one process: the services' cores wired together without Zenoh.
+
+The loop is the lock-step loop of the distributed system (command -> executed ->
+frame -> perception -> map fused -> next command), with the same classes the
+services run: :class:`SceneRenderer` and :class:`SimRobot` (the simulated robot
+service), :class:`SimPerception` through a :class:`PerceptionResult` (the
+perception service), :meth:`MapState.apply` (the mapping service) and
+:class:`SearchAgent` (the planner service). A run of the distributed system in
+lock-step with the kinematic robot follows the same trajectory.
+
+The protocol is the paper's: targets from the episode, a STOP counts when a true
+instance of its target is within 1 m (the ground truth's geodesic check), the
+episode succeeds when every target was found within the step limit, and MSPL
+weighs success by the shortest tour through all targets over the path driven.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from services.mapping.config import MappingConfig
+from services.mapping.state import MapState
+from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
+from services.planner.decide import Policy
+from services.planner.task import Task, TaskState
+from services.sim.episodes import EpisodeSpec
+from services.sim.evaluator import GroundTruth, spl
+from services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
+from services.sim.prior import ObjectPrior
+from services.sim.render import SceneRenderer
+from services.sim.robot import MotionConfig, SimRobot
+from services.sim.world import Scene
+from shared.messages import PerceptionResult
+
+MAP_MARGIN_M = 2.0
+
+
+class EpisodeConfig(BaseModel):
+    """Everything an episode's outcome depends on besides the episode itself."""
+
+    model_config = ConfigDict(extra="forbid")
+    policy: Policy = Policy.OVAMOS
+    width: int = Field(default=320, ge=16, description="camera image width (pixels)")
+    height: int = Field(default=240, ge=16)
+    agent: AgentConfig = Field(default_factory=AgentConfig)
+    mapping: MappingConfig = Field(default_factory=MappingConfig)
+    perception: SimPerceptionConfig = Field(default_factory=SimPerceptionConfig)
+    motion: MotionConfig = Field(default_factory=MotionConfig)
+
+
+class StopRecord(BaseModel):
+    step: int
+    label: str
+    x: float
+    y: float
+    success: bool
+    distance_m: float  # geodesic distance to the nearest true instance
+
+
+class EpisodeResult(BaseModel):
+    """What the benchmark keeps of an episode (one JSONL line)."""
+
+    episode_id: str
+    policy: str
+    scene_seed: int
+    targets: tuple[str, ...]
+    success: bool
+    spl: float
+    found: tuple[str, ...]          # targets whose STOP was correct
+    steps: int
+    path_m: float
+    shortest_m: float
+    state: str                      # the agent's view: done / failed
+    reason: str = ""
+    decisions: int
+    blocked: int
+    stops: list[StopRecord]
+    trajectory: list[tuple[float, float, float]]
+    seconds: float
+
+
+def scene_mapping(scene: Scene, base: MappingConfig | None = None) -> MappingConfig:
+    """A map grid that covers the scene with a margin: the benchmark's stand-in for a map
+    large enough for any building (a smaller grid keeps the per-step copies cheap)."""
+    base = base or MappingConfig()
+    side = max(scene.width, scene.depth) + 2 * MAP_MARGIN_M
+    return base.model_copy(update={"center": (scene.width / 2, scene.depth / 2),
+                                   "grid_cells": int(math.ceil(side / base.resolution))})
+
+
+def episode_config(policy: Policy | str, base: EpisodeConfig | None = None) -> EpisodeConfig:
+    """``base`` with the policy set where the agent reads it."""
+    base = base or EpisodeConfig()
+    policy = Policy(policy)
+    decision = base.agent.decision.model_copy(update={"policy": policy})
+    agent = base.agent.model_copy(update={"decision": decision})
+    return base.model_copy(update={"policy": policy, "agent": agent})
+
+
+def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: EpisodeConfig,
+                prior: ObjectPrior | None = None,
+                on_step: Callable[[int, Step], None] | None = None) -> EpisodeResult:
+    started = time.perf_counter()
+    config = episode_config(config.policy, config)
+    prior = prior or ObjectPrior.load()
+    perception = SimPerception(FrameLabels.of(scene), prior, config.perception)
+    state = MapState(scene_mapping(scene, config.mapping))
+    robot = SimRobot(spec.start, truth.is_free, config.motion)
+    task = Task(spec.episode_id, list(spec.targets), max_steps=spec.max_steps)
+    agent = SearchAgent(task, config.agent)
+    stops: list[StopRecord] = []
+    trajectory = [(robot.pose.x, robot.pose.y, robot.pose.yaw)]
+    renderer = SceneRenderer(scene, config.width, config.height)
+    try:
+        seq = 0
+        while task.state is TaskState.SEARCHING:
+            pose = robot.pose
+            frame = renderer.render(pose.x, pose.y, pose.yaw, seq=seq, stamp=float(seq))
+            remaining = task.remaining
+            result = PerceptionResult.build(seq, frame.stamp, perception.score(frame, remaining),
+                                            perception.detect(frame, remaining), frame.depth.shape)
+            state.apply(frame, result)
+            step = agent.next_step(state.snapshot(frame.stamp, with_confidence=False), pose)
+            if step.action is None:
+                break
+            before = robot.distance
+            blocked = not robot.apply(step.action)
+            if step.reason is Reason.FOUND and step.goal is not None and step.goal.label is not None:
+                outcome = truth.stop(step.goal.label, pose.x, pose.y)
+                stops.append(StopRecord(step=task.steps + 1, label=step.goal.label, x=pose.x, y=pose.y,
+                                        success=outcome.success, distance_m=outcome.distance))
+            agent.executed(step, robot.distance - before, blocked)
+            trajectory.append((robot.pose.x, robot.pose.y, robot.pose.yaw))
+            if on_step is not None:
+                on_step(task.steps, step)
+            seq += 1
+    finally:
+        renderer.close()
+    found = tuple(s.label for s in stops if s.success)
+    success = set(found) >= set(spec.targets)
+    shortest = truth.shortest_tour((spec.start.x, spec.start.y), spec.targets)
+    return EpisodeResult(
+        episode_id=spec.episode_id, policy=config.policy.value, scene_seed=spec.scene_seed,
+        targets=spec.targets, success=success, spl=spl(success, shortest, robot.distance),
+        found=found, steps=task.steps, path_m=round(robot.distance, 4), shortest_m=round(shortest, 4),
+        state=task.state.value, reason=task.reason, decisions=agent.decisions, blocked=robot.blocked,
+        stops=stops, trajectory=[tuple(round(v, 4) for v in p) for p in trajectory],
+        seconds=round(time.perf_counter() - started, 3))
+

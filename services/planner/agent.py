@@ -1,0 +1,156 @@
+"""The search loop of one robot: decisions, navigation and found-object STOPs, one command at a time.
+
+The planner service (over Zenoh) and the in-process episode runner both drive
+this class, so the distributed system and the benchmark run the same method:
+
+    step = agent.next_step(snapshot, pose)   # what to execute now
+    ... execute step.action, get a new frame fused into the map ...
+    agent.executed(step, moved_m, blocked)   # book-keeping: steps, found targets
+
+A decision (the POUCT step of :mod:`services.planner.decide`) picks a goal; the
+navigator turns it into primitives. The goal is kept for ``redecide_every``
+commands (1 m of travel by default) and dropped earlier when it is reached,
+proves unreachable, or a confirmed object of a remaining target appears. A
+STOP is only ever sent beside a confirmed object, and declares that target
+found: reaching a candidate or a frontier is not a STOP (the paper's STOP ends
+the search for a target, so a wrong one costs the target).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from services.planner.decide import Decision, DecisionConfig, GoalKind, decide
+from services.planner.navigation import NavigationConfig, Navigator, Unreachable
+from services.planner.task import Found, Task, TaskState
+from shared.messages import MapSnapshot
+from shared.motion import Action, Pose
+
+
+class AgentConfig(BaseModel):
+    """Everything one search needs besides the map: the method's and the controller's parameters."""
+
+    model_config = ConfigDict(extra="forbid")
+    decision: DecisionConfig = Field(default_factory=DecisionConfig)
+    navigation: NavigationConfig = Field(default_factory=NavigationConfig)
+    initial_turns: int = Field(default=12, ge=0, description="look around first (12 x 30 deg = 360)")
+    redecide_every: int = Field(
+        default=4, ge=1,
+        description="commands towards one goal before deciding again (4 = 1 m); 1 is the paper's "
+                    "every step, at the cost of a decision per command and goal flip-flopping")
+    object_stop_m: float = Field(default=0.9, gt=0, le=1.0,
+                                 description="STOP this close to a confirmed object (success: 1 m)")
+    max_blocked: int = Field(default=3, ge=1,
+                             description="blocked moves in a row before the goal is given up")
+    max_idle_turns: int = Field(default=12, ge=1,
+                                description="turns with nowhere to go before the task fails")
+
+
+class Reason(str, Enum):
+    SCAN = "scan"              # the initial look-around
+    NAVIGATE = "navigate"      # a primitive towards the goal
+    LOOK = "look"              # goal reached, nothing new chosen: turn to see more
+    IDLE = "idle"              # nowhere to go (yet): turn in place
+    FOUND = "found"            # STOP beside a confirmed object
+    OVER = "over"              # the task is no longer searching
+
+
+@dataclass(frozen=True)
+class Step:
+    """One command and why it was chosen (``action`` None when the task is over)."""
+
+    action: Action | None
+    reason: Reason
+    goal: Decision | None = None
+
+
+class SearchAgent:
+    """Drives one task; holds the goal, the navigator and the goals found unreachable."""
+
+    def __init__(self, task: Task, config: AgentConfig | None = None) -> None:
+        self.task = task
+        self.config = config or AgentConfig()
+        self.navigator = Navigator(self.config.navigation)
+        self.goal: Decision | None = None
+        self.decisions = 0
+        self.unreachable: list[tuple[float, float]] = []
+        self._scan_left = self.config.initial_turns
+        self._toward_goal = 0
+        self._blocked = 0
+        self._idle = 0
+        if task.state is TaskState.IDLE:
+            task.start()
+
+    # -- the loop ------------------------------------------------------------------------------
+    def next_step(self, snapshot: MapSnapshot, pose: Pose) -> Step:
+        if self.task.state is not TaskState.SEARCHING:
+            return Step(None, Reason.OVER)
+        if self._scan_left > 0:
+            return Step(Action.TURN_LEFT, Reason.SCAN)
+        remaining = self.task.remaining
+        if self.goal is None or self._toward_goal >= self.config.redecide_every or (
+                self.goal.kind is not GoalKind.OBJECT and self._object_seen(snapshot, remaining)):
+            self._decide(snapshot, pose, remaining)
+        for _ in range(2):  # the goal, then (if it was reached or unreachable) one fresh decision
+            if self.goal is None:
+                return self._idle_turn()
+            goal = self.goal
+            if goal.kind is GoalKind.OBJECT and math.hypot(goal.x - pose.x, goal.y - pose.y) \
+                    <= self.config.object_stop_m:
+                return Step(Action.STOP, Reason.FOUND, goal)
+            try:
+                action = self.navigator.next_command(snapshot, pose, (goal.x, goal.y))
+            except Unreachable:
+                self.unreachable.append((goal.x, goal.y))
+                self._decide(snapshot, pose, remaining)
+                continue
+            if action is not Action.STOP:
+                self._idle = 0
+                return Step(action, Reason.NAVIGATE, goal)
+            if goal.kind is GoalKind.OBJECT:  # as close as the map allows, still too far
+                self.unreachable.append((goal.x, goal.y))
+            self._decide(snapshot, pose, remaining, reached=goal)
+        return Step(Action.TURN_LEFT, Reason.LOOK, self.goal)
+
+    def executed(self, step: Step, moved_m: float, blocked: bool = False) -> None:
+        """Book-keeping after ``step`` was executed: one step spent, a STOP declares its target."""
+        if step.action is None or self.task.state is not TaskState.SEARCHING:
+            return
+        found = None
+        if step.reason is Reason.FOUND and step.goal is not None and step.goal.label is not None:
+            found = Found(step.goal.label, step.goal.x, step.goal.y, self.task.steps + 1)
+            self.goal = None
+        if step.reason is Reason.SCAN:
+            self._scan_left -= 1
+        elif step.reason is Reason.NAVIGATE:
+            self._toward_goal += 1
+        self._blocked = self._blocked + 1 if blocked else 0
+        if self._blocked >= self.config.max_blocked and self.goal is not None:
+            self.unreachable.append((self.goal.x, self.goal.y))
+            self.goal, self._blocked = None, 0
+        self.task.record_step(moved_m, found)
+
+    # -- helpers -------------------------------------------------------------------------------
+    def _decide(self, snapshot: MapSnapshot, pose: Pose, remaining: list[str],
+                reached: Decision | None = None) -> None:
+        avoid = np.array(self.unreachable + ([(reached.x, reached.y)] if reached else []), float)
+        self.goal = decide(snapshot, (pose.x, pose.y), remaining, self.config.decision, avoid)
+        self.decisions += 1
+        self._toward_goal = 0
+        self.navigator.reset()
+
+    @staticmethod
+    def _object_seen(snapshot: MapSnapshot, remaining: list[str]) -> bool:
+        return any(o.confirmed and o.label in remaining for o in snapshot.objects)
+
+    def _idle_turn(self) -> Step:
+        self._idle += 1
+        if self._idle > self.config.max_idle_turns:
+            self.task.fail("nothing left to explore and no target seen")
+            return Step(None, Reason.OVER)
+        return Step(Action.TURN_LEFT, Reason.IDLE)
