@@ -133,7 +133,7 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
                 outcome = truth.stop(step.goal.label, pose.x, pose.y)
                 stops.append(StopRecord(step=task.steps + 1, label=step.goal.label, x=pose.x, y=pose.y,
                                         success=outcome.success, distance_m=outcome.distance))
-            agent.executed(step, robot.distance - before, blocked)
+            agent.executed(step, robot.distance - before, blocked, pose)
             trajectory.append((robot.pose.x, robot.pose.y, robot.pose.yaw))
             if on_step is not None:
                 on_step(task.steps, step)

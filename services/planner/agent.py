@@ -25,8 +25,8 @@ from enum import Enum
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.planner.decide import Decision, DecisionConfig, GoalKind, decide
-from services.planner.navigation import NavigationConfig, Navigator, Unreachable
+from services.planner.decide import Decision, DecisionConfig, GoalKind, away, decide
+from services.planner.navigation import NavigationConfig, NavMap, Navigator, Unreachable
 from services.planner.task import Found, Task, TaskState
 from shared.messages import MapSnapshot
 from shared.motion import Action, Pose
@@ -49,6 +49,14 @@ class AgentConfig(BaseModel):
                              description="blocked moves in a row before the goal is given up")
     max_idle_turns: int = Field(default=12, ge=1,
                                 description="turns with nowhere to go before the task fails")
+    stuck_steps: int = Field(
+        default=10, ge=2,
+        description="navigation commands that leave the robot within 0.1 m before the goal is "
+                    "given up (a controller oscillating between two headings)")
+    bump_depth_m: float = Field(
+        default=0.25, gt=0,
+        description="a blocked MOVE_FORWARD marks an obstacle this far ahead: what the depth "
+                    "camera cannot see (closer than its range, below its view) the bumper can")
 
 
 class Reason(str, Enum):
@@ -83,6 +91,8 @@ class SearchAgent:
         self._toward_goal = 0
         self._blocked = 0
         self._idle = 0
+        self._recent: list[tuple[float, float]] = []
+        self.bumps: list[tuple[float, float]] = []
         if task.state is TaskState.IDLE:
             task.start()
 
@@ -104,7 +114,7 @@ class SearchAgent:
                     <= self.config.object_stop_m:
                 return Step(Action.STOP, Reason.FOUND, goal)
             try:
-                action = self.navigator.next_command(snapshot, pose, (goal.x, goal.y))
+                action = self.navigator.next_command(self._nav_map(snapshot), pose, (goal.x, goal.y))
             except Unreachable:
                 self.unreachable.append((goal.x, goal.y))
                 self._decide(snapshot, pose, remaining)
@@ -117,8 +127,10 @@ class SearchAgent:
             self._decide(snapshot, pose, remaining, reached=goal)
         return Step(Action.TURN_LEFT, Reason.LOOK, self.goal)
 
-    def executed(self, step: Step, moved_m: float, blocked: bool = False) -> None:
-        """Book-keeping after ``step`` was executed: one step spent, a STOP declares its target."""
+    def executed(self, step: Step, moved_m: float, blocked: bool = False, pose: Pose | None = None
+                 ) -> None:
+        """Book-keeping after ``step`` was executed (``pose``: where it was executed from): one
+        step spent, a STOP declares its target, a bump marks an obstacle."""
         if step.action is None or self.task.state is not TaskState.SEARCHING:
             return
         found = None
@@ -130,9 +142,11 @@ class SearchAgent:
         elif step.reason is Reason.NAVIGATE:
             self._toward_goal += 1
         self._blocked = self._blocked + 1 if blocked else 0
-        if self._blocked >= self.config.max_blocked and self.goal is not None:
-            self.unreachable.append((self.goal.x, self.goal.y))
-            self.goal, self._blocked = None, 0
+        if blocked and step.action is Action.MOVE_FORWARD and pose is not None:
+            d = self.config.bump_depth_m
+            self.bumps.append((pose.x + d * math.cos(pose.yaw), pose.y + d * math.sin(pose.yaw)))
+        if self._blocked >= self.config.max_blocked or self._stuck(step, pose):
+            self._give_up_goal()
         self.task.record_step(moved_m, found)
 
     # -- helpers -------------------------------------------------------------------------------
@@ -142,15 +156,51 @@ class SearchAgent:
         self.goal = decide(snapshot, (pose.x, pose.y), remaining, self.config.decision, avoid)
         self.decisions += 1
         self._toward_goal = 0
-        self.navigator.reset()
 
-    @staticmethod
-    def _object_seen(snapshot: MapSnapshot, remaining: list[str]) -> bool:
-        return any(o.confirmed and o.label in remaining for o in snapshot.objects)
+    def _give_up_goal(self) -> None:
+        if self.goal is not None:
+            self.unreachable.append((self.goal.x, self.goal.y))
+        self.goal, self._blocked = None, 0
+        self._recent.clear()
+
+    def _stuck(self, step: Step, pose: Pose | None) -> bool:
+        """True when the last ``stuck_steps`` navigation commands kept the robot in place."""
+        if step.reason is not Reason.NAVIGATE or pose is None:
+            self._recent.clear()
+            return False
+        self._recent.append((pose.x, pose.y))
+        n = self.config.stuck_steps
+        if len(self._recent) < n:
+            return False
+        xy = np.array(self._recent[-n:])
+        del self._recent[:-n]
+        return bool(np.ptp(xy, axis=0).max() < 0.1)
+
+    def _nav_map(self, snapshot: MapSnapshot) -> NavMap:
+        """The snapshot's obstacles plus the bumps (copied only when there are bumps)."""
+        nav = NavMap.from_snapshot(snapshot)
+        if not self.bumps:
+            return nav
+        obstacle = nav.obstacle.copy()
+        rows, cols = nav.grid.to_cell(*np.array(self.bumps).T)
+        inside = (rows >= 0) & (rows < nav.grid.rows) & (cols >= 0) & (cols < nav.grid.cols)
+        obstacle[rows[inside], cols[inside]] = True
+        return NavMap(obstacle, nav.explored, nav.grid)
+
+    def _object_seen(self, snapshot: MapSnapshot, remaining: list[str]) -> bool:
+        """A confirmed object of a remaining target that is not known to be unreachable."""
+        seen = np.array([(o.x, o.y) for o in snapshot.objects if o.confirmed and o.label in remaining])
+        return bool(len(seen)) and bool(away(seen, np.array(self.unreachable).reshape(-1, 2),
+                                               self.config.decision.avoid_radius_m).any())
 
     def _idle_turn(self) -> Step:
+        """Turn in place with nowhere to go; after a full turn, give the goals once found
+        unreachable another chance (the map has changed since), then fail."""
         self._idle += 1
         if self._idle > self.config.max_idle_turns:
-            self.task.fail("nothing left to explore and no target seen")
-            return Step(None, Reason.OVER)
+            if not self.unreachable:
+                self.task.fail("nothing left to explore and no target seen")
+                return Step(None, Reason.OVER)
+            self.unreachable.clear()
+            self._idle = 0
         return Step(Action.TURN_LEFT, Reason.IDLE)

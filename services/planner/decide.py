@@ -153,7 +153,7 @@ class PathLengths:
         return np.minimum(out, out.T)
 
 
-def _away(points: np.ndarray, avoid: np.ndarray, radius: float) -> np.ndarray:
+def away(points: np.ndarray, avoid: np.ndarray, radius: float) -> np.ndarray:
     """Mask of the points farther than ``radius`` from every avoided point."""
     if len(avoid) == 0 or len(points) == 0:
         return np.ones(len(points), bool)
@@ -171,10 +171,10 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     avoid = np.zeros((0, 2)) if avoid is None else np.asarray(avoid, float).reshape(-1, 2)
     radius = config.avoid_radius_m
     for obj in snapshot.objects:
-        if obj.confirmed and obj.label in remaining and _away(np.array([[obj.x, obj.y]]), avoid,
+        if obj.confirmed and obj.label in remaining and away(np.array([[obj.x, obj.y]]), avoid,
                                                               radius)[0]:
             return Decision(GoalKind.OBJECT, obj.x, obj.y, obj.label)
-    frontiers = snapshot.frontiers[_away(snapshot.frontiers, avoid, radius)]
+    frontiers = snapshot.frontiers[away(snapshot.frontiers, avoid, radius)]
     if config.policy is Policy.RANDOM:
         return _random(frontiers, snapshot.seq, config)
     rows, cols, grid = explored_window(snapshot)
@@ -182,7 +182,7 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     if values is None:
         values = np.zeros(grid.shape, np.float32)
     cands = find_candidates(values, grid, config.candidates)
-    keep = _away(cands.points, avoid, radius)
+    keep = away(cands.points, avoid, radius)
     if not keep.all():
         cands = Candidates(cands.points[keep], cands.values[keep],
                            cands.belief[keep] / max(cands.belief[keep].sum(), 1e-12))

@@ -1,0 +1,1 @@
+"""The HTTP gateway: people and scripts submit search tasks; the planner works on them over Zenoh."""

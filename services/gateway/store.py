@@ -1,0 +1,197 @@
+"""Tasks in a SQLite file, so that an accepted task survives a gateway restart.
+
+One row per task. The queue of a robot is its ``queued`` rows in submission
+order (``seq``); at most one task per robot is ``searching`` at a time, which
+a partial unique index enforces, so a logic error cannot start two searches
+on one robot. Every write is committed before the call returns: once
+``POST /v1/tasks`` has answered 202 the task is on disk.
+
+One connection, shared by the HTTP worker threads and Zenoh's callback
+threads, serialised by a lock (SQLite's own locking is per connection).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from shared.messages import FoundObject, TaskStatus
+
+MAX_PATH_POINTS = 20_000  # a 500-step search reports ~500; this only bounds a runaway planner
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS tasks (
+    seq INTEGER PRIMARY KEY AUTOINCREMENT,
+    id TEXT NOT NULL UNIQUE,
+    robot_id TEXT NOT NULL,
+    status TEXT NOT NULL,
+    targets TEXT NOT NULL,
+    max_steps INTEGER NOT NULL,
+    found TEXT NOT NULL DEFAULT '[]',
+    steps INTEGER NOT NULL DEFAULT 0,
+    distance_m REAL NOT NULL DEFAULT 0,
+    message TEXT NOT NULL DEFAULT '',
+    path TEXT NOT NULL DEFAULT '[]',
+    created REAL NOT NULL,
+    started REAL,
+    updated REAL NOT NULL,
+    finished REAL
+);
+CREATE UNIQUE INDEX IF NOT EXISTS one_search_per_robot ON tasks(robot_id) WHERE status = 'searching';
+CREATE INDEX IF NOT EXISTS by_robot_status ON tasks(robot_id, status, seq);
+"""
+
+
+class StoreError(RuntimeError):
+    """The task file cannot be opened or is not a task store."""
+
+
+@dataclass
+class TaskRecord:
+    """One stored task (times are epoch seconds)."""
+
+    id: str
+    robot_id: str
+    status: TaskStatus
+    targets: list[str]
+    max_steps: int
+    seq: int = 0
+    found: list[FoundObject] = field(default_factory=list)
+    steps: int = 0
+    distance_m: float = 0.0
+    message: str = ""
+    path: list[tuple[float, float]] = field(default_factory=list)
+    created: float = 0.0
+    started: float | None = None
+    updated: float = 0.0
+    finished: float | None = None
+
+    @property
+    def position(self) -> tuple[float, float] | None:
+        return self.path[-1] if self.path else None
+
+
+def _record(row: sqlite3.Row) -> TaskRecord:
+    return TaskRecord(
+        id=row["id"], robot_id=row["robot_id"], status=TaskStatus(row["status"]),
+        targets=json.loads(row["targets"]), max_steps=row["max_steps"], seq=row["seq"],
+        found=[FoundObject.model_validate(f) for f in json.loads(row["found"])],
+        steps=row["steps"], distance_m=row["distance_m"], message=row["message"],
+        path=[tuple(p) for p in json.loads(row["path"])], created=row["created"],
+        started=row["started"], updated=row["updated"], finished=row["finished"])
+
+
+class TaskStore:
+    """Create, read and update tasks in ``path`` (created with its folder when missing)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._lock = threading.Lock()
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._db = sqlite3.connect(path, check_same_thread=False)
+            self._db.row_factory = sqlite3.Row
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.executescript(_SCHEMA)
+        except (OSError, sqlite3.Error) as exc:
+            raise StoreError(f"cannot open the task store {path}: {exc}") from None
+
+    def close(self) -> None:
+        with self._lock:
+            self._db.close()
+
+    def _write(self, sql: str, args: tuple[Any, ...]) -> None:
+        with self._lock, self._db:
+            self._db.execute(sql, args)
+
+    def _read(self, sql: str, args: tuple[Any, ...] = ()) -> list[TaskRecord]:
+        with self._lock:
+            return [_record(r) for r in self._db.execute(sql, args).fetchall()]
+
+    # -- creating and reading ------------------------------------------------------------------
+    def add(self, robot_id: str, targets: list[str], max_steps: int) -> TaskRecord:
+        now = time.time()
+        task_id = uuid.uuid4().hex
+        self._write("INSERT INTO tasks (id, robot_id, status, targets, max_steps, created, updated) "
+                    "VALUES (?, ?, ?, ?, ?, ?, ?)",
+                    (task_id, robot_id, TaskStatus.QUEUED.value, json.dumps(targets), max_steps,
+                     now, now))
+        record = self.get(task_id)
+        assert record is not None
+        return record
+
+    def get(self, task_id: str) -> TaskRecord | None:
+        rows = self._read("SELECT * FROM tasks WHERE id = ?", (task_id,))
+        return rows[0] if rows else None
+
+    def list(self, robot_id: str | None = None, status: TaskStatus | None = None,
+             limit: int = 100) -> list[TaskRecord]:
+        """Newest first."""
+        where, args = [], []
+        if robot_id is not None:
+            where.append("robot_id = ?")
+            args.append(robot_id)
+        if status is not None:
+            where.append("status = ?")
+            args.append(status.value)
+        clause = f"WHERE {' AND '.join(where)}" if where else ""
+        return self._read(f"SELECT * FROM tasks {clause} ORDER BY seq DESC LIMIT ?", (*args, limit))
+
+    def active(self, robot_id: str) -> TaskRecord | None:
+        rows = self._read("SELECT * FROM tasks WHERE robot_id = ? AND status = ?",
+                          (robot_id, TaskStatus.SEARCHING.value))
+        return rows[0] if rows else None
+
+    def next_queued(self, robot_id: str) -> TaskRecord | None:
+        rows = self._read("SELECT * FROM tasks WHERE robot_id = ? AND status = ? ORDER BY seq LIMIT 1",
+                          (robot_id, TaskStatus.QUEUED.value))
+        return rows[0] if rows else None
+
+    def queue_position(self, record: TaskRecord) -> int | None:
+        """1 for the next task to start, None when ``record`` is not queued."""
+        if record.status is not TaskStatus.QUEUED:
+            return None
+        with self._lock:
+            (ahead,) = self._db.execute(
+                "SELECT COUNT(*) FROM tasks WHERE robot_id = ? AND status = ? AND seq < ?",
+                (record.robot_id, TaskStatus.QUEUED.value, record.seq)).fetchone()
+        return ahead + 1
+
+    def count(self, robot_id: str, status: TaskStatus) -> int:
+        with self._lock:
+            (n,) = self._db.execute("SELECT COUNT(*) FROM tasks WHERE robot_id = ? AND status = ?",
+                                    (robot_id, status.value)).fetchone()
+        return n
+
+    # -- state changes -------------------------------------------------------------------------
+    def start(self, task_id: str) -> None:
+        now = time.time()
+        self._write("UPDATE tasks SET status = ?, started = ?, updated = ? WHERE id = ?",
+                    (TaskStatus.SEARCHING.value, now, now, task_id))
+
+    def finish(self, task_id: str, status: TaskStatus, message: str | None = None) -> None:
+        now = time.time()
+        self._write("UPDATE tasks SET status = ?, message = COALESCE(?, message), finished = ?, "
+                    "updated = ? WHERE id = ?", (status.value, message, now, now, task_id))
+
+    def progress(self, task_id: str, *, found: tuple[FoundObject, ...], steps: int, distance_m: float,
+                 message: str, position: tuple[float, float] | None) -> None:
+        """Record the planner's latest report; ``position`` extends the task's path."""
+        with self._lock, self._db:
+            row = self._db.execute("SELECT path FROM tasks WHERE id = ?", (task_id,)).fetchone()
+            if row is None:
+                return
+            path = json.loads(row["path"])
+            if position is not None and (not path or path[-1] != list(position)):
+                path = (path + [list(position)])[-MAX_PATH_POINTS:]
+            self._db.execute(
+                "UPDATE tasks SET found = ?, steps = ?, distance_m = ?, message = ?, path = ?, "
+                "updated = ? WHERE id = ?",
+                (json.dumps([f.model_dump() for f in found]), steps, distance_m, message,
+                 json.dumps(path), time.time(), task_id))

@@ -1,0 +1,7 @@
+"""Perception: RGB-D frames in, a value score per target and detections with masks out.
+
+``backend`` is the interface every backend implements; ``sim_backend`` runs the
+simulator's perception (tests, demo), ``hf`` the real models (BLIP / BLIP-2
+ITM, GroundingDINO, SAM) through transformers, imported lazily so that the base
+install needs no torch. ``service`` wires a backend to Zenoh, with replicas.
+"""

@@ -1,0 +1,48 @@
+"""The one interface every perception backend implements, and the factory that picks one.
+
+The service only ever calls :meth:`PerceptionBackend.score` and
+:meth:`PerceptionBackend.detect`, so the simulator's backend and the real
+models are interchangeable by config, and benchmarks time exactly what the
+service runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Protocol, runtime_checkable
+
+from shared.detections import Detection
+from shared.messages import RgbdFrame
+
+from services.perception.config import PerceptionServiceConfig
+
+
+class FrameRejected(ValueError):
+    """This frame cannot be processed by this backend (the input's fault, not the backend's)."""
+
+
+class BackendError(RuntimeError):
+    """A backend that cannot start (missing model files, a scene that cannot be loaded)."""
+
+
+@runtime_checkable
+class PerceptionBackend(Protocol):
+    #: shown in the service's info (``ovamos status``)
+    name: str
+
+    def score(self, frame: RgbdFrame, targets: Sequence[str]) -> dict[str, float]:
+        """Value score per target for the whole frame, keys in the order of ``targets``."""
+        ...
+
+    def detect(self, frame: RgbdFrame, targets: Sequence[str]) -> list[Detection]:
+        """Detections of the targets; boxes end-exclusive in pixels, masks of the image's size."""
+        ...
+
+
+def load_backend(config: PerceptionServiceConfig) -> PerceptionBackend:
+    """The configured backend; modules are imported here so an unused backend costs nothing."""
+    if config.backend == "sim":
+        from services.perception.sim_backend import SimBackend
+        return SimBackend.load(config.sim)
+    from services.perception.hf.backend import HfBackend
+    return HfBackend.load(config.hf)
