@@ -203,6 +203,16 @@ class Bus:
 
         self._declared.append(self.session.declare_queryable(key, self._guard(reply, key)))
 
+    def get(self, key: str, msg_type: type[M], timeout_s: float = 1.0) -> M | None:
+        """Ask the queryable(s) on ``key``; the first valid answer, or None (none answered in
+        time, or only malformed answers, which are counted)."""
+        for reply in self.session.get(key, timeout=timeout_s):
+            if reply.ok is not None:
+                msg = self.decode(key, msg_type, reply.ok.payload.to_bytes())
+                if msg is not None:
+                    return msg
+        return None
+
     def _declare_subscriber(self, key_expr: str, deliver: Callable[[zenoh.Sample], None],
                             latest_only: bool) -> Subscription:
         def count(sample: zenoh.Sample) -> None:

@@ -329,8 +329,8 @@ class Odometry(JsonMessage):
     x: float
     y: float
     yaw: float
-    v: float = 0.0  # forward, m/s
-    w: float = 0.0  # yaw rate, rad/s
+    linear: float = 0.0   # forward velocity, m/s
+    angular: float = 0.0  # yaw rate, rad/s
 
 
 class PlanCommand(JsonMessage):

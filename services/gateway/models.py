@@ -14,6 +14,7 @@ from fastapi.exceptions import RequestValidationError
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from services.gateway.config import MAX_STEPS_LIMIT, GatewayConfig
+from services.gateway.store import TaskRecord
 from shared.messages import FoundObject, TaskStatus
 
 MAX_TARGETS = 16
@@ -41,13 +42,13 @@ class TaskRequest(BaseModel):
         for i, raw in enumerate(targets):
             name = raw.strip()
             if not 1 <= len(name) <= MAX_TARGET_CHARS:
-                raise ValueError(f"name {i} must be 1 to {MAX_TARGET_CHARS} characters after "
+                raise ValueError(f"target {i} must be 1 to {MAX_TARGET_CHARS} characters after "
                                  f"trimming, got {len(name)}")
             if not name.isprintable():
-                raise ValueError(f"name {i} ({name!r}) contains non-printable characters")
+                raise ValueError(f"target {i} ({name!r}) contains non-printable characters")
             folded = name.casefold()
             if folded in seen:
-                raise ValueError(f"name {i} ({name!r}) duplicates {seen[folded]!r} "
+                raise ValueError(f"target {i} ({name!r}) duplicates {seen[folded]!r} "
                                  "(names are compared ignoring case)")
             seen[folded] = name
             cleaned.append(name)
@@ -145,3 +146,17 @@ class Problem(BaseModel):
 
 def timestamp(seconds: float | None) -> datetime | None:
     return None if seconds is None else datetime.fromtimestamp(seconds, UTC)
+
+
+def task_view(record: TaskRecord, queue_position: int | None) -> TaskView:
+    """The API's picture of a stored task."""
+    position = record.position
+    return TaskView(
+        id=record.id, robot_id=record.robot_id, status=record.status, targets=record.targets,
+        remaining=[t for t in record.targets if t not in {f.label for f in record.found}],
+        found=record.found, max_steps=record.max_steps, steps=record.steps,
+        distance_m=record.distance_m, message=record.message,
+        position=None if position is None else Position(x=position[0], y=position[1]),
+        queue_position=queue_position, created_at=timestamp(record.created),
+        started_at=timestamp(record.started), updated_at=timestamp(record.updated),
+        finished_at=timestamp(record.finished))

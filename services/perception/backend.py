@@ -11,18 +11,19 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Protocol, runtime_checkable
 
+from services.perception.config import PerceptionServiceConfig
 from shared.detections import Detection
 from shared.messages import RgbdFrame
-
-from services.perception.config import PerceptionServiceConfig
+from shared.service import ServiceConfigError
 
 
 class FrameRejected(ValueError):
     """This frame cannot be processed by this backend (the input's fault, not the backend's)."""
 
 
-class BackendError(RuntimeError):
-    """A backend that cannot start (missing model files, a scene that cannot be loaded)."""
+class BackendError(ServiceConfigError):
+    """A backend that cannot start with its config (model directories missing or incomplete,
+    torch absent, a scene that cannot be loaded): ``ovamos run`` prints it as a config error."""
 
 
 @runtime_checkable

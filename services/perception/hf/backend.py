@@ -5,29 +5,34 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from services.perception.config import HfBackendConfig
-from services.perception.hf.loading import DETECTOR, ITM, SEGMENTER, Placement, load_model
+from services.perception.hf.loading import (DETECTOR, ITM, SEGMENTER, Loaded, ModelFilesError, Placement,
+                                            load_model, model_type)
 from services.perception.hf.models import GroundingDetector, ItmScorer, SamSegmenter
 from shared.detections import Detection
 from shared.messages import RgbdFrame
 
 
 class HfBackend:
+    """Runs on loaded models; :meth:`load` is the one way service and tests get them from disk."""
+
     name = "hf"
 
-    def __init__(self, scorer: ItmScorer, detector: GroundingDetector, segmenter: SamSegmenter,
-                 placement: Placement) -> None:
-        self.scorer, self.detector, self.segmenter = scorer, detector, segmenter
+    def __init__(self, itm: Loaded, detector: Loaded, segmenter: Loaded, placement: Placement,
+                 config: HfBackendConfig) -> None:
         self.placement = placement
+        self.scorer = ItmScorer(itm, placement, config.prompt, config.score)
+        self.detector = GroundingDetector(detector, placement, config.box_threshold,
+                                          config.text_threshold, config.max_detections)
+        self.segmenter = SamSegmenter(segmenter, placement)
 
     @classmethod
     def load(cls, config: HfBackendConfig) -> HfBackend:
-        """All three models from their local directories (every directory is checked first,
-        so one start-up names every missing model rather than one per attempt)."""
-        from services.perception.hf.loading import ModelFilesError, model_type
-
+        """All three models from their local directories. Every directory is checked before
+        any is loaded, so one start-up names every model that is missing."""
+        roles = ((ITM, config.itm_dir), (DETECTOR, config.detector_dir),
+                 (SEGMENTER, config.segmenter_dir))
         problems = []
-        for role, directory in ((ITM, config.itm_dir), (DETECTOR, config.detector_dir),
-                                (SEGMENTER, config.segmenter_dir)):
+        for role, directory in roles:
             try:
                 model_type(role, directory)
             except ModelFilesError as exc:
@@ -35,12 +40,8 @@ class HfBackend:
         if problems:
             raise ModelFilesError("\n".join(problems))
         placement = Placement.resolve(config.device, config.fp16)
-        return cls(ItmScorer(load_model(ITM, config.itm_dir, placement), placement, config.prompt,
-                             config.score),
-                   GroundingDetector(load_model(DETECTOR, config.detector_dir, placement), placement,
-                                     config.box_threshold, config.text_threshold, config.max_detections),
-                   SamSegmenter(load_model(SEGMENTER, config.segmenter_dir, placement), placement),
-                   placement)
+        itm, detector, segmenter = (load_model(role, directory, placement) for role, directory in roles)
+        return cls(itm, detector, segmenter, placement, config)
 
     def score(self, frame: RgbdFrame, targets: Sequence[str]) -> dict[str, float]:
         return self.scorer(frame.rgb, targets)

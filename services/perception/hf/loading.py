@@ -54,6 +54,7 @@ def torch_and_transformers() -> tuple[ModuleType, ModuleType]:
     except ImportError as exc:
         raise BackendError(f"the hf perception backend needs torch and transformers ({exc.name} is "
                            f"missing): {_INSTALL_HINT}") from None
+    transformers.utils.logging.disable_progress_bar()  # a service logs lines, not progress bars
     return torch, transformers
 
 
@@ -69,22 +70,29 @@ def model_type(role: ModelRole, directory: Path) -> str:
     if not directory.is_dir():
         raise ModelFilesError(f"{role.what} weights not found: {directory} does not exist; "
                               f"{_download_hint(role, directory)}")
-    missing = []
-    if not (directory / "config.json").is_file():
-        missing.append("config.json")
+    kind = _declared_type(role, directory)
+    missing = [] if kind is not None else ["config.json"]
     if not _weights_present(directory):
         missing.append(" or ".join(_WEIGHTS) + " (or a complete sharded index)")
     if not any((directory / f).is_file() for f in _PROCESSOR_FILES):
         missing.append(" or ".join(_PROCESSOR_FILES))
     if role.needs_tokenizer and not any((directory / f).is_file() for f in _TOKENIZER_FILES):
         missing.append(" or ".join(_TOKENIZER_FILES))
-    if missing:
+    if missing or kind is None:
         raise ModelFilesError(f"{role.what} weights in {directory} are incomplete (missing "
                               f"{'; '.join(missing)}); {_download_hint(role, directory)}")
+    return kind
+
+
+def _declared_type(role: ModelRole, directory: Path) -> str | None:
+    """The model_type in config.json (None without one); a model of another kind is an error."""
+    path = directory / "config.json"
+    if not path.is_file():
+        return None
     try:
-        kind = json.loads((directory / "config.json").read_text()).get("model_type")
-    except (OSError, ValueError) as exc:
-        raise ModelFilesError(f"{role.what}: cannot read {directory / 'config.json'}: {exc}; "
+        kind = json.loads(path.read_text()).get("model_type")
+    except (OSError, ValueError, AttributeError) as exc:
+        raise ModelFilesError(f"{role.what}: cannot read {path}: {exc}; "
                               f"{_download_hint(role, directory)}") from None
     if kind not in role.classes:
         raise ModelFilesError(f"{directory} holds a {kind!r} model, not {role.what} "

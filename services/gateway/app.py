@@ -1,0 +1,121 @@
+"""The FastAPI application: ``create_app(config, bus_source)``.
+
+Nothing touches Zenoh at import: the bus is acquired in the lifespan (from
+``bus_source``, in a worker thread since opening may wait for a router), so
+the module can be imported by a process that forks later, and one process
+can build several apps (tests restart the gateway on the same state file).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import AsyncIterator, Callable
+from contextlib import AbstractContextManager, ExitStack, asynccontextmanager
+
+from fastapi import Depends, FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from services.gateway.auth import bearer_guard
+from services.gateway.config import GatewayConfig
+from services.gateway.routes import Gateway, router
+from services.gateway.sse import TaskWatchers
+from services.gateway.store import TaskRecord, TaskStore
+from services.gateway.tasks import TaskManager
+from shared.bus import Bus
+
+log = logging.getLogger("ovamos.gateway")
+
+BusSource = Callable[[], AbstractContextManager[Bus]]
+
+DESCRIPTION = """Submit multi-object search tasks to a robot and follow them.
+
+One task per robot runs at a time; further submissions for that robot are queued
+and start, in order, when the running one ends (done, failed or cancelled).
+When a token is configured, every `/v1` route needs `Authorization: Bearer <token>`.
+"""
+
+
+def create_app(config: GatewayConfig, bus_source: BusSource) -> FastAPI:
+    """An app serving ``config``; ``bus_source()`` gives the Zenoh bus as a context manager."""
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        loop = asyncio.get_running_loop()
+        with ExitStack() as stack:
+            store = TaskStore(config.db_path)
+            stack.callback(store.close)
+            bus = stack.enter_context(await asyncio.to_thread(bus_source))  # closed before the store
+            watchers = TaskWatchers(loop)
+            gateway: Gateway | None = None
+
+            def notify(record: TaskRecord) -> None:
+                if gateway is not None and watchers.watched(record.id):
+                    watchers.publish(gateway.view(record))
+
+            manager = TaskManager(bus, store, config, notify)
+            gateway = Gateway(config, bus, store, manager, watchers)
+            await asyncio.to_thread(manager.start)
+            app.state.gateway = gateway
+            republisher = asyncio.create_task(_republish(manager, config.republish_s))
+            log.info("gateway serving robots %s, tasks in %s", ", ".join(config.robots), config.db_path)
+            try:
+                yield
+            finally:
+                republisher.cancel()
+                watchers.close()
+
+    app = FastAPI(title="OVAMOS gateway", version="1", description=DESCRIPTION, lifespan=lifespan)
+    app.include_router(router, dependencies=[Depends(bearer_guard(config.resolved_token()))])
+    app.add_exception_handler(RequestValidationError, _validation_error)  # type: ignore[arg-type]
+    app.add_exception_handler(StarletteHTTPException, _http_error)  # type: ignore[arg-type]
+    return app
+
+
+async def _republish(manager: TaskManager, period_s: float) -> None:
+    """Re-send the active TaskSpecs forever; a failed round is logged and the next one tried."""
+    while True:
+        await asyncio.sleep(period_s)
+        try:
+            await asyncio.to_thread(manager.republish)
+        except Exception:
+            manager.bus.record_failure("republish")
+
+
+def _where(loc: tuple[object, ...]) -> str:
+    """``("body", "targets", 2)`` -> ``targets[2]``; the body itself is ``body``."""
+    parts = list(loc[1:] if loc and loc[0] == "body" and len(loc) > 1 else loc)
+    out = ""
+    for p in parts:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out or "body"
+
+
+BODY_EXAMPLE = '{"targets": ["chair", "fridge"]}'
+
+
+def _problem(error: dict) -> dict[str, str]:
+    """One validation error as ``{"field", "message"}``; the body-level ones say what to send."""
+    kind, loc = error.get("type"), tuple(error.get("loc", ()))
+    if kind == "json_invalid":
+        detail = (error.get("ctx") or {}).get("error")
+        return {"field": "body", "message": f"body is not valid JSON{f' ({detail})' if detail else ''}"}
+    if loc == ("body",):
+        what = "missing" if kind == "missing" else "not a JSON object"
+        return {"field": "body", "message": f"body is {what}: send a JSON object like {BODY_EXAMPLE}"}
+    msg = str(error.get("msg", "invalid")).removeprefix("Value error, ")
+    return {"field": _where(loc), "message": f"{_where(loc)}: {msg}"}
+
+
+async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
+    """422 with one readable sentence (``detail``) and one entry per problem (``errors``)."""
+    errors = [_problem(e) for e in exc.errors()]
+    detail = "; ".join(e["message"] for e in errors) or "invalid request"
+    return JSONResponse({"detail": detail, "errors": errors}, status_code=422)
+
+
+async def _http_error(_request: Request, exc: StarletteHTTPException) -> JSONResponse:
+    return JSONResponse({"detail": str(exc.detail), "errors": []}, status_code=exc.status_code,
+                        headers=getattr(exc, "headers", None))

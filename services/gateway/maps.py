@@ -1,0 +1,39 @@
+"""The latest map of a robot as a PNG, asked from its mapping service on demand.
+
+The gateway keeps no map of its own: it queries ``map/snapshot`` when a
+picture is requested, so it never holds megabytes per robot nor shows a map
+staler than the mapping service's. The robot's path (the positions its
+latest task reported) is drawn over the map.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import zenoh
+
+from services.mapping.render import render_map
+from shared import keys
+from shared.messages import MapSnapshot
+
+
+class NoMap(LookupError):
+    """No mapping service answered for the robot."""
+
+
+def fetch_snapshot(session: zenoh.Session, robot_id: str, timeout_s: float) -> MapSnapshot:
+    """The first snapshot a mapping service answers; NoMap when none does, DecodeError if broken."""
+    for reply in session.get(keys.map_snapshot(robot_id), timeout=timeout_s):
+        if reply.ok is not None:
+            return MapSnapshot.from_bytes(reply.ok.payload.to_bytes())
+    raise NoMap(f"no map for robot {robot_id!r}: no mapping service answered within {timeout_s} s")
+
+
+def map_png(snapshot: MapSnapshot, path: Sequence[tuple[float, float]] = (),
+            layer: str | None = None) -> bytes:
+    """PNG bytes of :func:`render_map`; ValueError for an unknown ``layer``."""
+    ok, data = cv2.imencode(".png", render_map(snapshot, layer=layer, path=path))
+    if not ok:
+        raise ValueError("the map could not be encoded as PNG")
+    return data.tobytes()

@@ -1,0 +1,146 @@
+"""The ``/v1`` HTTP endpoints. Handlers that touch Zenoh or SQLite are plain ``def``:
+FastAPI runs them on worker threads, so a slow query never blocks the event loop."""
+
+from __future__ import annotations
+
+import asyncio
+from collections import defaultdict
+from dataclasses import dataclass
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
+from fastapi.responses import StreamingResponse
+
+from services.gateway.config import GatewayConfig
+from services.gateway.maps import NoMap, fetch_snapshot, map_png
+from services.gateway.models import (Health, Problem, RobotHealth, ServiceEntry, TaskAccepted,
+                                     TaskList, TaskRequest, TaskView, check_against_config, task_view)
+from services.gateway.sse import TaskWatchers, task_stream
+from services.gateway.store import TaskRecord, TaskStore
+from services.gateway.tasks import TaskConflict, TaskManager
+from shared import keys
+from shared.bus import Bus
+from shared.messages import DecodeError, TaskStatus
+from shared.status import live_services
+
+
+@dataclass
+class Gateway:
+    """What the handlers need, created in the app's lifespan."""
+
+    config: GatewayConfig
+    bus: Bus
+    store: TaskStore
+    manager: TaskManager
+    watchers: TaskWatchers
+
+    def view(self, record: TaskRecord) -> TaskView:
+        return task_view(record, self.store.queue_position(record))
+
+    def find(self, task_id: str) -> TaskRecord:
+        record = self.store.get(task_id)
+        if record is None:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, f"no task {task_id!r}")
+        return record
+
+
+def _gateway(request: Request) -> Gateway:
+    return request.app.state.gateway
+
+
+GW = Annotated[Gateway, Depends(_gateway)]
+router = APIRouter(prefix="/v1", responses={401: {"model": Problem}})
+
+
+@router.post("/tasks", status_code=status.HTTP_202_ACCEPTED, response_model=TaskAccepted,
+             responses={422: {"model": Problem}})
+def submit_task(body: TaskRequest, response: Response, gw: GW) -> TaskAccepted:
+    """Queue a search. It starts at once when the robot is idle, else after the tasks before it."""
+    robot_id, max_steps = check_against_config(body, gw.config)
+    record = gw.manager.submit(robot_id, body.targets, max_steps)
+    location = f"/v1/tasks/{record.id}"
+    response.headers["Location"] = location
+    return TaskAccepted(id=record.id, status=record.status, robot_id=robot_id, location=location,
+                        queue_position=gw.store.queue_position(record))
+
+
+@router.get("/tasks", response_model=TaskList, responses={422: {"model": Problem}})
+def list_tasks(gw: GW, robot_id: str | None = None, status: TaskStatus | None = None,
+               limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> TaskList:
+    """Tasks, newest first."""
+    return TaskList(tasks=[gw.view(r) for r in gw.store.list(robot_id, status, limit)])
+
+
+@router.get("/tasks/{task_id}", response_model=TaskView, responses={404: {"model": Problem}})
+def get_task(task_id: str, gw: GW) -> TaskView:
+    """State, targets, found objects with positions, steps, distance, timestamps."""
+    return gw.view(gw.find(task_id))
+
+
+@router.delete("/tasks/{task_id}", response_model=TaskView,
+               responses={404: {"model": Problem}, 409: {"model": Problem}})
+def cancel_task(task_id: str, gw: GW) -> TaskView:
+    """Cancel a queued or running task (the planner is told with a cancelled TaskSpec)."""
+    try:
+        record = gw.manager.cancel(task_id)
+    except TaskConflict as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    if record is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no task {task_id!r}")
+    return gw.view(record)
+
+
+@router.get("/tasks/{task_id}/events", responses={404: {"model": Problem}, 200: {
+    "content": {"text/event-stream": {}},
+    "description": "`event: task` with the task's JSON at once, then on every change; "
+                   "ends after the final state"}})
+async def task_events(task_id: str, gw: GW) -> StreamingResponse:
+    """Server-Sent Events of one task's progress."""
+    await asyncio.to_thread(gw.find, task_id)
+
+    def current() -> TaskView | None:
+        record = gw.store.get(task_id)
+        return None if record is None else gw.view(record)
+
+    stream = task_stream(gw.watchers, task_id, current, gw.config.sse_heartbeat_s)
+    return StreamingResponse(stream, media_type="text/event-stream",
+                             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+
+@router.get("/health", response_model=Health)
+def health(gw: GW) -> Health:
+    """Services alive per robot (Zenoh liveliness), each robot's queue, event counters."""
+    alive: dict[str, list[ServiceEntry]] = defaultdict(list)
+    for s in live_services(gw.bus.session, keys.ANY, gw.config.health_timeout_s):
+        alive[s.robot_id].append(ServiceEntry(service=s.service, instance=s.instance,
+                                              pid=s.stats.pid if s.stats else None))
+    robots = {}
+    for robot in gw.config.robots:
+        active = gw.store.active(robot)
+        robots[robot] = RobotHealth(services=alive.get(robot, []),
+                                    active_task=active.id if active else None,
+                                    queued=gw.store.count(robot, TaskStatus.QUEUED))
+    return Health(robots=robots, counters=gw.manager.counters())
+
+
+@router.get("/robots/{robot_id}/map.png", response_class=Response, responses={
+    200: {"content": {"image/png": {}}, "description": "the map, with the latest task's path"},
+    404: {"model": Problem}, 422: {"model": Problem}, 502: {"model": Problem},
+    503: {"model": Problem}})
+def robot_map(robot_id: str, gw: GW, layer: str | None = None) -> Response:
+    """The robot's current map from its mapping service (503 while none answers)."""
+    if robot_id not in gw.config.robots:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"unknown robot {robot_id!r}")
+    try:
+        snapshot = fetch_snapshot(gw.bus.session, robot_id, gw.config.map_timeout_s)
+    except NoMap as exc:
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc)) from None
+    except DecodeError as exc:
+        raise HTTPException(status.HTTP_502_BAD_GATEWAY, f"the mapping service sent a bad map: {exc}"
+                            ) from None
+    latest = gw.store.list(robot_id, limit=1)
+    try:
+        png = map_png(snapshot, latest[0].path if latest else (), layer)
+    except ValueError as exc:
+        raise HTTPException(422, str(exc)) from None
+    return Response(png, media_type="image/png", headers={"Cache-Control": "no-store"})

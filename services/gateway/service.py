@@ -1,0 +1,75 @@
+"""``ovamos run gateway``: the HTTP API served by uvicorn inside the common service life cycle.
+
+Running as a :class:`~shared.service.Service` gives the gateway what every
+service has (a liveliness token, a stats queryable, SIGINT/SIGTERM handling,
+``--connect`` / ``--zenoh`` options) with no special case in the CLI. The bus
+that :func:`~shared.service.run_service` opened is lent to the app; uvicorn
+runs on its own thread (it installs no signal handlers off the main thread,
+so shutdown stays with run_service) and the app is stopped before the bus
+is closed.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from contextlib import nullcontext
+from typing import Any
+
+import uvicorn
+
+from services.gateway.app import create_app
+from services.gateway.config import GatewayConfig
+from shared.bus import Bus
+from shared.service import Service, ServiceConfigError
+
+STARTUP_TIMEOUT_S = 30.0
+GRACEFUL_SHUTDOWN_S = 3  # open requests get this long; event streams are ended before it starts
+
+
+class GatewayService(Service):
+    name = "gateway"
+    Config = GatewayConfig
+    config: GatewayConfig
+
+    def __init__(self, bus: Bus, config: GatewayConfig) -> None:
+        super().__init__(bus, config)
+        self.app = create_app(config, lambda: nullcontext(bus))
+        self.server = uvicorn.Server(uvicorn.Config(
+            self.app, host=config.host, port=config.port, log_config=None, lifespan="on",
+            timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S))
+        self._thread = threading.Thread(target=self.server.run, name="gateway-http", daemon=True)
+
+    def start(self) -> None:
+        """Serve, and return once the port is open (raise when it cannot be)."""
+        self._thread.start()
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while not self.server.started:
+            if not self._thread.is_alive() or time.monotonic() > deadline:
+                self.stop()
+                raise ServiceConfigError(f"the gateway could not serve on {self.config.host}:"
+                                         f"{self.config.port} (the log above says why)")
+            time.sleep(0.05)
+        self.log.info("gateway listening on %s", self.url)
+
+    @property
+    def port(self) -> int:
+        """The bound port (config port 0 means a free one was picked)."""
+        return self.server.servers[0].sockets[0].getsockname()[1]
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.config.host}:{self.port}"
+
+    def info(self) -> dict[str, Any]:
+        gateway = getattr(self.app.state, "gateway", None)
+        return {"url": self.url if self.server.started else None,
+                **(gateway.manager.counters() if gateway else {})}
+
+    def stop(self) -> None:
+        gateway = getattr(self.app.state, "gateway", None)
+        if gateway is not None:
+            gateway.watchers.close()
+        self.server.should_exit = True
+        if self._thread.is_alive():
+            self._thread.join(GRACEFUL_SHUTDOWN_S + 10)

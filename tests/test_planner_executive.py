@@ -1,0 +1,142 @@
+"""The planner's protocol message by message: lock-step, re-sends, faults, cancel, found objects."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from services.planner.agent import AgentConfig
+from services.planner.executive import Executive, ExecutiveConfig
+from shared.messages import (DriverMode, DriverState, MapSnapshot, ObjectInstance, Odometry, PlanCommand,
+                             TaskEvent, TaskSpec, TaskStatus)
+from shared.motion import Action
+
+N = 120  # 6 x 6 m at 5 cm
+
+
+def snapshot(seq: int, objects: tuple[ObjectInstance, ...] = ()) -> MapSnapshot:
+    return MapSnapshot(seq=seq, stamp=float(seq), resolution=0.05, origin=(0.0, 0.0), layers=("cup",),
+                       objects=objects, obstacle=np.zeros((N, N), bool), explored=np.ones((N, N), bool),
+                       counts=np.zeros((N, N), np.uint16), values=np.zeros((1, N, N), np.float32),
+                       frontiers=np.array([[5.0, 5.0]]))
+
+
+def driver(completed: int = 0, frame_seq: int | None = 0, mode: DriverMode = DriverMode.READY,
+           active: int | None = None, outcome: str | None = None) -> DriverState:
+    return DriverState(stamp=0.0, mode=mode, last_completed=completed, frame_seq=frame_seq,
+                       active_action=active, last_outcome=outcome,
+                       faults=("axis 0: heartbeat lost",) if mode is DriverMode.FAULT else ())
+
+
+def odom(x: float = 1.0, y: float = 1.0, yaw: float = 0.0) -> Odometry:
+    return Odometry(seq=0, stamp=0.0, x=x, y=y, yaw=yaw)
+
+
+def spec(targets: tuple[str, ...] = ("cup",), cancelled: bool = False) -> TaskSpec:
+    return TaskSpec(task_id="t1", targets=targets, stamp=0.0, cancelled=cancelled)
+
+
+def commands(out: list) -> list[PlanCommand]:
+    return [m for m in out if isinstance(m, PlanCommand)]
+
+
+def events(out: list) -> list[TaskEvent]:
+    return [m for m in out if isinstance(m, TaskEvent)]
+
+
+@pytest.fixture
+def ex() -> Executive:
+    e = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=2), resend_s=0.3))
+    e.on_task(spec())
+    return e
+
+
+def test_nothing_is_sent_before_driver_map_and_odometry(ex: Executive) -> None:
+    assert commands(ex.poll(0.0)) == [] and "driver" in ex.waiting
+    ex.on_driver(driver())
+    assert commands(ex.poll(0.1)) == [] and "map" in ex.waiting
+    ex.on_snapshot(snapshot(0))
+    assert commands(ex.poll(0.2)) == [] and "odometry" in ex.waiting
+    ex.on_odom(odom())
+    assert [c.action for c in commands(ex.poll(0.3))] == [Action.TURN_LEFT]
+
+
+def test_lock_step_resends_until_acknowledged_and_waits_for_the_next_frame(ex: Executive) -> None:
+    ex.on_driver(driver())
+    ex.on_snapshot(snapshot(0))
+    ex.on_odom(odom())
+    first = commands(ex.poll(0.0))
+    assert [c.action_id for c in first] == [1]
+    assert commands(ex.poll(0.1)) == []                       # not yet due for a re-send
+    assert [c.action_id for c in commands(ex.poll(0.4))] == [1]  # lost? sent again, same id
+    ex.on_driver(driver(active=1))
+    assert commands(ex.poll(1.0)) == []                       # being executed: no re-send
+    ex.on_driver(driver(completed=1, frame_seq=1))
+    assert commands(ex.poll(1.1)) == []
+    assert ex.wanted_seq() == 1 and "frame 1" in ex.waiting   # the map has not fused frame 1
+    ex.on_snapshot(snapshot(1))
+    assert ex.wanted_seq() is None
+    second = commands(ex.poll(1.2))
+    assert [c.action_id for c in second] == [2] and ex.task.steps == 1
+
+
+def test_no_command_in_fault_or_estop_and_the_event_says_why(ex: Executive) -> None:
+    ex.on_snapshot(snapshot(0))
+    ex.on_odom(odom())
+    ex.on_driver(driver(mode=DriverMode.FAULT))
+    out = ex.poll(0.0)
+    assert commands(out) == [] and "heartbeat lost" in events(out)[-1].message
+    ex.on_driver(driver(mode=DriverMode.ESTOP))
+    out = ex.poll(0.1)
+    assert commands(out) == [] and "e-stop" in events(out)[-1].message
+    ex.on_driver(driver())
+    assert len(commands(ex.poll(0.2))) == 1
+
+
+def test_action_ids_continue_after_the_drivers_last_completed(ex: Executive) -> None:
+    ex.on_driver(driver(completed=41, frame_seq=7))
+    ex.on_snapshot(snapshot(7))
+    ex.on_odom(odom())
+    assert [c.action_id for c in commands(ex.poll(0.0))] == [42]
+
+
+def test_cancel_stops_commands_and_reports_cancelled(ex: Executive) -> None:
+    ex.on_driver(driver())
+    ex.on_snapshot(snapshot(0))
+    ex.on_odom(odom())
+    ex.poll(0.0)
+    ex.on_task(spec(cancelled=True))
+    out = ex.poll(0.1)
+    assert commands(out) == [] and events(out)[-1].status is TaskStatus.CANCELLED
+    ex.on_task(spec())  # the same task re-published later does not restart it
+    assert ex.task.state.value == "cancelled"
+
+
+def test_a_confirmed_object_nearby_is_stopped_at_and_reported_found() -> None:
+    ex = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=0)))
+    ex.on_task(spec(("cup", "bed")))
+    cup = ObjectInstance(label="cup", x=1.5, y=1.0, score=0.8, hits=3, confirmed=True)
+    ex.on_driver(driver())
+    ex.on_snapshot(snapshot(0, (cup,)))
+    ex.on_odom(odom())
+    sent = commands(ex.poll(0.0))
+    assert [c.action for c in sent] == [Action.STOP]
+    ex.on_driver(driver(completed=1, frame_seq=1))
+    ex.on_snapshot(snapshot(1, (cup,)))
+    out = ex.poll(0.1)
+    found = events(out)[-1].found
+    assert [(f.label, f.x, f.y) for f in found] == [("cup", 1.5, 1.0)]
+    assert ex.task.remaining == ["bed"]
+    assert all(c.action is not Action.STOP for c in commands(out))  # the cup is not stopped at twice
+
+
+def test_a_blocked_move_is_reported_to_the_agent_as_a_bump(ex: Executive) -> None:
+    ex.agent._scan_left = 0
+    ex.on_driver(driver())
+    ex.on_snapshot(snapshot(0))
+    ex.on_odom(odom(yaw=0.78))  # facing the frontier at (5, 5): the agent drives forward
+    sent = commands(ex.poll(0.0))
+    assert [c.action for c in sent] == [Action.MOVE_FORWARD]
+    ex.on_driver(driver(completed=1, frame_seq=1, outcome="blocked"))
+    ex.poll(0.1)
+    assert len(ex.agent.bumps) == 1 and ex.task.distance == 0.0
