@@ -21,9 +21,9 @@ def test_version() -> None:
 
 
 def test_planned_and_unknown_services_are_clear_errors() -> None:
-    planned = ovamos("run", "planner")
+    planned = ovamos("run", "gateway")
     assert planned.returncode == 2
-    assert "not implemented yet (issue #5)" in planned.stderr
+    assert "not implemented yet (issue #9)" in planned.stderr
     unknown = ovamos("run", "teleporter")
     assert unknown.returncode == 2 and "unknown service 'teleporter'" in unknown.stderr
 
