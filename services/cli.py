@@ -96,6 +96,28 @@ def run(service: Annotated[str, typer.Argument(help="Service to run.")],
 
 
 @app.command()
+def submit(targets: Annotated[list[str], typer.Argument(help="Object names.")],
+           gateway: Annotated[str, typer.Option(help="Gateway URL.")] = "http://127.0.0.1:8080",
+           robot_id: Annotated[Optional[str], typer.Option("--robot-id")] = None,
+           max_steps: Annotated[Optional[int], typer.Option()] = None,
+           token: Annotated[Optional[str], typer.Option(envvar="OVAMOS_GATEWAY_TOKEN")] = None,
+           wait: Annotated[bool, typer.Option(help="Follow until the task ends.")] = False,
+           timeout: Annotated[float, typer.Option(help="Seconds to wait with --wait.")] = 600.0) -> None:
+    """Submit a search task to the gateway (exit 1 when a followed task does not succeed)."""
+    from services.gateway.client import GatewayError, wait_task
+    from services.gateway.client import submit as submit_task
+    try:
+        task = submit_task(targets, gateway, token, robot_id, max_steps)
+        console.print(f"task {task.id}: {task.status.value} on {task.robot_id} ({gateway}{task.location})")
+        if wait:
+            final = wait_task(task.id, gateway, token, timeout, on_update=lambda v: console.print(
+                f"{v.status.value} step {v.steps} found {', '.join(f.label for f in v.found) or '-'}"))
+            raise typer.Exit(0 if final.status.value == "done" else 1)
+    except (GatewayError, TimeoutError) as exc:
+        raise _fail(str(exc)) from None
+
+
+@app.command()
 def status(robot_id: RobotId = "*", zenoh_file: ZenohFile = None, connect: Connect = None,
            timeout: Annotated[float, typer.Option(help="Seconds to wait for answers.")] = 2.0,
            as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False) -> None:

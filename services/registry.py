@@ -15,11 +15,12 @@ SERVICES: dict[str, str] = {
     "monitor": "services.diag.service:MonitorService",
     "mapping": "services.mapping.service:MappingService",
     "planner": "services.planner.service:PlannerService",
+    "gateway": "services.gateway.service:GatewayService",
 }
 
 # Services of the design that are not built yet, with the issue that builds them.
 PLANNED: dict[str, int] = {
-    "sim": 8, "perception": 7, "base_driver": 8, "gateway": 9,
+    "sim": 8, "perception": 7, "base_driver": 8,
 }
 
 

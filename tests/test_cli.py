@@ -21,9 +21,9 @@ def test_version() -> None:
 
 
 def test_planned_and_unknown_services_are_clear_errors() -> None:
-    planned = ovamos("run", "gateway")
+    planned = ovamos("run", "base_driver")
     assert planned.returncode == 2
-    assert "not implemented yet (issue #9)" in planned.stderr
+    assert "not implemented yet (issue #8)" in planned.stderr
     unknown = ovamos("run", "teleporter")
     assert unknown.returncode == 2 and "unknown service 'teleporter'" in unknown.stderr
 
@@ -90,3 +90,18 @@ def test_planner_benchmark_reports_latency_and_sims() -> None:
     result = run_planner_benchmark(runs=1, sims=50)
     assert set(result["decision_ms"]) == {"5", "10", "20"}
     assert result["sims_per_s"] > 0
+
+
+def test_submit_through_a_gateway_process(cli, router_port: int, tmp_path: Path) -> None:
+    from shared.procs import free_port, loopback
+    from tests.conftest import port_open, wait_for
+    port = free_port()
+    cfg = tmp_path / "gateway.toml"
+    cfg.write_text(f'port = {port}\nstate_dir = "{tmp_path / "state"}"\nrobots = ["sim"]\n')
+    cli("run", "gateway", "--robot-id", "sim", "--config", str(cfg), "--connect", loopback(router_port))
+    wait_for(lambda: port_open(port), what="the gateway listens")
+    url = f"http://127.0.0.1:{port}"
+    out = ovamos("submit", "chair", "fridge", "--gateway", url)
+    assert out.returncode == 0 and "searching on sim" in out.stdout, out.stderr
+    bad = ovamos("submit", "chair", "CHAIR", "--gateway", url)
+    assert bad.returncode == 2 and "duplicate" in bad.stderr.lower()

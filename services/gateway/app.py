@@ -96,22 +96,24 @@ def _where(loc: tuple[object, ...]) -> str:
 BODY_EXAMPLE = '{"targets": ["chair", "fridge"]}'
 
 
-def _problem(error: dict) -> dict[str, str]:
+def _problem(error: dict, sent_json: bool) -> dict[str, str]:
     """One validation error as ``{"field", "message"}``; the body-level ones say what to send."""
     kind, loc = error.get("type"), tuple(error.get("loc", ()))
     if kind == "json_invalid":
         detail = (error.get("ctx") or {}).get("error")
         return {"field": "body", "message": f"body is not valid JSON{f' ({detail})' if detail else ''}"}
     if loc == ("body",):
-        what = "missing" if kind == "missing" else "not a JSON object"
+        what = ("missing" if kind == "missing" else "not a JSON object" if sent_json
+                else "not sent as JSON (Content-Type: application/json)")
         return {"field": "body", "message": f"body is {what}: send a JSON object like {BODY_EXAMPLE}"}
     msg = str(error.get("msg", "invalid")).removeprefix("Value error, ")
     return {"field": _where(loc), "message": f"{_where(loc)}: {msg}"}
 
 
-async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
+async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
     """422 with one readable sentence (``detail``) and one entry per problem (``errors``)."""
-    errors = [_problem(e) for e in exc.errors()]
+    sent_json = "json" in request.headers.get("content-type", "")
+    errors = [_problem(e, sent_json) for e in exc.errors()]
     detail = "; ".join(e["message"] for e in errors) or "invalid request"
     return JSONResponse({"detail": detail, "errors": errors}, status_code=422)
 

@@ -14,7 +14,7 @@ from typing import Any, Self
 
 import httpx
 
-from services.gateway.models import TaskAccepted, TaskView
+from services.gateway.models import TaskAccepted, TaskList, TaskView
 
 STREAM_READ_TIMEOUT_S = 60.0  # > the gateway's keep-alive period on event streams
 
@@ -63,6 +63,13 @@ class GatewayClient:
 
     def get(self, task_id: str) -> TaskView:
         return TaskView.model_validate(self._call("GET", f"/v1/tasks/{task_id}").json())
+
+    def tasks(self, robot_id: str | None = None, status: str | None = None,
+              limit: int = 100) -> list[TaskView]:
+        """Tasks, newest first."""
+        params: dict[str, Any] = {"limit": limit}
+        params.update({k: v for k, v in (("robot_id", robot_id), ("status", status)) if v is not None})
+        return TaskList.model_validate(self._call("GET", "/v1/tasks", params=params).json()).tasks
 
     def cancel(self, task_id: str) -> TaskView:
         return TaskView.model_validate(self._call("DELETE", f"/v1/tasks/{task_id}").json())

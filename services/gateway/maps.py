@@ -11,10 +11,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import cv2
-import zenoh
 
 from services.mapping.render import render_map
 from shared import keys
+from shared.bus import Bus
 from shared.messages import MapSnapshot
 
 
@@ -22,12 +22,14 @@ class NoMap(LookupError):
     """No mapping service answered for the robot."""
 
 
-def fetch_snapshot(session: zenoh.Session, robot_id: str, timeout_s: float) -> MapSnapshot:
-    """The first snapshot a mapping service answers; NoMap when none does, DecodeError if broken."""
-    for reply in session.get(keys.map_snapshot(robot_id), timeout=timeout_s):
-        if reply.ok is not None:
-            return MapSnapshot.from_bytes(reply.ok.payload.to_bytes())
-    raise NoMap(f"no map for robot {robot_id!r}: no mapping service answered within {timeout_s} s")
+def fetch_snapshot(bus: Bus, robot_id: str, timeout_s: float) -> MapSnapshot:
+    """The first valid snapshot a mapping service answers; NoMap when none does (a malformed
+    answer is counted by the bus and treated as none)."""
+    snapshot = bus.get(keys.map_snapshot(robot_id), MapSnapshot, timeout_s)
+    if snapshot is None:
+        raise NoMap(f"no map for robot {robot_id!r}: no mapping service answered with a valid map "
+                    f"within {timeout_s} s")
+    return snapshot
 
 
 def map_png(snapshot: MapSnapshot, path: Sequence[tuple[float, float]] = (),

@@ -11,6 +11,7 @@ is closed.
 
 from __future__ import annotations
 
+import socket
 import threading
 import time
 from contextlib import nullcontext
@@ -38,24 +39,39 @@ class GatewayService(Service):
         self.server = uvicorn.Server(uvicorn.Config(
             self.app, host=config.host, port=config.port, log_config=None, lifespan="on",
             timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S))
-        self._thread = threading.Thread(target=self.server.run, name="gateway-http", daemon=True)
+        self._socket: socket.socket | None = None
+        self._thread = threading.Thread(target=self._serve, name="gateway-http", daemon=True)
 
     def start(self) -> None:
-        """Serve, and return once the port is open (raise when it cannot be)."""
+        """Bind, serve, and return once the app is up (raise when it cannot be).
+
+        The socket is bound here, before uvicorn runs the app's lifespan, so a
+        taken port fails at once with the OS's reason, before the gateway has
+        touched its task store or published anything.
+        """
+        self._socket = _bind(self.config.host, self.config.port)
         self._thread.start()
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
         while not self.server.started:
             if not self._thread.is_alive() or time.monotonic() > deadline:
                 self.stop()
-                raise ServiceConfigError(f"the gateway could not serve on {self.config.host}:"
+                raise ServiceConfigError(f"the gateway failed to start on {self.config.host}:"
                                          f"{self.config.port} (the log above says why)")
             time.sleep(0.05)
         self.log.info("gateway listening on %s", self.url)
 
+    def _serve(self) -> None:
+        assert self._socket is not None
+        try:
+            self.server.run(sockets=[self._socket])
+        except SystemExit as exc:  # uvicorn's way of saying it failed; start() reports it
+            self.log.error("the HTTP server exited (%s)", exc.code)
+
     @property
     def port(self) -> int:
         """The bound port (config port 0 means a free one was picked)."""
-        return self.server.servers[0].sockets[0].getsockname()[1]
+        assert self._socket is not None
+        return self._socket.getsockname()[1]
 
     @property
     def url(self) -> str:
@@ -73,3 +89,19 @@ class GatewayService(Service):
         self.server.should_exit = True
         if self._thread.is_alive():
             self._thread.join(GRACEFUL_SHUTDOWN_S + 10)
+        if self._socket is not None:
+            self._socket.close()
+
+
+def _bind(host: str, port: int) -> socket.socket:
+    """A TCP socket bound to ``host:port``; ServiceConfigError (with the OS's reason) if it cannot be."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # restart while old sockets linger
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        raise ServiceConfigError(f"the gateway cannot serve on {host}:{port}: {exc.strerror or exc}"
+                                 ) from None
+    return sock
