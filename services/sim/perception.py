@@ -50,6 +50,10 @@ class SimPerceptionConfig(BaseModel):
     fp_rate: float = Field(default=0.05, ge=0, le=1)
     fp_min_cooccurrence: float = Field(default=0.3, ge=0, le=1)
     detection_score_range: tuple[float, float] = (0.35, 0.9)
+    reference_image: tuple[int, int] = Field(
+        default=(640, 480), description="pixel counts above are for this image size (the paper's "
+                                        "camera); other sizes scale them, so the detector does not "
+                                        "get worse on a smaller render of the same view")
 
 
 @dataclass(frozen=True)
@@ -92,8 +96,9 @@ class SimPerception:
         values, counts = np.unique(ids, return_counts=True)
         depth = frame.depth.astype(np.float32) * np.float32(frame.depth_scale)
         objects, rooms = [], []
+        scale = self._pixel_scale(frame)
         for value, count in zip(values.tolist(), counts.tolist()):
-            if count < self.config.min_pixels:
+            if count < self.config.min_pixels * scale:
                 continue
             if value < 0 and value in self.labels.rooms:
                 rooms.append(self.labels.rooms[value])
@@ -106,6 +111,10 @@ class SimPerception:
                                         (int(cols.min()), int(rows.min()),
                                          int(cols.max()) + 1, int(rows.max()) + 1)))
         return objects, rooms
+
+    def _pixel_scale(self, frame: RgbdFrame) -> float:
+        w, h = self.config.reference_image
+        return frame.rgb.shape[0] * frame.rgb.shape[1] / (w * h)
 
     def _rng(self, frame: RgbdFrame) -> np.random.Generator:
         return np.random.default_rng([self.config.seed, frame.seq])
@@ -127,7 +136,7 @@ class SimPerception:
             obj.depth) else obj.pixels
         visible_fraction = min(1.0, obj.pixels / max(expected, 1.0))
         distance = math.exp(-max(0.0, obj.depth - c.reliable_distance_m) / c.distance_falloff_m)
-        size = min(1.0, obj.pixels / c.full_size_pixels)
+        size = min(1.0, obj.pixels / (c.full_size_pixels * self._pixel_scale(frame)))
         return c.p_max * visible_fraction ** c.occlusion_power * distance * size
 
     def detect(self, frame: RgbdFrame, targets: Sequence[str]) -> list[Detection]:
