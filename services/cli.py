@@ -96,6 +96,25 @@ def run(service: Annotated[str, typer.Argument(help="Service to run.")],
 
 
 @app.command()
+def up(profile: Annotated[str, typer.Argument(help="all | laptop | robot, or a profile .toml file.")],
+       log_dir: Annotated[Path, typer.Option(help="Each process's output goes to LOG_DIR/NAME.log.")]
+       = Path("state/logs"),
+       connect_laptop: Annotated[Optional[str], typer.Option(
+           "--connect-laptop", help="HOST:PORT of the laptop's router (the robot profile links to it).")]
+       = None,
+       log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
+    """Run a deployment profile: its router, then its services; restart crashed ones; Ctrl-C stops all."""
+    from services.supervisor import ProfileError, SupervisorError, status_table, supervisor_for
+    setup_logging(json_lines=log_json, level=log_level)
+    try:
+        sup = supervisor_for(profile, log_dir=log_dir, connect_laptop=connect_laptop)
+        code = sup.run_forever(on_started=lambda s: console.print(status_table(s.status(), title=profile)))
+    except (ProfileError, SupervisorError) as exc:
+        raise _fail(str(exc)) from None
+    raise typer.Exit(code)
+
+
+@app.command()
 def submit(targets: Annotated[list[str], typer.Argument(help="Object names.")],
            gateway: Annotated[str, typer.Option(help="Gateway URL.")] = "http://127.0.0.1:8080",
            robot_id: Annotated[Optional[str], typer.Option("--robot-id")] = None,

@@ -25,7 +25,7 @@ from shared.grid import GridGeometry, inflate
 from shared.messages import MapSnapshot
 
 RES = 0.05
-RADIUS = 0.18
+RADIUS = NavigationConfig().robot_radius
 TOL = NavigationConfig().goal_tolerance_m
 SETTINGS = settings(max_examples=60, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -115,7 +115,7 @@ def wall_map(rows: int = 60, cols: int = 100) -> np.ndarray:
 
 def test_config_defaults_are_the_papers_and_unknown_fields_are_rejected() -> None:
     cfg = NavigationConfig()
-    assert (cfg.robot_radius, cfg.forward_m, cfg.turn_deg) == (0.18, 0.25, 30.0)
+    assert (cfg.robot_radius, cfg.forward_m, cfg.turn_deg) == (0.15, 0.25, 30.0)  # radius: see its description
     assert cfg.unknown_is_free
     with pytest.raises(ValidationError):
         NavigationConfig(robot_raduis=0.2)

@@ -1,0 +1,643 @@
+"""A small process supervisor for ``ovamos up PROFILE`` and ``ovamos demo``.
+
+Each service runs as its own ``ovamos`` process (a fresh interpreter, never a
+fork: a fork after a Zenoh session was opened hangs the child's
+``zenoh.open()``), so one crashing service never takes the others down, and a
+crashed one is started again with exponential backoff: quickly after a one-off
+crash, slowly for one that keeps failing (a bad config must not spin the CPU).
+The supervisor itself opens no Zenoh session.
+
+Routers start first and the services only once a router's port accepts
+connections; services would wait for it anyway, but starting them into a
+router that never comes up would hide the real problem. Everything stops in
+reverse order, so services leave (undeclare their liveliness) while their
+router is still there to tell the others.
+
+A child's stdout and stderr go to ``<log dir>/<name>.log`` (appended, one
+header line per start): that is where a person reads why something crashed.
+
+A profile (``deploy/profiles/*.toml``) names the router and services of one
+host; :func:`load_profile` validates it completely (unknown keys, missing
+files, unknown services) before anything starts, with errors that name the
+file and the entry.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import socket
+import subprocess
+import threading
+import time
+import tomllib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from enum import Enum
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Self
+
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError
+from rich.table import Table
+
+from services.registry import SERVICES
+from shared.procs import start_cli, stop as stop_process
+
+log = logging.getLogger("ovamos.supervisor")
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+PROFILE_DIR = REPO_ROOT / "deploy" / "profiles"
+DEFAULT_LOG_DIR = Path("state/logs")
+
+# Services a profile may name: what `ovamos run` starts today, plus those being written now
+# (issues 7-9). Naming them here lets profiles for the whole system exist and be checked
+# before every service is registered; `ovamos run` still refuses one that is not built yet.
+KNOWN_SERVICES: frozenset[str] = frozenset(SERVICES) | {"gateway", "perception", "sim", "base_driver"}
+
+
+class SupervisorError(RuntimeError):
+    """The supervised system could not be brought up (a router that never opened its port)."""
+
+
+class ProfileError(ValueError):
+    """A profile file that cannot be used; the message names the file and the entry."""
+
+
+# -- entries and restart policy -----------------------------------------------------------------
+@dataclass(frozen=True)
+class Entry:
+    """One supervised process: ``ovamos ARGV...`` under a unique name.
+
+    ``ready`` (host, port) marks a router: it starts before every entry without
+    one, and those start only once that address accepts TCP connections.
+    ``delay_s`` waits this long after the previous entry was scheduled.
+    """
+
+    name: str
+    argv: tuple[str, ...]
+    delay_s: float = 0.0
+    ready: tuple[str, int] | None = None
+
+
+class Backoff(BaseModel):
+    """Restart delays: ``initial_s * factor**(n-1)`` for the n-th crash in a row, capped at ``max_s``.
+
+    A child that stayed up ``reset_after_s`` counts as healthy again, so a
+    service that crashes once a day restarts at once, not after 30 s.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    initial_s: float = Field(default=0.5, gt=0)
+    factor: float = Field(default=2.0, ge=1)
+    max_s: float = Field(default=30.0, gt=0)
+    reset_after_s: float = Field(default=60.0, gt=0)
+
+    def delay(self, failures: int) -> float:
+        """Seconds to wait before restarting after the ``failures``-th crash in a row (>= 1)."""
+        return min(self.initial_s * self.factor ** max(failures - 1, 0), self.max_s)
+
+    def failures_after(self, failures: int, uptime_s: float) -> int:
+        """The crash-in-a-row count after one more crash following ``uptime_s`` of running."""
+        return 1 if uptime_s >= self.reset_after_s else failures + 1
+
+
+def exit_reason(returncode: int) -> str:
+    """``exit code 2`` or ``killed by SIGKILL``: what a person needs to tell a bug from an OOM kill."""
+    if returncode >= 0:
+        return f"exit code {returncode}"
+    try:
+        return f"killed by {signal.Signals(-returncode).name}"
+    except ValueError:
+        return f"killed by signal {-returncode}"
+
+
+# -- supervisor -----------------------------------------------------------------------------
+class State(str, Enum):
+    PENDING = "pending"    # not started yet (waits for its start delay)
+    RUNNING = "running"
+    BACKOFF = "backoff"    # crashed, waits to be restarted
+    EXITED = "exited"      # ended with exit code 0: done, not restarted
+    STOPPED = "stopped"    # stopped by the supervisor
+
+
+@dataclass(frozen=True)
+class ChildStatus:
+    """One row of :meth:`Supervisor.status` (see :func:`status_table`)."""
+
+    name: str
+    state: State
+    pid: int | None
+    restarts: int
+    last_exit: str
+    uptime_s: float | None
+    next_start_in_s: float | None
+    log_path: Path
+    first_started_at: float | None   # time.monotonic()
+    ready_at: float | None           # time.monotonic() a router's port opened
+
+
+@dataclass(frozen=True)
+class RestartEvent:
+    """A crash and the restart it scheduled (kept for tests, the demo and the status table)."""
+
+    name: str
+    reason: str
+    uptime_s: float
+    delay_s: float
+    at: float                       # time.monotonic()
+
+
+@dataclass
+class _Child:
+    entry: Entry
+    log_path: Path
+    state: State = State.PENDING
+    proc: subprocess.Popen | None = None
+    restarts: int = 0
+    failures: int = 0
+    started_at: float = 0.0
+    first_started_at: float | None = None
+    ready_at: float | None = None
+    next_start_at: float = 0.0
+    last_exit: str = ""
+
+
+class Supervisor:
+    """Start, watch, restart and stop a set of ``ovamos`` processes.
+
+    Use as a context manager (``with Supervisor(entries) as sup:``), or call
+    :meth:`start` / :meth:`stop`; a monitor thread polls the children. From a
+    command line, :meth:`run_forever` does the same in the main thread until
+    SIGINT / SIGTERM.
+    """
+
+    def __init__(self, entries: Sequence[Entry], *, log_dir: Path = DEFAULT_LOG_DIR,
+                 backoff: Backoff | None = None, stop_timeout_s: float = 10.0,
+                 ready_timeout_s: float = 60.0, poll_s: float = 0.2) -> None:
+        names = [e.name for e in entries]
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            raise ValueError(f"entry names must be unique (they name the log files): {duplicates}")
+        routers = [e for e in entries if e.ready is not None]
+        ordered = routers + [e for e in entries if e.ready is None]
+        self.log_dir = Path(log_dir)
+        self.backoff = backoff or Backoff()
+        self.stop_timeout_s = stop_timeout_s
+        self.ready_timeout_s = ready_timeout_s
+        self.poll_s = poll_s
+        self.restart_events: list[RestartEvent] = []
+        self._children = [_Child(e, self.log_dir / f"{e.name}.log") for e in ordered]
+        self._lock = threading.RLock()
+        self._stopping = threading.Event()
+        self._monitor: threading.Thread | None = None
+
+    # -- life cycle ---------------------------------------------------------------------------
+    def start(self, *, monitor: bool = True) -> None:
+        """Start routers and wait for their ports, then schedule the rest; returns once routers are up.
+
+        Raises :class:`SupervisorError` (after stopping what it started) when a
+        router exits or does not open its port within ``ready_timeout_s``.
+        """
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        try:
+            for child in self._children:
+                if child.entry.ready is not None:
+                    self._spawn(child)
+                    self._await_ready(child)
+            self._schedule_services()
+            self.poll()
+        except BaseException:
+            self.stop()
+            raise
+        if monitor and not self._stopping.is_set():
+            self._monitor = threading.Thread(target=self._monitor_loop, name="supervisor", daemon=True)
+            self._monitor.start()
+
+    def poll(self) -> None:
+        """One supervision step: notice exits, schedule restarts, start what is due."""
+        with self._lock:
+            if self._stopping.is_set():
+                return
+            now = time.monotonic()
+            for child in self._children:
+                if child.state is State.RUNNING and child.proc is not None and child.proc.poll() is not None:
+                    self._on_exit(child, now)
+                if child.state in (State.PENDING, State.BACKOFF) and now >= child.next_start_at:
+                    self._spawn(child)
+
+    def stop(self) -> None:
+        """Stop every child in reverse start order (SIGTERM, SIGKILL after ``stop_timeout_s``)."""
+        self._stopping.set()
+        if self._monitor is not None and self._monitor is not threading.current_thread():
+            self._monitor.join()
+        with self._lock:
+            for child in reversed(self._children):
+                self._terminate(child)
+
+    def request_stop(self) -> None:
+        """Ask :meth:`run_forever` (or a pending :meth:`start`) to end; safe from a signal handler."""
+        self._stopping.set()
+
+    def run_forever(self, on_started: Callable[[Supervisor], None] | None = None) -> int:
+        """Run until SIGINT / SIGTERM (main thread only), then stop everything; returns 0."""
+        handlers = {sig: signal.signal(sig, lambda *_: self.request_stop())
+                    for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            self.start(monitor=False)
+            if on_started is not None and not self._stopping.is_set():
+                on_started(self)
+            while not self._stopping.wait(self.poll_s):
+                self.poll()
+        finally:
+            self.stop()
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
+        return 0
+
+    def __enter__(self) -> Self:
+        self.start()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
+
+    # -- views ----------------------------------------------------------------------------------
+    def status(self) -> list[ChildStatus]:
+        """A consistent snapshot of every child, in start order."""
+        with self._lock:
+            now = time.monotonic()
+            return [_status(c, now) for c in self._children]
+
+    def process(self, name: str) -> subprocess.Popen | None:
+        """The current process of child ``name`` (tests and the demo kill it to rehearse a crash)."""
+        with self._lock:
+            child = self._child(name)
+            return child.proc if child.state is State.RUNNING else None
+
+    # -- internals ------------------------------------------------------------------------------
+    def _child(self, name: str) -> _Child:
+        for child in self._children:
+            if child.entry.name == name:
+                return child
+        raise KeyError(f"no supervised process named {name!r}")
+
+    def _monitor_loop(self) -> None:
+        while not self._stopping.wait(self.poll_s):
+            try:
+                self.poll()
+            except Exception:  # a bug here must not leave the children unsupervised silently
+                log.exception("supervisor poll failed; retrying")
+
+    def _schedule_services(self) -> None:
+        """Non-router entries start from now on, each ``delay_s`` after the one before."""
+        at = time.monotonic()
+        for child in self._children:
+            if child.entry.ready is None:
+                at += child.entry.delay_s
+                child.next_start_at = at
+
+    def _spawn(self, child: _Child) -> None:
+        restart = child.first_started_at is not None
+        try:
+            with child.log_path.open("ab") as out:
+                out.write(f"=== {time.strftime('%Y-%m-%d %H:%M:%S')} start: ovamos "
+                          f"{' '.join(child.entry.argv)}\n".encode())
+                out.flush()
+                child.proc = start_cli(child.entry.argv, stdout=out, stderr=subprocess.STDOUT)
+        except OSError as exc:
+            child.proc = None
+            self._schedule_restart(child, f"could not start ({exc})", 0.0, time.monotonic())
+            return
+        now = time.monotonic()
+        child.state, child.started_at = State.RUNNING, now
+        child.first_started_at = child.first_started_at or now
+        child.restarts += restart
+        log.info("%s %s (pid %d): ovamos %s; output -> %s", "restarted" if restart else "started",
+                 child.entry.name, child.proc.pid, " ".join(child.entry.argv), child.log_path)
+
+    def _await_ready(self, child: _Child) -> None:
+        """Block until the router's port accepts connections (or the supervisor is stopped)."""
+        assert child.entry.ready is not None and child.proc is not None
+        host, port = child.entry.ready
+        deadline = time.monotonic() + self.ready_timeout_s
+        while not self._stopping.is_set():
+            if child.proc.poll() is not None:
+                raise SupervisorError(f"{child.entry.name} ended ({exit_reason(child.proc.returncode)}) "
+                                      f"before {host}:{port} accepted connections; see {child.log_path}")
+            if port_open(host, port):
+                child.ready_at = time.monotonic()
+                log.info("%s accepts connections on %s:%d", child.entry.name, host, port)
+                return
+            if time.monotonic() > deadline:
+                raise SupervisorError(f"{child.entry.name} did not open {host}:{port} within "
+                                      f"{self.ready_timeout_s:.0f} s; see {child.log_path}")
+            self._stopping.wait(0.05)
+
+    def _on_exit(self, child: _Child, now: float) -> None:
+        assert child.proc is not None
+        uptime = now - child.started_at
+        reason = exit_reason(child.proc.returncode)
+        child.last_exit = reason
+        if child.proc.returncode == 0:
+            child.state = State.EXITED
+            log.info("%s (pid %d) ended normally after %.1f s; not restarted (log: %s)",
+                     child.entry.name, child.proc.pid, uptime, child.log_path)
+            return
+        self._schedule_restart(child, reason, uptime, now)
+
+    def _schedule_restart(self, child: _Child, reason: str, uptime: float, now: float) -> None:
+        child.failures = self.backoff.failures_after(child.failures, uptime)
+        delay = self.backoff.delay(child.failures)
+        child.state, child.next_start_at, child.last_exit = State.BACKOFF, now + delay, reason
+        self.restart_events.append(RestartEvent(child.entry.name, reason, uptime, delay, now))
+        log.warning("%s %s after %.1f s; restart #%d in %.1f s (see %s)", child.entry.name, reason,
+                    uptime, child.restarts + 1, delay, child.log_path)
+
+    def _terminate(self, child: _Child) -> None:
+        if child.state is State.RUNNING and child.proc is not None:
+            running = child.proc.poll() is None
+            returncode = stop_process(child.proc, self.stop_timeout_s)
+            child.last_exit = exit_reason(returncode)
+            if running:
+                log.info("stopped %s (pid %d): %s", child.entry.name, child.proc.pid, child.last_exit)
+        if child.state is not State.EXITED:
+            child.state = State.STOPPED
+
+
+def _status(child: _Child, now: float) -> ChildStatus:
+    proc = child.proc if child.state is State.RUNNING else None
+    waiting = child.state in (State.PENDING, State.BACKOFF)
+    return ChildStatus(
+        name=child.entry.name, state=child.state, pid=proc.pid if proc is not None else None,
+        restarts=child.restarts, last_exit=child.last_exit,
+        uptime_s=now - child.started_at if proc is not None else None,
+        next_start_in_s=max(child.next_start_at - now, 0.0) if waiting else None,
+        log_path=child.log_path, first_started_at=child.first_started_at, ready_at=child.ready_at)
+
+
+def port_open(host: str, port: int, timeout: float = 0.5) -> bool:
+    """Whether ``host:port`` accepts a TCP connection now."""
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            return True
+    except OSError:
+        return False
+
+
+def status_table(statuses: Sequence[ChildStatus], title: str = "supervised processes") -> Table:
+    """The supervisor's view as a rich table (``ovamos up`` prints it; the demo can show it live)."""
+    table = Table("name", "state", "pid", "restarts", "up", "last exit", "log", title=title)
+    for s in statuses:
+        up = f"{s.uptime_s:.0f} s" if s.uptime_s is not None else (
+            f"restart in {s.next_start_in_s:.1f} s" if s.state is State.BACKOFF and s.next_start_in_s
+            is not None else "-")
+        table.add_row(s.name, s.state.value, str(s.pid or "-"), str(s.restarts), up, s.last_exit or "-",
+                      str(s.log_path))
+    return table
+
+
+# -- profiles -------------------------------------------------------------------------------
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class RouterSpec(_Strict):
+    """The host's Zenoh router (``ovamos router``); paths are relative to the profile file."""
+
+    name: str = "router"
+    config: Path | None = None
+    listen: list[str] = Field(default_factory=list, description="replace the config's listen endpoints")
+    connect: list[str] = Field(default_factory=list, description="replace the config's connect endpoints")
+
+
+class ServiceSpec(_Strict):
+    """One ``ovamos run SERVICE`` process; paths are relative to the profile file."""
+
+    service: str
+    name: str | None = Field(default=None, description="unique entry name (log file); default: service")
+    config: Path | None = None
+    zenoh: Path | None = None
+    connect: list[str] = Field(default_factory=list, description="replace the Zenoh file's connect endpoints")
+    instance: str = "0"
+    robot_id: str | None = Field(default=None, description="default: the profile's robot_id")
+    delay_s: float = Field(default=0.0, ge=0, description="start this long after the previous service")
+
+    @property
+    def entry_name(self) -> str:
+        return self.name or (self.service if self.instance == "0" else f"{self.service}-{self.instance}")
+
+
+class Profile(_Strict):
+    """What ``ovamos up`` runs on one host."""
+
+    description: str = ""
+    robot_id: str = "robot1"
+    router: RouterSpec | None = None
+    services: list[ServiceSpec] = Field(default_factory=list)
+    restart: Backoff = Field(default_factory=Backoff)
+    stop_timeout_s: float = Field(default=10.0, gt=0, description="SIGTERM, then SIGKILL after this")
+    _source: Path = PrivateAttr(default=Path("<memory>"))
+
+    @property
+    def source(self) -> Path:
+        """The file it was loaded from (named in every error)."""
+        return self._source
+
+    def entries(self, router_connect: Sequence[str] | None = None,
+                endpoint: str | None = None) -> list[Entry]:
+        """The processes to supervise.
+
+        ``router_connect`` replaces the router's connect endpoints (``--connect-laptop``
+        on the robot); ``endpoint`` moves the router there and connects every service
+        to it (tests and the demo use a free port rather than the shipped one).
+        """
+        found = [self._router_entry(router_connect, endpoint)] if self.router is not None else []
+        return found + [self._service_entry(s, endpoint) for s in self.services]
+
+    def _router_entry(self, connect: Sequence[str] | None, endpoint: str | None) -> Entry:
+        assert self.router is not None
+        router = self.router
+        listen = [endpoint] if endpoint else router.listen
+        connect = list(connect) if connect is not None else router.connect
+        argv = ["router", *_opt("--config", router.config), *_repeat("--listen", listen),
+                *_repeat("--connect", connect)]
+        return Entry(router.name, tuple(argv), ready=self._router_address(listen))
+
+    def _router_address(self, listen: list[str]) -> tuple[str, int]:
+        """Where the router listens, from its config and overrides: what the services wait for."""
+        from shared.zconfig import ZenohConfigError, build_config
+        assert self.router is not None
+        try:
+            cfg = build_config("router", file=self.router.config, listen=listen)
+        except ZenohConfigError as exc:
+            raise ProfileError(f"{self.source}: router: {exc}") from None
+        for address in map(tcp_address, _flat_endpoints(cfg.get_json("listen/endpoints"))):
+            if address is not None:
+                return address
+        raise ProfileError(f"{self.source}: router: no tcp listen endpoint to wait for")
+
+    def _service_entry(self, spec: ServiceSpec, endpoint: str | None) -> Entry:
+        argv = ["run", spec.service, "--robot-id", spec.robot_id or self.robot_id,
+                "--instance", spec.instance, *_opt("--config", spec.config), *_opt("--zenoh", spec.zenoh),
+                *_repeat("--connect", [endpoint] if endpoint else spec.connect)]
+        return Entry(spec.entry_name, tuple(argv), delay_s=spec.delay_s)
+
+
+def _opt(flag: str, value: Path | None) -> list[str]:
+    return [flag, str(value)] if value is not None else []
+
+
+def _repeat(flag: str, values: Sequence[str]) -> list[str]:
+    return [arg for value in values for arg in (flag, value)]
+
+
+def _flat_endpoints(raw_json: str) -> list[str]:
+    """Zenoh endpoints are a list, or per mode ``{"router": [...], ...}``."""
+    import json
+    value = json.loads(raw_json)
+    if isinstance(value, dict):
+        return [e for per_mode in value.values() for e in per_mode]
+    return list(value or [])
+
+
+def tcp_address(endpoint: str) -> tuple[str, int] | None:
+    """(host, port) of a ``tcp/HOST:PORT`` endpoint to probe; a wildcard host is probed on loopback."""
+    if not endpoint.startswith("tcp/"):
+        return None
+    host, _, port = endpoint[4:].split("#")[0].rpartition(":")
+    if not port.isdigit() or not host:
+        return None
+    host = host.strip("[]")
+    return ("127.0.0.1" if host in ("0.0.0.0", "::") else host), int(port)
+
+
+def laptop_endpoint(address: str) -> str:
+    """``HOST:PORT`` (from ``--connect-laptop``) as a Zenoh endpoint, or a clear error."""
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ProfileError(f"--connect-laptop wants HOST:PORT (e.g. 192.168.1.10:7447), not {address!r}")
+    return f"tcp/{host}:{port}"
+
+
+def resolve_profile(name_or_path: str | Path) -> Path:
+    """A profile file path, or a shipped profile's name (``all``, ``laptop``, ``robot``)."""
+    path = Path(name_or_path)
+    if path.suffix == ".toml" or path.exists():
+        return path
+    shipped = PROFILE_DIR / f"{name_or_path}.toml"
+    if shipped.exists():
+        return shipped
+    names = ", ".join(sorted(p.stem for p in PROFILE_DIR.glob("*.toml")))
+    raise ProfileError(f"unknown profile {str(name_or_path)!r}: give a .toml file or one of: {names}")
+
+
+def load_profile(path: str | Path) -> Profile:
+    """Read and fully check a profile; every problem is a :class:`ProfileError` naming file and entry.
+
+    Relative paths in the file are taken from the file's folder (so ``ovamos up``
+    works from any directory) and come back absolute.
+    """
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ProfileError(f"cannot read profile {path}: {exc}") from None
+    try:
+        profile = Profile.model_validate(raw)
+    except ValidationError as exc:
+        raise ProfileError(f"{path}: " + "; ".join(_describe(e, raw) for e in exc.errors())) from None
+    profile._source = path
+    _resolve_paths(profile, path.parent.resolve())
+    _check(profile)
+    return profile
+
+
+def _describe(error: Any, raw: dict[str, Any]) -> str:
+    """``services[2] (mapping): bogus: Extra inputs are not permitted`` from a pydantic error."""
+    loc = list(error["loc"])
+    where = ""
+    if len(loc) >= 2 and loc[0] == "services" and isinstance(loc[1], int):
+        item = raw.get("services", [])[loc[1]]
+        label = item.get("name") or item.get("service") if isinstance(item, dict) else None
+        where = f"services[{loc[1]}]" + (f" ({label})" if label else "")
+        loc = loc[2:]
+    field_path = ".".join(map(str, loc))
+    return ": ".join(p for p in (where, field_path, error["msg"]) if p)
+
+
+def _resolve_paths(profile: Profile, base: Path) -> None:
+    def absolute(p: Path | None) -> Path | None:
+        return p if p is None or p.is_absolute() else (base / p).resolve()
+    if profile.router is not None:
+        profile.router.config = absolute(profile.router.config)
+    for spec in profile.services:
+        spec.config, spec.zenoh = absolute(spec.config), absolute(spec.zenoh)
+
+
+def _check(profile: Profile) -> None:
+    """Unknown services, missing files and duplicate names, each reported with its entry."""
+    problems: list[str] = []
+    router = profile.router
+    if router is not None and router.config is not None and not router.config.is_file():
+        problems.append(f"router: config file {router.config} does not exist")
+    names = [router.name] if router is not None else []
+    for i, spec in enumerate(profile.services):
+        problems += _service_problems(f"services[{i}] ({spec.entry_name})", spec, names)
+        names.append(spec.entry_name)
+    if not names:
+        problems.append("no router and no services: nothing to run")
+    if problems:
+        raise ProfileError(f"{profile.source}: " + "; ".join(problems))
+
+
+def _service_problems(where: str, spec: ServiceSpec, taken: list[str]) -> list[str]:
+    problems = []
+    if spec.service not in KNOWN_SERVICES:
+        problems.append(f"{where}: unknown service {spec.service!r}; "
+                        f"known: {', '.join(sorted(KNOWN_SERVICES))}")
+    for what, p in (("config", spec.config), ("zenoh", spec.zenoh)):
+        if p is not None and not p.is_file():
+            problems.append(f"{where}: {what} file {p} does not exist")
+    if spec.entry_name in taken:
+        problems.append(f"{where}: name {spec.entry_name!r} is used twice (set a unique name)")
+    return problems
+
+
+def check_service_configs(profile: Profile) -> None:
+    """Validate each service's config file against its service's model, before anything starts.
+
+    Services not registered yet (being written) cannot be checked here;
+    ``ovamos run`` reports them when it starts them.
+    """
+    from services.registry import UnknownServiceError, service_class
+    from shared.service import ServiceConfigError, load_config
+    problems: list[str] = []
+    for i, spec in enumerate(profile.services):
+        try:
+            cls = service_class(spec.service)
+        except UnknownServiceError:
+            continue
+        try:
+            load_config(cls, spec.config)
+        except ServiceConfigError as exc:
+            problems.append(f"services[{i}] ({spec.entry_name}): {exc}")
+    if problems:
+        raise ProfileError(f"{profile.source}: " + "; ".join(problems))
+
+
+def supervisor_for(profile: str | Path, *, log_dir: Path = DEFAULT_LOG_DIR,
+                   connect_laptop: str | None = None, endpoint: str | None = None,
+                   check_configs: bool = True) -> Supervisor:
+    """What ``ovamos up PROFILE`` runs: the profile loaded, checked and turned into a supervisor.
+
+    ``endpoint`` runs the profile's router there instead of its shipped port (see
+    :meth:`Profile.entries`).
+    """
+    loaded = load_profile(resolve_profile(profile))
+    if check_configs:
+        check_service_configs(loaded)
+    connect = [laptop_endpoint(connect_laptop)] if connect_laptop else None
+    return Supervisor(loaded.entries(router_connect=connect, endpoint=endpoint), log_dir=log_dir,
+                      backoff=loaded.restart, stop_timeout_s=loaded.stop_timeout_s)
