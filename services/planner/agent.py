@@ -25,7 +25,7 @@ from enum import Enum
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.planner.decide import Decision, DecisionConfig, GoalKind, away, decide
+from services.planner.decide import Decision, DecisionConfig, GoalKind, Policy, away, decide
 from services.planner.navigation import NavigationConfig, NavMap, Navigator, Unreachable
 from services.planner.task import Found, Task, TaskState
 from shared.messages import MapSnapshot
@@ -64,6 +64,7 @@ class Reason(str, Enum):
     NAVIGATE = "navigate"      # a primitive towards the goal
     LOOK = "look"              # goal reached, nothing new chosen: turn to see more
     IDLE = "idle"              # nowhere to go (yet): turn in place
+    WANDER = "wander"          # the random baseline's walk
     FOUND = "found"            # STOP beside a confirmed object
     OVER = "over"              # the task is no longer searching
 
@@ -91,6 +92,7 @@ class SearchAgent:
         self._toward_goal = 0
         self._blocked = 0
         self._idle = 0
+        self._random_walk = self.config.decision.policy is Policy.RANDOM
         self._recent: list[tuple[float, float]] = []
         self.bumps: list[tuple[float, float]] = []
         if task.state is TaskState.IDLE:
@@ -108,7 +110,7 @@ class SearchAgent:
             self._decide(snapshot, pose, remaining)
         for _ in range(2):  # the goal, then (if it was reached or unreachable) one fresh decision
             if self.goal is None:
-                return self._idle_turn()
+                return self._wander() if self._random_walk else self._idle_turn()
             goal = self.goal
             if goal.kind is GoalKind.OBJECT and math.hypot(goal.x - pose.x, goal.y - pose.y) \
                     <= self.config.object_stop_m:
@@ -192,6 +194,12 @@ class SearchAgent:
         seen = np.array([(o.x, o.y) for o in snapshot.objects if o.confirmed and o.label in remaining])
         return bool(len(seen)) and bool(away(seen, np.array(self.unreachable).reshape(-1, 2),
                                                self.config.decision.avoid_radius_m).any())
+
+    def _wander(self) -> Step:
+        """The random baseline's step: forward half the time, else a turn (seeded per step)."""
+        rng = np.random.default_rng([self.config.decision.seed, self.task.steps])
+        action = rng.choice([Action.MOVE_FORWARD, Action.MOVE_FORWARD, Action.TURN_LEFT, Action.TURN_RIGHT])
+        return Step(Action(action), Reason.WANDER)
 
     def _idle_turn(self) -> Step:
         """Turn in place with nowhere to go; after a full turn, give the goals once found

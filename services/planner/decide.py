@@ -33,7 +33,7 @@ class Policy(str, Enum):
     NO_DECAY = "ovamos-nodecay"   # POMDP on the value map without decay
     FINDER = "finder"             # all targets' layers, always the best frontier
     VLFM = "vlfm"                 # one target at a time, always the best frontier
-    RANDOM = "random"             # a random frontier (same stop logic for found objects)
+    RANDOM = "random"             # a random walk (same stop logic for found objects): no goals
 
 
 FRONTIER_ONLY = (Policy.FINDER, Policy.VLFM)
@@ -176,7 +176,7 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
             return Decision(GoalKind.OBJECT, obj.x, obj.y, obj.label)
     frontiers = snapshot.frontiers[away(snapshot.frontiers, avoid, radius)]
     if config.policy is Policy.RANDOM:
-        return _random(frontiers, snapshot.seq, config)
+        return None  # the agent walks at random between confirmed objects
     rows, cols, grid = explored_window(snapshot)
     values = value_map(snapshot, remaining, config, (rows, cols))
     if values is None:
@@ -193,15 +193,6 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     if config.policy is Policy.GREEDY:
         return _greedy(cands, frontier, values, grid, config)
     return _pouct(cands, frontier, robot_xy, snapshot, config)
-
-
-def _random(frontiers: np.ndarray, seq: int, config: DecisionConfig) -> Decision | None:
-    """A uniformly drawn frontier, seeded by the config seed and the snapshot's frame seq."""
-    if len(frontiers) == 0:
-        return None
-    rng = np.random.default_rng([config.seed, seq + 1])
-    x, y = frontiers[int(rng.integers(len(frontiers)))]
-    return Decision(GoalKind.FRONTIER, float(x), float(y))
 
 
 def _greedy(cands: Candidates, frontier: np.ndarray | None, values: np.ndarray, grid: GridGeometry,
