@@ -10,8 +10,10 @@ $(PY):
 	$(PYTHON) -m venv $(VENV)
 
 # Re-install when the dependency list (pyproject.toml, the extras named here) changes.
+# torch first, pinned: its CPU build (a bare "torch" requirement would pull a multi-GB CUDA one).
 $(VENV)/.installed: pyproject.toml Makefile | $(PY)
-	$(PIP) install -e '.[dev,sim]'
+	$(PIP) install torch==2.13.0
+	$(PIP) install -e '.[dev,sim,perception]'
 	touch $@
 
 # The simulator renders headless through EGL (Mesa's software rasteriser when
@@ -37,6 +39,7 @@ bench: $(VENV)/.installed egl
 	$(VENV)/bin/ovamos bench sim
 	$(VENV)/bin/ovamos bench mapping
 	$(VENV)/bin/ovamos bench planner
+	$(VENV)/bin/ovamos bench perception
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis

@@ -260,6 +260,19 @@ SceneSeed = Annotated[int, typer.Option("--seed", help="Scene seed.")]
 SceneFile = Annotated[Optional[Path], typer.Option("--scene", help="Scene JSON (instead of --seed).")]
 
 
+@bench_app.command("perception")
+def bench_perception(frames: Annotated[int, typer.Option(help="hf frames per run (~90 s each on 2 CPU cores).")] = 1,
+                     runs: Annotated[int, typer.Option(help="Runs (the median is reported).")] = 3,
+                     sim_frames: Annotated[int, typer.Option(help="sim frames per run.")] = 40,
+                     hf: Annotated[bool, typer.Option("--hf/--no-hf", help="Also time the real models.")] = True,
+                     as_json: AsJson = False) -> None:
+    """Frames per second of the sim and hf perception backends (CPU; GPU fp16 when CUDA is present)."""
+    from bench.perception import print_table, run_benchmark
+    result = run_benchmark(frames=frames, runs=runs, sim_frames=sim_frames, hf=hf,
+                           progress=None if as_json else err)
+    _report(result, as_json, print_table)
+
+
 def _scene(seed: int, scene_file: Path | None):
     from services.sim.generate import generate_scene
     from services.sim.world import Scene, SceneError

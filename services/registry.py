@@ -16,11 +16,12 @@ SERVICES: dict[str, str] = {
     "mapping": "services.mapping.service:MappingService",
     "planner": "services.planner.service:PlannerService",
     "gateway": "services.gateway.service:GatewayService",
+    "perception": "services.perception.service:PerceptionService",
 }
 
 # Services of the design that are not built yet, with the issue that builds them.
 PLANNED: dict[str, int] = {
-    "sim": 8, "perception": 7, "base_driver": 8,
+    "sim": 8, "base_driver": 8,
 }
 
 

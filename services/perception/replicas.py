@@ -14,6 +14,11 @@ twice (two results with the same seq: the map fuses the first, later ones
 find no frame to pair with and are trimmed) or not at all (the map fuses that
 frame without values after its match timeout). A replica that died mid-frame
 loses that frame the same way. Nothing stalls and no state needs repair.
+
+One known gap: the bus declares a replica's token when its session opens,
+before its backend has loaded, so a starting replica's share of the frames is
+lost while its models load (seconds for real weights). A separate "ready"
+token, declared once :meth:`Service.start` returns, would close it.
 """
 
 from __future__ import annotations

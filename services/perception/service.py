@@ -3,7 +3,8 @@
 Wiring: ``sensors/rgbd`` frames are decoded on Zenoh's thread, checked for
 ownership (:mod:`.replicas`) and handed to one worker thread through a
 bounded queue (latest-only by default); the worker runs the backend and
-publishes ``perception/result``. ``task/current`` sets the target list.
+publishes ``perception/result``. ``task/current`` sets the target list, less the
+targets ``task/events`` reports found (the in-process episode runner does the same).
 
 Without a task (or once it is cancelled) there are no targets: each frame
 still gets a result, with no scores and no detections and without running a
@@ -30,7 +31,7 @@ from services.perception.replicas import ReplicaSet
 from shared import keys
 from shared.bus import Bus
 from shared.log import fields, sampled
-from shared.messages import PerceptionResult, RgbdFrame, TaskSpec
+from shared.messages import PerceptionResult, RgbdFrame, TaskEvent, TaskSpec
 from shared.service import Service
 
 
@@ -47,6 +48,9 @@ class PerceptionService(Service):
         self._frame_key = keys.rgbd(bus.robot_id)
         self._lock = threading.Lock()
         self._targets: tuple[str, ...] = ()
+        self._spec_targets: tuple[str, ...] = ()
+        self._task_id: str | None = None
+        self._found: frozenset[str] = frozenset()
         self._processed = self._rejected = 0
         self._last_seq: int | None = None
         self._last_ms: float | None = None
@@ -62,6 +66,7 @@ class PerceptionService(Service):
         self._members_sub = self.bus.session.liveliness().declare_subscriber(
             keys.alive(robot, self.name), self._on_member, history=True)
         self.bus.subscribe(keys.task_current(robot), TaskSpec, self._on_task)
+        self.bus.subscribe(keys.task_events(robot), TaskEvent, self._on_event)
         self.bus.subscribe(self._frame_key, RgbdFrame, self._on_frame)
         self._worker.start()
 
@@ -79,7 +84,17 @@ class PerceptionService(Service):
 
     def _on_task(self, task: TaskSpec) -> None:
         with self._lock:
-            self._targets = () if task.cancelled else task.targets
+            if task.task_id != self._task_id:
+                self._task_id, self._found = task.task_id, frozenset()
+            self._spec_targets = () if task.cancelled else task.targets
+            self._targets = tuple(t for t in self._spec_targets if t not in self._found)
+
+    def _on_event(self, event: TaskEvent) -> None:
+        """A found target is not looked for any more (its map layer goes with it)."""
+        with self._lock:
+            if event.task_id == self._task_id:
+                self._found = frozenset(f.label for f in event.found)
+                self._targets = tuple(t for t in self._spec_targets if t not in self._found)
 
     def _on_frame(self, frame: RgbdFrame) -> None:
         if self.replicas.owns(frame.seq):

@@ -119,13 +119,15 @@ class Executive:
 
     def poll(self, now: float) -> list[JsonMessage]:
         """The messages to publish now (commands, task events)."""
-        out: list[JsonMessage] = []
+        commands: list[JsonMessage] = []
         if self.task is not None and self.task.state is TaskState.SEARCHING:
-            out += self._drive(now)
+            commands = self._drive(now)
+        out: list[JsonMessage] = []
         if self.task is not None and (self._event_due or now - self._last_event >= self.config.event_every_s):
+            # the event first: a found target must reach perception before the next frame does
             out.append(self.event(now))
             self._event_due, self._last_event = False, now
-        return out
+        return out + commands
 
     def event(self, now: float) -> TaskEvent:
         task = self.task

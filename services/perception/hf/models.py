@@ -132,7 +132,8 @@ class GroundingDetector:
         order = order[:self.max_detections]
         height, width = rgb.shape[:2]
         boxes = pixel_boxes(out.pred_boxes[0].float().cpu().numpy()[order], width, height)
-        return [Box(targets[int(label[i])], float(box_score[i]), tuple(int(v) for v in b))  # type: ignore[misc]
+        return [Box(targets[int(label[i])], float(box_score[i]),
+                    tuple(int(v) for v in b))  # type: ignore[arg-type]
                 for i, b in zip(order, boxes)]
 
 

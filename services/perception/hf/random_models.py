@@ -38,30 +38,32 @@ def _tokenizer() -> Any:
     return tf.BertTokenizer(vocab=vocabulary())
 
 
-def _text(size: Size, **extra: Any) -> dict[str, Any]:
-    """A BERT-like text config: tiny, or the default size with special ids inside our vocabulary."""
-    ids = {"pad_token_id": 0, "bos_token_id": 2, "sep_token_id": 3}
-    if size == "full":
-        return extra
+def _tiny_text(**extra: Any) -> dict[str, Any]:
+    """A tiny BERT-like text config whose special ids lie inside :func:`vocabulary`."""
     return {"vocab_size": _TINY_VOCAB, "hidden_size": 32, "num_hidden_layers": 1, "num_attention_heads": 2,
-            "intermediate_size": 64, **ids, **extra}
+            "intermediate_size": 64, "pad_token_id": 0, "bos_token_id": 2, "sep_token_id": 3, **extra}
+
+
+_TINY_VISION = {"hidden_size": 32, "num_hidden_layers": 1, "num_attention_heads": 2,
+                "intermediate_size": 64, "image_size": 64, "patch_size": 16}
 
 
 def _itm(size: Size, kind: ItmKind) -> tuple[Any, Any]:
     _, tf = torch_and_transformers()
     tiny = size == "tiny"
-    vision = dict(hidden_size=32, num_hidden_layers=1, num_attention_heads=2, intermediate_size=64,
-                  image_size=64, patch_size=16) if tiny else {}
     side = 64 if tiny else 384 if kind == "blip" else 224
     images = tf.BlipImageProcessor(size={"height": side, "width": side})
     if kind == "blip":
-        config = tf.BlipConfig(text_config=_text(size, encoder_hidden_size=32) if tiny else None,
-                               vision_config=vision or None,
-                               **({"projection_dim": 16, "image_text_hidden_size": 16} if tiny else {}))
+        config = tf.BlipConfig(**({"text_config": _tiny_text(encoder_hidden_size=32),
+                                   "vision_config": _TINY_VISION, "projection_dim": 16,
+                                   "image_text_hidden_size": 16} if tiny else {}))
         return tf.BlipForImageTextRetrieval(config), tf.BlipProcessor(images, _tokenizer())
-    qformer = {**_text(size, encoder_hidden_size=32, cross_attention_frequency=1), "use_qformer_text_input": True}
-    config = tf.Blip2Config(vision_config=vision or None, qformer_config=qformer,
-                            **({"num_query_tokens": 4, "image_text_hidden_size": 16} if tiny else {}))
+    # the ITM checkpoints feed text through the Q-Former, which needs its text-input layers
+    qformer = {"use_qformer_text_input": True}
+    if tiny:
+        qformer.update(_tiny_text(encoder_hidden_size=32, cross_attention_frequency=1))
+    config = tf.Blip2Config(qformer_config=qformer, **({"vision_config": _TINY_VISION, "num_query_tokens": 4,
+                                                        "image_text_hidden_size": 16} if tiny else {}))
     return tf.Blip2ForImageTextRetrieval(config), tf.Blip2Processor(images, _tokenizer())
 
 
@@ -73,7 +75,7 @@ def _detector(size: Size) -> tuple[Any, Any]:
             backbone_config={"model_type": "swin", "embed_dim": 16, "depths": [1, 1, 1, 1],
                              "num_heads": [1, 1, 1, 1], "window_size": 4, "image_size": 64,
                              "out_indices": [2, 3, 4]},
-            text_config={"model_type": "bert", **_text(size)}, d_model=32, num_queries=20,
+            text_config={"model_type": "bert", **_tiny_text()}, d_model=32, num_queries=20,
             encoder_layers=1, decoder_layers=2, encoder_ffn_dim=64, decoder_ffn_dim=64,
             encoder_attention_heads=2, decoder_attention_heads=2, encoder_n_points=2, decoder_n_points=2,
             max_text_len=32, **common)

@@ -1,0 +1,143 @@
+"""Perception pieces that need neither Zenoh nor torch: replicas, queue, checks, sim backend, config."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from services.perception.backend import BackendError, FrameRejected, load_backend
+from services.perception.config import FrameLimits, HfBackendConfig, PerceptionServiceConfig, SimBackendConfig
+from services.perception.frames import BoundedQueue, frame_problem
+from services.perception.hf.backend import HfBackend
+from services.perception.hf.loading import ModelFilesError
+from services.perception.hf.models import caption, pixel_boxes
+from services.perception.replicas import ReplicaSet
+from services.perception.sim_backend import SimBackend
+from tests.perception_helpers import render_frames
+from tests.sim_scenes import two_rooms
+
+
+@pytest.fixture(scope="module")
+def frame():
+    return render_frames(1)[0]
+
+
+def test_replicas_split_every_seq_between_the_live_members_exactly_once() -> None:
+    views = {name: ReplicaSet(name) for name in ("b", "a", "c")}
+    for view in views.values():
+        for other in views:
+            view.join(other)
+    for seq in range(60):
+        assert sum(v.owns(seq) for v in views.values()) == 1
+    assert [s for s in range(6) if views["a"].owns(s)] == [0, 3]  # sorted names: a, b, c
+    views["a"].leave("c")
+    views["a"].leave("a")  # a replica never forgets itself
+    assert views["a"].members() == ["a", "b"]
+    assert [s for s in range(6) if views["a"].owns(s)] == [0, 2, 4]
+    alone = ReplicaSet("x")
+    assert all(alone.owns(s) for s in range(5))
+
+
+def test_the_queue_drops_the_oldest_frame_when_full() -> None:
+    dropped: list[int] = []
+    queue: BoundedQueue[int] = BoundedQueue(2, dropped.append)
+    for item in range(5):
+        queue.put(item)
+    assert dropped == [0, 1, 2]
+    assert [queue.get(), queue.get()] == [3, 4]
+    queue.close()
+    assert queue.get() is None
+
+
+def test_frames_outside_the_limits_are_named(frame) -> None:
+    assert frame_problem(frame, FrameLimits()) is None
+    assert "160x120" in frame_problem(frame, FrameLimits(size=(640, 480)))
+    assert "within 200..4096" in frame_problem(frame, FrameLimits(min_side=200))
+
+
+def test_the_sim_backend_matches_the_simulators_perception_and_refuses_camera_frames(frame, tmp_path) -> None:
+    scene_file = tmp_path / "scene.json"
+    two_rooms().save(scene_file)
+    backend = load_backend(PerceptionServiceConfig(sim=SimBackendConfig(scene_file=scene_file)))
+    assert isinstance(backend, SimBackend)
+    scores = backend.score(frame, ["fridge", "cup"])
+    assert list(scores) == ["fridge", "cup"] and scores["fridge"] > scores["cup"]  # the fridge is in view
+    assert scores == backend.perception.score(frame, ["fridge", "cup"])
+    camera_frame = frame.model_copy(update={"instance_ids": None})
+    with pytest.raises(FrameRejected, match="instance ids"):
+        backend.score(camera_frame, ["fridge"])
+    with pytest.raises(FrameRejected, match="instance ids"):
+        backend.detect(camera_frame, ["fridge"])
+    with pytest.raises(BackendError, match="cannot load scene"):
+        SimBackend.load(SimBackendConfig(scene_file=tmp_path / "missing.json"))
+
+
+def test_the_sim_backend_can_take_an_episodes_scene() -> None:
+    backend = SimBackend.load(SimBackendConfig(episode_seed=3, episode_index=1))
+    from services.sim.episodes import make_episode
+    _, scene, _ = make_episode(3, 1)
+    assert dict(backend.perception.labels.classes) == {o.id: o.cls for o in scene.objects}
+
+
+def test_the_config_rejects_unknown_keys() -> None:
+    with pytest.raises(ValidationError):
+        PerceptionServiceConfig.model_validate({"backend": "sim", "replica": 2})
+    with pytest.raises(ValidationError):
+        PerceptionServiceConfig.model_validate({"hf": {"itm_dir": "x", "box_thresh": 0.3}})
+    with pytest.raises(ValidationError):
+        HfBackendConfig(prompt="no placeholder")
+
+
+def _write(directory, files: dict[str, str]) -> None:
+    directory.mkdir(parents=True)
+    for name, text in files.items():
+        (directory / name).write_text(text)
+
+
+def test_missing_or_incomplete_model_directories_say_what_to_download(tmp_path) -> None:
+    complete = {"config.json": json.dumps({"model_type": "sam"}), "model.safetensors": "",
+                "preprocessor_config.json": "{}"}
+    _write(tmp_path / "sam", complete)
+    _write(tmp_path / "dino", {"config.json": json.dumps({"model_type": "grounding-dino"})})
+    config = HfBackendConfig(itm_dir=tmp_path / "nowhere", detector_dir=tmp_path / "dino",
+                             segmenter_dir=tmp_path / "sam")
+    with pytest.raises(ModelFilesError) as err:
+        HfBackend.load(config)
+    message = str(err.value)
+    assert f"{tmp_path / 'nowhere'} does not exist" in message
+    assert "Salesforce/blip-itm-base-coco" in message and "hf.itm_dir" in message
+    assert "GroundingDINO weights in" in message and "incomplete" in message
+    assert "model.safetensors or pytorch_model.bin" in message and "tokenizer.json or vocab.txt" in message
+    assert "IDEA-Research/grounding-dino-tiny" in message
+    assert len(message.splitlines()) == 2  # SAM's directory is complete
+    wrong = HfBackendConfig(itm_dir=tmp_path / "sam", detector_dir=tmp_path / "sam",
+                            segmenter_dir=tmp_path / "sam")
+    with pytest.raises(ModelFilesError, match="holds a 'sam' model, not BLIP ITM"):
+        HfBackend.load(wrong)
+
+
+def test_a_sharded_checkpoint_needs_every_shard(tmp_path) -> None:
+    index = {"weight_map": {"a": "model-1.safetensors", "b": "model-2.safetensors"}}
+    files = {"config.json": json.dumps({"model_type": "sam"}), "preprocessor_config.json": "{}",
+             "model.safetensors.index.json": json.dumps(index), "model-1.safetensors": ""}
+    _write(tmp_path / "sam", files)
+    from services.perception.hf.loading import SEGMENTER, model_type
+    with pytest.raises(ModelFilesError, match="incomplete"):
+        model_type(SEGMENTER, tmp_path / "sam")
+    (tmp_path / "sam" / "model-2.safetensors").write_text("")
+    assert model_type(SEGMENTER, tmp_path / "sam") == "sam"
+
+
+def test_the_caption_and_its_target_spans() -> None:
+    text, spans = caption(["Chair", "potted plant"])
+    assert text == "chair . potted plant ."
+    assert [text[a:b] for a, b in spans] == ["chair", "potted plant"]
+
+
+def test_normalised_boxes_become_pixel_boxes_inside_the_image() -> None:
+    normalised = np.array([[0.5, 0.5, 0.5, 0.5], [0.0, 1.0, 0.4, 0.4], [0.5, 0.5, 0.0, 0.0]])
+    boxes = pixel_boxes(normalised, 160, 120)
+    assert boxes.tolist() == [[40, 30, 120, 90], [0, 96, 32, 120], [80, 60, 81, 61]]

@@ -1,0 +1,118 @@
+"""The hf backend end to end with tiny random-weight models, loaded from disk like real weights.
+
+The models are the real transformers classes built from small configs and
+written with ``save_pretrained``; :meth:`HfBackend.load` reads them through the
+same offline loader the service uses for downloaded weights.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("transformers")
+
+from services.perception.config import PerceptionServiceConfig  # noqa: E402
+from services.perception.hf.backend import HfBackend  # noqa: E402
+from services.perception.hf.loading import Placement  # noqa: E402
+from services.perception.hf.models import GroundingDetector, ItmScorer  # noqa: E402
+from services.perception.hf.random_models import save_model_dirs  # noqa: E402
+from shared.messages import TaskSpec  # noqa: E402
+from tests.perception_helpers import render_frames  # noqa: E402
+
+TARGETS = ("fridge", "cup", "chair")
+
+
+@pytest.fixture(scope="module")
+def frame():
+    return render_frames(1)[0]
+
+
+@pytest.fixture(scope="module")
+def model_dirs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("models")
+    return {kind: save_model_dirs(root / kind, itm=kind, seed=1) for kind in ("blip", "blip-2")}
+
+
+@pytest.fixture(scope="module")
+def backends(model_dirs):
+    return {kind: HfBackend.load(config) for kind, config in model_dirs.items()}
+
+
+@pytest.mark.parametrize("kind, score", [("blip", "itc"), ("blip", "itm"), ("blip-2", "itc"),
+                                         ("blip-2", "itm")])
+def test_every_target_gets_a_score(backends, frame, kind, score) -> None:
+    backend = backends[kind]
+    assert backend.placement.device == "cpu"
+    scorer = ItmScorer(backend.scorer.loaded, backend.placement, backend.scorer.prompt, score)
+    scores = scorer(frame.rgb, TARGETS)
+    assert list(scores) == list(TARGETS)
+    assert all(math.isfinite(v) for v in scores.values())
+    low, high = (0.0, 1.0) if score == "itm" else (-1.0, 1.0)  # probability or cosine
+    assert all(low <= v <= high for v in scores.values())
+    # distinct prompts give distinct scores: all-[UNK] tokens would make them equal
+    assert len(set(scores.values())) == len(TARGETS)
+
+
+def test_detections_have_boxes_inside_the_image_and_masks_of_its_size(backends, frame) -> None:
+    backend = backends["blip"]
+    detections = backend.detect(frame, TARGETS)
+    assert 1 <= len(detections) <= backend.detector.max_detections
+    height, width = frame.depth.shape
+    for det in detections:
+        assert det.label in TARGETS and 0.35 < det.score <= 1.0
+        x0, y0, x1, y1 = det.box
+        assert 0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height
+        assert det.mask.shape == (height, width) and det.mask.dtype == np.bool_
+    assert [d.score for d in detections] == sorted((d.score for d in detections), reverse=True)
+
+
+def test_the_saved_tokenizers_know_the_prompt_words(backends) -> None:
+    backend = backends["blip"]
+    for processor in (backend.scorer.loaded.processor, backend.detector.loaded.processor):
+        tokenizer = processor.tokenizer
+        ids = tokenizer("Seems like there is a fridge ahead.")["input_ids"]
+        assert tokenizer.unk_token_id not in ids
+
+
+def test_no_box_passes_a_threshold_above_every_score(backends, frame) -> None:
+    backend = backends["blip"]
+    strict = GroundingDetector(backend.detector.loaded, backend.placement, 1.0, 0.25, 20)
+    assert strict(frame.rgb, TARGETS) == []
+    assert backend.score(frame, []) == {} and backend.detect(frame, []) == []
+
+
+def test_the_cpu_gets_full_precision() -> None:
+    import torch
+    placement = Placement.resolve("auto", fp16=True)
+    expected = "cuda" if torch.cuda.is_available() else "cpu"
+    assert placement.device == expected
+    assert placement.dtype == (torch.float16 if expected == "cuda" else torch.float32)
+
+
+def test_the_service_runs_the_hf_backend_from_its_config(model_dirs, inproc_router, frame) -> None:
+    from shared import keys
+    from shared.bus import Bus
+    from shared.messages import PerceptionResult, RgbdFrame
+    from shared.zconfig import build_config
+    from tests.conftest import wait_for
+    from tests.perception_helpers import ROBOT, RunningPerception
+
+    config = PerceptionServiceConfig(backend="hf", hf=model_dirs["blip"])
+    got: list[PerceptionResult] = []
+    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-sender") as bus:
+        bus.subscribe(keys.perception_result(ROBOT), PerceptionResult, got.append)
+        frames = bus.publisher(keys.rgbd(ROBOT), RgbdFrame)
+        tasks = bus.publisher(keys.task_current(ROBOT), TaskSpec)
+        task = TaskSpec(task_id="t", targets=TARGETS, stamp=0.0)
+        service = RunningPerception(inproc_router, config)
+        try:
+            result = wait_for(lambda: tasks.put(task) or frames.put(frame) or next(
+                (r for r in list(got) if r.targets == TARGETS), None), what="an hf result")
+        finally:
+            service.close()
+    assert result.seq == frame.seq and len(result.labels) >= 1
+    assert result.masks.shape[1:] == frame.depth.shape

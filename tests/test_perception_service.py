@@ -1,0 +1,155 @@
+"""The perception service over real Zenoh on loopback, with the sim backend."""
+
+from __future__ import annotations
+
+import collections
+import threading
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from services.perception.config import PerceptionServiceConfig, SimBackendConfig
+from services.perception.sim_backend import SimBackend
+from shared import keys
+from shared.bus import Bus
+from shared.codec import pack
+from shared.messages import PerceptionResult, RgbdFrame, TaskSpec
+from shared.status import live_services
+from shared.zconfig import build_config
+from tests.conftest import wait_for
+from tests.perception_helpers import ROBOT, RunningPerception, render_frames
+from tests.sim_scenes import two_rooms
+
+
+@pytest.fixture(scope="module")
+def frames() -> list[RgbdFrame]:
+    return render_frames(4)
+
+
+@pytest.fixture
+def sim_config(tmp_path) -> PerceptionServiceConfig:
+    scene_file = tmp_path / "scene.json"
+    two_rooms().save(scene_file)
+    return PerceptionServiceConfig(sim=SimBackendConfig(scene_file=scene_file))
+
+
+class Sender:
+    """Publishes frames and tasks like the robot and the planner, and collects results."""
+
+    def __init__(self, bus: Bus) -> None:
+        self.frames = bus.publisher(keys.rgbd(ROBOT), RgbdFrame)
+        self.tasks = bus.publisher(keys.task_current(ROBOT), TaskSpec)
+        self._lock = threading.Lock()
+        self._results: list[PerceptionResult] = []
+        bus.subscribe(keys.perception_result(ROBOT), PerceptionResult, self._got)
+
+    def _got(self, result: PerceptionResult) -> None:
+        with self._lock:
+            self._results.append(result)
+
+    def results(self, seq: int | None = None) -> list[PerceptionResult]:
+        with self._lock:
+            return [r for r in self._results if seq is None or r.seq == seq]
+
+    def until_result(self, frame: RgbdFrame, what: str, task: TaskSpec | None = None) -> PerceptionResult:
+        """Re-send ``frame`` (and ``task``) until a result for it arrives (publishers learn of
+        subscribers asynchronously, so a first put can be lost); with a task, until the result
+        carries its targets."""
+        def arrived() -> PerceptionResult | None:
+            if task is not None:
+                self.tasks.put(task)
+            self.frames.put(frame)
+            wanted = () if task is None or task.cancelled else task.targets
+            return next((r for r in self.results(frame.seq) if r.targets == wanted), None)
+        return wait_for(arrived, what=what)
+
+
+@pytest.fixture
+def sender(inproc_router: str) -> Iterator[Sender]:
+    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-sender") as bus:
+        yield Sender(bus)
+
+
+def stats(client, instance: str):
+    found = [s for s in live_services(client, ROBOT) if s.service == "perception" and s.instance == instance]
+    return found[0].stats if found and found[0].stats else None
+
+
+def test_a_frame_gets_a_result_with_its_seq_for_the_current_targets(inproc_router, sim_config, sender,
+                                                                     frames) -> None:
+    service = RunningPerception(inproc_router, sim_config)
+    try:
+        # no task yet: a result without targets, so the map need not wait for one
+        idle = sender.until_result(frames[1], "a result without a task")
+        assert idle.targets == () and idle.scores == () and idle.labels == ()
+        assert idle.stamp == frames[1].stamp
+        task = TaskSpec(task_id="t1", targets=("fridge", "cup"), stamp=0.0)
+        result = sender.until_result(frames[0], "a result for the task's targets", task)
+        direct = SimBackend(two_rooms(), config=sim_config.sim.perception)
+        assert result.score_map() == direct.score(frames[0], task.targets)
+        expected = direct.detect(frames[0], task.targets)
+        assert result.labels == tuple(d.label for d in expected)
+        assert all(np.array_equal(a.mask, b.mask) for a, b in zip(result.detections(), expected))
+        assert result.masks.shape[1:] == frames[0].depth.shape
+        cancelled = task.model_copy(update={"cancelled": True})
+        done = sender.until_result(frames[2], "a result after the task was cancelled", cancelled)
+        assert done.targets == ()
+    finally:
+        service.close()
+
+
+def test_two_replicas_process_every_frame_of_a_burst_exactly_once(inproc_router, sim_config, sender,
+                                                                   client, frames) -> None:
+    # room for the whole burst: this test is about the split, not about dropping stale frames
+    config = sim_config.model_copy(update={"queue_frames": 64})
+    replicas = [RunningPerception(inproc_router, config, name) for name in ("a", "b")]
+    try:
+        wait_for(lambda: all((s := stats(client, n)) and s.info["replicas"] == ["a", "b"]
+                             for n in ("a", "b")), what="both replicas see each other")
+        sender.until_result(frames[0], "replica a answers")        # seq 0: a
+        sender.until_result(frames[1], "replica b answers")        # seq 1: b
+        before = {n: stats(client, n).info["processed"] for n in ("a", "b")}
+        burst = range(2, 42)
+        for seq in burst:
+            sender.frames.put(frames[seq % len(frames)].model_copy(update={"seq": seq}))
+
+        def processed() -> dict[str, int]:
+            return {n: stats(client, n).info["processed"] - before[n] for n in ("a", "b")}
+        wait_for(lambda: sum(processed().values()) >= len(burst), what="the burst processed")
+        wait_for(lambda: {r.seq for r in sender.results()} >= set(burst), what="every result received")
+        assert processed() == {"a": 20, "b": 20}
+        counts = collections.Counter(r.seq for r in sender.results() if r.seq in burst)
+        assert counts == {seq: 1 for seq in burst}
+    finally:
+        for replica in replicas:
+            replica.close()
+
+
+def test_unusable_frames_are_rejected_and_counted_and_the_service_goes_on(inproc_router, sim_config,
+                                                                          sender, client, frames) -> None:
+    service = RunningPerception(inproc_router, sim_config.model_copy(update={"queue_frames": 8}))
+    try:
+        # with targets, so that the backend runs (without any, no model looks at a frame)
+        task = TaskSpec(task_id="t1", targets=("fridge",), stamp=0.0)
+        sender.until_result(frames[0], "the service answers", task)
+        good = frames[1]
+        # undecodable: float rgb (the bus drops it before the service sees it)
+        bad_dtype = pack(RgbdFrame.KIND, RgbdFrame.VERSION,
+                         good.model_dump_json(exclude=set(RgbdFrame.ARRAYS)).encode(),
+                         {"rgb": good.rgb.astype(np.float32), "depth": good.depth})
+        client.put(keys.rgbd(ROBOT), bytes(bad_dtype))
+        # decodable but too small for the models, and a camera frame for the sim backend
+        tiny = RgbdFrame(seq=50, stamp=0.0, intrinsics=good.intrinsics, rgb=np.zeros((8, 8, 3), np.uint8),
+                         depth=np.ones((8, 8), np.float32), instance_ids=np.zeros((8, 8), np.int32))
+        sender.frames.put(tiny)
+        sender.frames.put(good.model_copy(update={"seq": 51, "instance_ids": None}))
+        after = sender.until_result(good.model_copy(update={"seq": 52}), "a result after the bad frames",
+                                    task)
+        assert after.seq == 52 and after.targets == ("fridge",)
+        s = wait_for(lambda: (s := stats(client, "0")) and s.counters[keys.rgbd(ROBOT)].malformed == 3
+                     and s, what="three frames counted as malformed")
+        assert s.info["rejected"] == 2 and "instance ids" in s.info["last_rejection"]
+        assert not sender.results(50) and not sender.results(51)
+    finally:
+        service.close()
