@@ -273,6 +273,36 @@ def bench_perception(frames: Annotated[int, typer.Option(help="hf frames per run
     _report(result, as_json, print_table)
 
 
+@bench_app.command("search")
+def bench_search(
+        episodes: Annotated[int, typer.Option(help="Episodes per policy (the paper: 120).")] = 120,
+        seed: Annotated[int, typer.Option(help="Seed of the episode set (ids are SEED-INDEX).")] = 0,
+        policies: Annotated[str, typer.Option(help="Comma-separated: random, vlfm, finder, ovamos-greedy, "
+                                                   "ovamos-nodecay, ovamos.")] =
+        "random,vlfm,finder,ovamos-greedy,ovamos-nodecay,ovamos",
+        workers: Annotated[int, typer.Option(help="Worker processes.")] = 2,
+        out: Annotated[Optional[Path], typer.Option(help="Folder for episodes.jsonl, timings.jsonl, "
+                                                         "summary.json, chart.png (or the replay PNG).")] = None,
+        replay: Annotated[Optional[str], typer.Option(help="Draw one episode (SEED-INDEX, e.g. 0-3) "
+                                                           "instead of running the benchmark.")] = None,
+        policy: Annotated[str, typer.Option(help="Policy of the replayed episode.")] = "ovamos",
+        source: Annotated[Optional[Path], typer.Option("--from", help="episodes.jsonl to read the replayed "
+                                                                      "episode from (default: re-run it).")] = None,
+        max_steps: Annotated[Optional[int], typer.Option(help="Step limit override, for quick runs and "
+                                                              "tests only (the paper's: 500).")] = None,
+        as_json: AsJson = False) -> None:
+    """Search benchmark: SR and MSPL per policy (the paper's Tables I and II), or one episode's picture."""
+    from bench.search import SearchError
+    from bench.search import main as search_main
+    try:
+        code = search_main(episodes=episodes, seed=seed, policies=policies, workers=workers, as_json=as_json,
+                           out=out, max_steps=max_steps, replay_id=replay, policy=policy, source=source,
+                           console=console, err=err)
+    except SearchError as exc:
+        raise _fail(str(exc)) from None
+    raise typer.Exit(code)
+
+
 def _scene(seed: int, scene_file: Path | None):
     from services.sim.generate import generate_scene
     from services.sim.world import Scene, SceneError

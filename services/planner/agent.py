@@ -198,8 +198,8 @@ class SearchAgent:
     def _wander(self) -> Step:
         """The random baseline's step: forward half the time, else a turn (seeded per step)."""
         rng = np.random.default_rng([self.config.decision.seed, self.task.steps])
-        action = rng.choice([Action.MOVE_FORWARD, Action.MOVE_FORWARD, Action.TURN_LEFT, Action.TURN_RIGHT])
-        return Step(Action(action), Reason.WANDER)
+        actions = (Action.MOVE_FORWARD, Action.MOVE_FORWARD, Action.TURN_LEFT, Action.TURN_RIGHT)
+        return Step(actions[int(rng.integers(len(actions)))], Reason.WANDER)
 
     def _idle_turn(self) -> Step:
         """Turn in place with nowhere to go; after a full turn, give the goals once found

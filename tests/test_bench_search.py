@@ -1,0 +1,181 @@
+"""Search benchmark (bench/search.py): determinism across runs and worker counts, the table and
+JSON shapes, the files written, and the replay picture.
+
+Episodes are cut to a few steps (the quick-run ``max_steps`` override) so the whole module runs in
+well under a minute on two cores; what is checked does not depend on the episodes' length.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from rich.console import Console
+
+from bench.episode import EpisodeResult, StopRecord
+from bench.search import (CHART_FILE, EPISODES_FILE, SUMMARY_FILE, TIMINGS_FILE, EpisodeFailed, Job,
+                          SearchError, SearchRun, draw_chart, iter_results, jsonl_line, legend_lines, main,
+                          parse_episode_id, parse_policies, policy_scores, print_table, read_results,
+                          replay, run_search, summary, write_outputs)
+
+SEED, EPISODES, STEPS = 0, 2, 15
+POLICIES = ("random", "ovamos")
+
+
+def quick_run(workers: int) -> SearchRun:
+    return run_search(EPISODES, SEED, POLICIES, workers=workers, max_steps=STEPS)
+
+
+def jsonl(run: SearchRun) -> str:
+    return "".join(jsonl_line(r) for r in run.results)
+
+
+@pytest.fixture(scope="module")
+def run() -> SearchRun:
+    return quick_run(workers=1)
+
+
+def fake(policy: str, index: int, success: bool, spl: float, found: tuple[str, ...] = (),
+         targets: tuple[str, ...] = ("cup", "bed", "tv"), stops: list[StopRecord] | None = None
+         ) -> EpisodeResult:
+    """A hand-made result: scores and pictures are checked against known numbers."""
+    return EpisodeResult(episode_id=f"0-{index}", policy=policy, scene_seed=1, targets=targets,
+                         success=success, spl=spl, found=found, steps=10, path_m=2.0, shortest_m=1.0,
+                         state="done" if success else "failed", decisions=3, blocked=0,
+                         stops=stops or [], trajectory=[(1.0, 1.0, 0.0), (1.5, 1.0, 0.0)], seconds=0.5)
+
+
+# -- arguments -----------------------------------------------------------------------------------
+def test_policies_come_back_in_the_papers_order_and_unknown_ones_are_refused() -> None:
+    assert parse_policies("ovamos, random,vlfm,ovamos") == ("random", "vlfm", "ovamos")
+    with pytest.raises(SearchError, match="ovamso"):
+        parse_policies("ovamos,ovamso")
+    with pytest.raises(SearchError):
+        parse_policies(" , ")
+
+
+def test_episode_ids_parse_and_bad_ones_are_refused() -> None:
+    assert parse_episode_id("0-3") == (0, 3)
+    assert parse_episode_id("-2-7") == (-2, 7)
+    for bad in ("3", "a-b", "0-", "0--1"):
+        with pytest.raises(SearchError):
+            parse_episode_id(bad)
+
+
+# -- runs ----------------------------------------------------------------------------------------
+def test_a_run_covers_every_pair_sorted_within_the_step_limit(run: SearchRun) -> None:
+    assert [(r.policy, r.episode_id) for r in run.results] == [
+        ("ovamos", "0-0"), ("ovamos", "0-1"), ("random", "0-0"), ("random", "0-1")]
+    assert all(1 <= r.steps <= STEPS and len(r.trajectory) == r.steps + 1 for r in run.results)
+
+
+def test_same_seed_gives_byte_identical_jsonl_without_wall_clock(run: SearchRun, tmp_path: Path) -> None:
+    again = quick_run(workers=1)
+    write_outputs(tmp_path / "a", run, summary(run))
+    write_outputs(tmp_path / "b", again, summary(again))
+    first = (tmp_path / "a" / EPISODES_FILE).read_bytes()
+    assert first == (tmp_path / "b" / EPISODES_FILE).read_bytes()
+    assert all("seconds" not in json.loads(line) for line in first.decode().splitlines())
+
+
+def test_two_worker_processes_give_the_results_of_one(run: SearchRun) -> None:
+    assert jsonl(quick_run(workers=2)) == jsonl(run)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_failing_episode_names_its_work_unit(workers: int) -> None:
+    jobs = [Job("no-such-policy", SEED, 0, STEPS), Job("no-such-policy", SEED, 1, STEPS)]
+    with pytest.raises(EpisodeFailed, match=r"no-such-policy 0-[01]: ValueError"):
+        list(iter_results(jobs, workers=workers))
+
+
+# -- scores, table, JSON -------------------------------------------------------------------------
+def test_scores_are_success_rate_in_percent_and_mean_spl() -> None:
+    results = [fake("ovamos", 0, True, 0.5, ("cup", "bed", "tv")), fake("ovamos", 1, False, 0.0, ("cup",)),
+               fake("random", 0, False, 0.0)]
+    scores = policy_scores(results)
+    assert list(scores) == ["random", "ovamos"]
+    assert scores["ovamos"] == {"sr": 50.0, "mspl": 0.25, "episodes": 2, "targets_found": 66.7}
+    assert scores["random"]["sr"] == 0.0 and scores["random"]["targets_found"] == 0.0
+
+
+def test_summary_is_the_documented_json_object(run: SearchRun) -> None:
+    result = json.loads(json.dumps(summary(run)))
+    assert set(result["policies"]) == set(POLICIES)
+    for scores in result["policies"].values():
+        assert {"sr", "mspl", "episodes"} <= set(scores)
+        assert scores["episodes"] == EPISODES and 0 <= scores["sr"] <= 100 and 0 <= scores["mspl"] <= 1
+    assert result["seconds"] >= 0 and result["max_steps"] == STEPS
+
+
+def test_tables_list_the_papers_rows_in_order_with_its_numbers() -> None:
+    policies = ("random", "vlfm", "finder", "ovamos-greedy", "ovamos-nodecay", "ovamos")
+    scores = policy_scores([fake(p, 0, False, 0.0) for p in policies])
+    out = io.StringIO()
+    print_table(Console(file=out, width=200), {"policies": scores, "seconds": 60.0, "episodes_per_min": 6.0,
+                                               "seed": 0, "workers": 2, "max_steps": None})
+    text = out.getvalue()
+    table_i, table_ii = text.split("Table II")
+    rows_i = [table_i.index(name) for name in ("Random", "VLFM", "Finder", "OVAMOS")]
+    rows_ii = [table_ii.index(name) for name in ("w/o POMDP", "w/o value decay", "OVAMOS (full)")]
+    assert rows_i == sorted(rows_i) and rows_ii == sorted(rows_ii)
+    for paper in ("55.0%", "0.497", "28.3%", "0.198", "12.5%", "0.075", "27.5%", "0.154", "45.0%", "0.410"):
+        assert paper in text
+    assert "6.0 episodes/min" in text
+
+
+def test_main_prints_one_json_object_and_writes_the_files(tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    main(episodes=1, seed=SEED, policies="random", workers=1, as_json=True, out=tmp_path,
+         max_steps=STEPS, err=Console(file=io.StringIO()))
+    result = json.loads(capsys.readouterr().out)
+    assert result["policies"]["random"]["episodes"] == 1
+    for name in (EPISODES_FILE, TIMINGS_FILE, SUMMARY_FILE):
+        assert (tmp_path / name).stat().st_size > 0
+    assert json.loads((tmp_path / SUMMARY_FILE).read_text())["policies"] == result["policies"]
+    assert [json.loads(line)["seconds"] >= 0 for line in (tmp_path / TIMINGS_FILE).read_text().splitlines()] \
+        == [True]
+    assert cv2.imread(str(tmp_path / CHART_FILE)) is not None
+
+
+def test_jsonl_reads_back_to_the_same_results(run: SearchRun, tmp_path: Path) -> None:
+    write_outputs(tmp_path, run, summary(run))
+    back = read_results(tmp_path / EPISODES_FILE)
+    assert [jsonl_line(r) for r in back] == [jsonl_line(r) for r in run.results]
+    (tmp_path / "bad.jsonl").write_text(jsonl_line(run.results[0]) + "{not json\n")
+    with pytest.raises(SearchError, match="bad.jsonl:2"):
+        read_results(tmp_path / "bad.jsonl")
+
+
+# -- pictures ------------------------------------------------------------------------------------
+def test_chart_bars_grow_with_the_scores() -> None:
+    low = draw_chart(policy_scores([fake("ovamos", 0, False, 0.0)]))
+    high = draw_chart(policy_scores([fake("ovamos", 0, True, 0.9)]))
+    assert low.shape == high.shape and low.ndim == 3 and low.shape[0] >= 300
+    assert (high != 255).sum() > (low != 255).sum()  # taller bars cover more of the white
+
+
+def test_legend_says_which_stop_was_wrong_and_which_target_was_missed() -> None:
+    wrong = StopRecord(step=7, label="cup", x=1.0, y=1.0, success=False, distance_m=2.5)
+    text = [line for line, _ in legend_lines(fake("ovamos", 3, False, 0.0, ("bed",), stops=[wrong]))]
+    assert any("FAILURE: found 1/3" in line for line in text)
+    assert any("cup: missed" in line for line in text) and any("bed: found" in line for line in text)
+    assert any("S1 step 7 cup: WRONG, 2.50 m" in line for line in text)
+
+
+def test_replay_reruns_the_episode_and_draws_it(run: SearchRun, tmp_path: Path) -> None:
+    write_outputs(tmp_path, run, summary(run))
+    rerun_png, rerun = replay("0-1", tmp_path / "rerun", "ovamos", max_steps=STEPS)
+    stored = next(r for r in run.results if r.episode_id == "0-1" and r.policy == "ovamos")
+    assert jsonl_line(rerun) == jsonl_line(stored)
+    read_png, read = replay("0-1", tmp_path / "read", "ovamos", source=tmp_path / EPISODES_FILE)
+    assert jsonl_line(read) == jsonl_line(stored)
+    image = cv2.imread(str(read_png))
+    assert image is not None and image.shape[0] >= 300 and image.shape[1] >= 800
+    assert np.array_equal(image, cv2.imread(str(rerun_png)))
+    with pytest.raises(SearchError, match="no episode 0-1 with policy vlfm"):
+        replay("0-1", tmp_path, "vlfm", source=tmp_path / EPISODES_FILE)
