@@ -168,12 +168,22 @@ def status(robot_id: RobotId = "*", zenoh_file: ZenohFile = None, connect: Conne
 
 
 @app.command()
-def demo(seconds: Annotated[float, typer.Option(help="How long to run.")] = 6.0,
-         robot_id: RobotId = "demo",
-         out: Annotated[Path, typer.Option(help="Folder for the map PNG.")] = Path("out")) -> None:
-    """Run a router and services on this machine over real Zenoh, and show what flows."""
+def demo(seed: Annotated[int, typer.Option(help="Episode set seed.")] = 0,
+         episode: Annotated[int, typer.Option(help="Episode index (scene, start, targets).")] = 5,
+         targets: Annotated[Optional[list[str]], typer.Option("--target", help="Override the episode's "
+                                                                              "targets (repeatable).")] = None,
+         keep_running: Annotated[bool, typer.Option(help="Stay up afterwards; print the gateway URL.")] = False,
+         timeout: Annotated[float, typer.Option(help="Give the search this many seconds.")] = 600.0,
+         out: Annotated[Path, typer.Option(help="Folder for the report, map, configs and logs.")]
+         = Path("out/demo")) -> None:
+    """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
     from services.demo import run_demo
-    raise typer.Exit(run_demo(console, seconds=seconds, robot_id=robot_id, out_dir=out))
+    try:
+        code = run_demo(console, out_dir=out, seed=seed, episode=episode, targets=targets,
+                        keep_running=keep_running, timeout_s=timeout)
+    except (TimeoutError, OSError) as exc:
+        raise _fail(str(exc)) from None
+    raise typer.Exit(code)
 
 
 @app.command("map")

@@ -1,15 +1,20 @@
-"""``ovamos demo``: the most complete system that runs end to end today.
+"""``ovamos demo``: the whole system on this machine, driven through its HTTP API.
 
-At this stage that is a Zenoh router, a test-pattern camera, the mapping
-service and a monitor, each its own process on loopback, exchanging real RGB-D
-frames; the demo watches them through the same liveliness and stats queries
-``ovamos status`` uses, draws the resulting map to a PNG, then shuts
-everything down. It ends by saying what is still missing.
+A router and every service (mapping, perception with the simulated backend,
+planner, the simulated robot, the gateway) run as separate supervised
+processes over real Zenoh on loopback, on free ports, with their configs and
+logs under the output folder. The demo submits a search task over HTTP,
+shows its progress live, then writes a report (JSON) and the map with the
+robot's path (PNG) and stops everything. The default episode is one the
+method solves, so a first run shows a success; ``--seed``/``--episode``/
+``--targets`` pick others.
 """
 
 from __future__ import annotations
 
-import subprocess
+import json
+import signal
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -18,109 +23,142 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from services.mapping.render import render_map, write_png
-from services.registry import PLANNED
-from shared import keys
-from shared.procs import free_port, loopback, start_cli, stop
-from shared.messages import MapSnapshot
-from shared.status import LiveService, live_services
-from shared.zconfig import build_config, open_session
+from bench.episode import scene_mapping
+from services.gateway.client import GatewayClient, GatewayError
+from services.gateway.models import TaskView
+from services.sim.episodes import make_episode
+from services.supervisor import Entry, Supervisor, port_open
+from shared.procs import free_port, loopback
 
-DEMO_SERVICES = ("testpattern", "mapping", "monitor")
-STARTUP_TIMEOUT_S = 30.0
+DEMO_SEED, DEMO_EPISODE = 0, 5
+STARTUP_TIMEOUT_S = 90.0
+SERVICES = ("mapping", "perception", "planner", "sim", "gateway")
 
 
-def _table(services: list[LiveService], elapsed: float) -> Table:
-    table = Table(title=f"ovamos demo: {elapsed:4.1f} s", show_lines=False)
-    for column in ("service", "pid", "published", "received", "dropped", "malformed", "detail"):
-        table.add_column(column)
-    for s in services:
-        c = s.stats.counters if s.stats else {}
-        total = {f: sum(getattr(v, f) for v in c.values())
-                 for f in ("published", "received", "dropped", "malformed")}
-        table.add_row(f"{s.service}/{s.instance}", str(s.stats.pid) if s.stats else "?",
-                      *(str(total[f]) for f in ("published", "received", "dropped", "malformed")),
-                      _detail(s.stats.info if s.stats else {}))
+def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_port: int,
+                  width: int = 320, height: int = 240) -> dict[str, Path]:
+    """One JSON config per service, all describing the same episode (scene, start pose)."""
+    _, scene, _ = make_episode(seed, episode)
+    mapping = scene_mapping(scene)
+    episode_keys = {"episode_seed": seed, "episode_index": episode}
+    configs: dict[str, dict[str, Any]] = {
+        "mapping": {"grid_cells": mapping.grid_cells, "center": list(mapping.center), "publish_hz": 5.0,
+                    "checkpoint_path": str(folder / "map.ckpt")},
+        "perception": {"backend": "sim", "sim": episode_keys},
+        "planner": {},
+        "sim": {**episode_keys, "motion": "kinematic", "lock_step": True, "width": width, "height": height},
+        "gateway": {"port": http_port, "robots": [robot_id], "state_dir": str(folder / "gateway")},
+    }
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for name, config in configs.items():
+        paths[name] = folder / f"{name}.json"
+        paths[name].write_text(json.dumps(config, indent=1))
+    return paths
+
+
+def demo_entries(configs: dict[str, Path], *, robot_id: str, zenoh_port: int) -> list[Entry]:
+    router = Entry("router", ("router", "--listen", loopback(zenoh_port), "--log-level", "WARNING"),
+                   ready=("127.0.0.1", zenoh_port))
+    return [router] + [Entry(name, ("run", name, "--robot-id", robot_id, "--config", str(configs[name]),
+                                    "--connect", loopback(zenoh_port)))
+                       for name in SERVICES]
+
+
+def _progress(view: TaskView | None, elapsed: float) -> Table:
+    table = Table(title=f"search task ({elapsed:.0f} s)", show_header=False)
+    if view is None:
+        table.add_row("status", "starting the services ...")
+        return table
+    table.add_row("status", view.status.value + (f" ({view.message})" if view.message else ""))
+    table.add_row("targets", ", ".join(view.targets))
+    table.add_row("found", ", ".join(f"{f.label} at ({f.x:.1f}, {f.y:.1f}) step {f.step}"
+                                     for f in view.found) or "-")
+    table.add_row("steps", f"{view.steps} / {view.max_steps}")
+    table.add_row("distance", f"{view.distance_m:.2f} m")
     return table
 
 
-def _detail(info: dict[str, Any]) -> str:
-    lines = [f"{row['key']}: {row['rate_hz']:.1f} Hz, {row['mbytes_per_s']:.1f} MB/s, "
-             f"latency {row['median_latency_ms'] or 0:.1f} ms" for row in info.get("streams", [])]
-    if "frames_sent" in info:
-        lines.append(f"{info['frames_sent']} frames sent")
-    return "\n".join(lines)
-
-
-def run_demo(console: Console, *, seconds: float, robot_id: str, out_dir: Path) -> int:
-    """Run the demo; 0 when frames flowed intact from camera to monitor and into the map."""
-    endpoint = loopback(free_port())
-    common = ["--connect", endpoint, "--robot-id", robot_id, "--log-level", "WARNING"]
-    console.print(f"[bold]Starting[/bold] a Zenoh router on {endpoint} and services "
-                  f"{', '.join(DEMO_SERVICES)}, each in its own process.")
-    procs: list[subprocess.Popen] = [start_cli(["router", "--listen", endpoint,
-                                                "--log-level", "WARNING"])]
-    procs += [start_cli(["run", name, *common]) for name in DEMO_SERVICES]
-    session = open_session(build_config(connect=[endpoint]))
-    services: list[LiveService] = []
-    try:
-        with console.status("waiting for the services to come up"):
-            _wait_until_up(session, robot_id)
-        start = time.monotonic()  # the clock starts once everything runs: slow start-ups don't count
-        with Live(console=console, refresh_per_second=4) as live:
-            while (elapsed := time.monotonic() - start) < seconds:
-                services = live_services(session, robot_id, timeout_s=1.0)
-                live.update(_table(services, elapsed))
-                time.sleep(0.5)
-        map_png = _draw_map(session, robot_id, out_dir)
-    finally:
-        session.close()
-        for proc in reversed(procs):
-            stop(proc)
-    console.print()
-    ok = _verdict(console, services, robot_id)
-    if map_png is not None:
-        console.print(f"The map the mapping service built from those frames: {map_png}")
-    console.print("\n[bold]Not in this demo yet[/bold] (each service arrives with its issue): " +
-                  ", ".join(f"{name} (#{issue})" for name, issue in PLANNED.items()) +
-                  ". The full demo (simulated robot searching a home for targets submitted over "
-                  "HTTP) replaces this one with the gateway issue.")
-    return 0 if ok else 1
-
-
-def _draw_map(session: Any, robot_id: str, out_dir: Path) -> Path | None:
-    for reply in session.get(keys.map_snapshot(robot_id), timeout=5.0):
-        if reply.ok is not None:
-            snapshot = MapSnapshot.from_bytes(reply.ok.payload.to_bytes())
-            out_dir.mkdir(parents=True, exist_ok=True)
-            return write_png(out_dir / "demo_map.png", render_map(snapshot))
-    return None
-
-
-def _wait_until_up(session: Any, robot_id: str, timeout_s: float = STARTUP_TIMEOUT_S) -> None:
-    deadline = time.monotonic() + timeout_s
+def _wait_for_services(client: GatewayClient, robot_id: str, deadline: float) -> None:
+    """Until every service of the robot shows its liveliness token (the gateway asks Zenoh)."""
     while time.monotonic() < deadline:
-        up = {s.service for s in live_services(session, robot_id, timeout_s=1.0)}
-        if up >= set(DEMO_SERVICES):
-            return
-        time.sleep(0.2)
+        try:
+            robot = client.health()["robots"][robot_id]
+            if {s["service"] for s in robot["services"]} >= set(SERVICES):
+                return
+        except GatewayError:
+            pass
+        time.sleep(0.5)
+    raise TimeoutError(f"the services did not all come up within {STARTUP_TIMEOUT_S:.0f} s "
+                       f"(see the logs)")
 
 
-def _verdict(console: Console, services: list[LiveService], robot_id: str) -> bool:
-    by_name = {s.service: s for s in services if s.stats}
-    missing = [name for name in DEMO_SERVICES if name not in by_name]
-    if missing:
-        console.print(f"[red]FAILED[/red]: {', '.join(missing)} never reported.")
-        return False
-    frames = by_name["monitor"].stats.counters.get(keys.rgbd(robot_id))
-    if frames is None or frames.received == 0 or frames.malformed:
-        console.print(f"[red]FAILED[/red]: the monitor saw no valid frames ({frames}).")
-        return False
-    mapped = by_name["mapping"].stats.info.get("seq", -1)
-    if mapped < 0:
-        console.print("[red]FAILED[/red]: the mapping service fused no frame.")
-        return False
-    console.print(f"[green]OK[/green]: {frames.received} RGB-D frames crossed the router from "
-                  f"testpattern to monitor, {frames.malformed} malformed; the map fused frames up "
-                  f"to seq {mapped}.")
-    return True
+def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode: int = DEMO_EPISODE,
+             targets: list[str] | None = None, robot_id: str = "sim", keep_running: bool = False,
+             timeout_s: float = 600.0) -> int:
+    spec, _, _ = make_episode(seed, episode)
+    targets = targets or list(spec.targets)
+    http_port, zenoh_port = free_port(), free_port()
+    configs = write_configs(out_dir / "config", seed=seed, episode=episode, robot_id=robot_id,
+                            http_port=http_port)
+    url = f"http://127.0.0.1:{http_port}"
+    console.print(f"episode {spec.episode_id}: {', '.join(targets)}; gateway {url}; "
+                  f"logs in {out_dir / 'logs'}")
+    started = time.monotonic()
+    with Supervisor(demo_entries(configs, robot_id=robot_id, zenoh_port=zenoh_port),
+                    log_dir=out_dir / "logs") as supervisor, GatewayClient(url) as client:
+        deadline = started + STARTUP_TIMEOUT_S
+        while not port_open("127.0.0.1", http_port) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        _wait_for_services(client, robot_id, deadline)
+        view = _search(console, client, targets, robot_id, started, timeout_s)
+        report = _write_results(console, client, view, out_dir, robot_id, seed, episode,
+                                time.monotonic() - started, supervisor)
+        if keep_running:
+            _serve_until_interrupted(console, url, robot_id)
+    return 0 if report["task"]["status"] == "done" else 1
+
+
+def _search(console: Console, client: GatewayClient, targets: list[str], robot_id: str, started: float,
+            timeout_s: float) -> TaskView:
+    accepted = client.submit(targets, robot_id=robot_id)
+    view = client.get(accepted.id)
+    with Live(_progress(view, 0.0), console=console, refresh_per_second=4) as live:
+        deadline = time.monotonic() + timeout_s
+        while not view.final and time.monotonic() < deadline:
+            time.sleep(0.5)
+            view = client.get(accepted.id)
+            live.update(_progress(view, time.monotonic() - started))
+    if not view.final:
+        view = client.cancel(accepted.id)
+    return view
+
+
+def _write_results(console: Console, client: GatewayClient, view: TaskView, out_dir: Path, robot_id: str,
+                   seed: int, episode: int, seconds: float, supervisor: Supervisor) -> dict[str, Any]:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    map_path = out_dir / "demo_map.png"
+    try:
+        map_path.write_bytes(client.map_png(robot_id))
+    except GatewayError as exc:
+        console.print(f"[yellow]no map image:[/yellow] {exc}")
+    report = {"episode": f"{seed}-{episode}", "seconds": round(seconds, 1),
+              "task": json.loads(view.model_dump_json()),
+              "restarts": {s.name: s.restarts for s in supervisor.status()}}
+    (out_dir / "demo_report.json").write_text(json.dumps(report, indent=1))
+    found = ", ".join(f.label for f in view.found) or "nothing"
+    colour = "green" if view.status.value == "done" else "red"
+    console.print(f"[{colour}]{view.status.value}[/{colour}]: found {found} in {view.steps} steps, "
+                  f"{view.distance_m:.1f} m; report {out_dir / 'demo_report.json'}, map {map_path}")
+    return report
+
+
+def _serve_until_interrupted(console: Console, url: str, robot_id: str) -> None:
+    console.print(f"Everything keeps running. Gateway: {url} (API docs: {url}/docs). Try:\n"
+                  f"  curl -X POST {url}/v1/tasks -H 'Content-Type: application/json' "
+                  f"-d '{{\"targets\": [\"bed\"], \"robot_id\": \"{robot_id}\"}}'\n"
+                  f"Ctrl-C stops everything.")
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    stop.wait()

@@ -17,22 +17,15 @@ SERVICES: dict[str, str] = {
     "planner": "services.planner.service:PlannerService",
     "gateway": "services.gateway.service:GatewayService",
     "perception": "services.perception.service:PerceptionService",
+    "sim": "services.sim.service:SimRobotService",
+    "base_driver": "services.base_driver.service:BaseDriverService",
 }
-
-# Services of the design that are not built yet, with the issue that builds them.
-PLANNED: dict[str, int] = {
-    "sim": 8, "base_driver": 8,
-}
-
 
 class UnknownServiceError(LookupError):
     """A service name ``ovamos run`` cannot start."""
 
 
 def service_class(name: str) -> type[Service]:
-    if name in PLANNED:
-        raise UnknownServiceError(f"service {name!r} is not implemented yet (issue #{PLANNED[name]}); "
-                                  f"available now: {', '.join(SERVICES)}")
     if name not in SERVICES:
         raise UnknownServiceError(f"unknown service {name!r}; available: {', '.join(SERVICES)}")
     module, _, attr = SERVICES[name].partition(":")

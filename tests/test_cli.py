@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 from bench.transport import run_benchmark
 from shared import __version__
@@ -20,10 +23,7 @@ def test_version() -> None:
     assert out.returncode == 0 and __version__ in out.stdout
 
 
-def test_planned_and_unknown_services_are_clear_errors() -> None:
-    planned = ovamos("run", "base_driver")
-    assert planned.returncode == 2
-    assert "not implemented yet (issue #8)" in planned.stderr
+def test_unknown_services_are_clear_errors() -> None:
     unknown = ovamos("run", "teleporter")
     assert unknown.returncode == 2 and "unknown service 'teleporter'" in unknown.stderr
 
@@ -48,11 +48,25 @@ def test_bad_robot_id_is_a_clear_error() -> None:
     assert out.returncode == 2 and "robot id" in out.stderr
 
 
-def test_demo_moves_frames_between_processes_and_cleans_up(tmp_path: Path) -> None:
-    out = ovamos("demo", "--seconds", "3", "--out", str(tmp_path))
+def test_demo_finds_every_target_through_the_http_api_and_cleans_up(tmp_path: Path) -> None:
+    """Router, mapping, perception, planner, simulated robot and gateway as processes; the task
+    goes in over HTTP and comes back done with every target found."""
+    out = ovamos("demo", "--out", str(tmp_path), timeout=400)
     assert out.returncode == 0, out.stdout + out.stderr
-    assert "OK:" in out.stdout and "Not in this demo yet" in out.stdout
-    assert (tmp_path / "demo_map.png").stat().st_size > 0
+    report = json.loads((tmp_path / "demo_report.json").read_text())
+    task = report["task"]
+    assert task["status"] == "done" and sorted(f["label"] for f in task["found"]) == sorted(task["targets"])
+    assert 0 < task["steps"] <= task["max_steps"] and task["distance_m"] > 0
+    png = (tmp_path / "demo_map.png").read_bytes()
+    assert png.startswith(b"\x89PNG")
+    assert all(n == 0 for n in report["restarts"].values())
+    # lock-step with the kinematic robot: the distributed run is the in-process episode, step by step
+    from bench.episode import EpisodeConfig, run_episode
+    from services.sim.episodes import make_episode
+    local = run_episode(*make_episode(0, 5), EpisodeConfig())
+    assert task["steps"] == local.steps
+    assert task["distance_m"] == pytest.approx(local.path_m, abs=1e-6)
+    assert [(f["label"], f["step"]) for f in task["found"]] == [(s.label, s.step) for s in local.stops]
 
 
 def test_transport_benchmark_reports_both_paths() -> None:

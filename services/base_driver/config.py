@@ -1,0 +1,87 @@
+"""Every setting of the base driver (unknown keys are errors, as for every service).
+
+Defaults are a TurtleBot3 Waffle-like base: 0.26 m/s and 1.82 rad/s top speeds,
+wheel radius 0.033 m, track 0.287 m. ``can`` is python-can's standard bus
+configuration, passed to ``can.Bus(**can)`` unchanged, so a real robot uses e.g.
+``interface = "socketcan", channel = "can0", bitrate = 250000``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from shared.motion import Pose
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class CanConfig(_Strict):
+    """python-can bus settings (``can.Bus(interface=..., channel=..., bitrate=...)``)."""
+
+    interface: str = Field(default="virtual", description="socketcan, pcan, slcan, virtual, ...")
+    channel: str = Field(default="ovamos-base", description="can0 for socketcan")
+    bitrate: int | None = Field(default=None, gt=0, description="e.g. 250000; None = the interface's")
+
+    def bus_kwargs(self) -> dict[str, Any]:
+        kwargs: dict[str, Any] = {"interface": self.interface, "channel": self.channel}
+        if self.bitrate is not None:
+            kwargs["bitrate"] = self.bitrate
+        return kwargs
+
+
+class AxisConfig(_Strict):
+    """One wheel's ODrive axis. ``direction`` -1 for a motor mounted mirrored."""
+
+    node_id: int = Field(ge=0, le=63)
+    direction: Literal[1, -1] = 1
+
+
+class DriverConfig(_Strict):
+    can: CanConfig = Field(default_factory=CanConfig)
+    left: AxisConfig = Field(default_factory=lambda: AxisConfig(node_id=0))
+    right: AxisConfig = Field(default_factory=lambda: AxisConfig(node_id=1))
+    # geometry
+    wheel_radius_m: float = Field(default=0.033, gt=0)
+    track_width_m: float = Field(default=0.287, gt=0)
+    initial_pose: Pose = Field(default_factory=lambda: Pose(x=0.0, y=0.0, yaw=0.0),
+                               description="odometry starts here (the simulator: the start pose)")
+    # limits
+    max_linear_m_s: float = Field(default=0.26, gt=0)
+    max_angular_rad_s: float = Field(default=1.82, gt=0)
+    max_linear_accel_m_s2: float = Field(default=1.0, gt=0)
+    max_angular_accel_rad_s2: float = Field(default=4.0, gt=0)
+    current_limit_a: float = Field(default=10.0, gt=0, description="sent with Set_Limits")
+    # timing
+    control_hz: float = Field(default=50.0, gt=0, le=500, description="Set_Input_Vel rate")
+    heartbeat_timeout_s: float = Field(default=0.3, gt=0, description="older heartbeat = fault")
+    deadman_s: float = Field(default=0.5, gt=0, description="no command for this long: ramp to zero")
+    enable_timeout_s: float = Field(default=2.0, gt=0, description="closed loop must be reached in this")
+    recover_every_s: float = Field(default=1.0, gt=0, description="retry after a fault this often")
+    auto_recover: bool = Field(default=True, description="re-enable once a fault's cause is gone")
+    # primitives (the paper's sizes) and their closed loop
+    forward_m: float = Field(default=0.25, gt=0)
+    turn_deg: float = Field(default=30.0, gt=0, le=180)
+    linear_tolerance_m: float = Field(default=0.002, gt=0)
+    angular_tolerance_rad: float = Field(default=0.003, gt=0)
+    approach_gain: float = Field(default=4.0, gt=0, description="1/s; speed = gain * remaining near the goal")
+    creep_m_s: float = Field(default=0.01, gt=0, description="slowest approach speed")
+    creep_rad_s: float = Field(default=0.05, gt=0)
+    heading_gain: float = Field(default=2.0, ge=0, description="1/s; holds the heading on a forward move")
+    settle_rev_s: float = Field(default=0.01, gt=0, description="wheels slower than this are at rest")
+    primitive_timeout_s: float = Field(default=10.0, gt=0, description="abort a primitive after this")
+
+    @model_validator(mode="after")
+    def _distinct_nodes(self) -> DriverConfig:
+        if self.left.node_id == self.right.node_id:
+            raise ValueError("left and right axes need different node ids")
+        return self
+
+    @property
+    def max_wheel_rev_s(self) -> float:
+        """The fastest a wheel may turn: the top linear speed (rev/s)."""
+        return self.max_linear_m_s / (2 * math.pi * self.wheel_radius_m)

@@ -1,0 +1,68 @@
+"""Closed-loop execution of the discrete primitives on odometry.
+
+Each tick the tracker turns the remaining distance (or angle) into a speed
+request: the top speed, capped by the braking curve ``sqrt(2 a d)`` so the
+base can stop in time, by ``gain * d`` near the goal so that a late control
+tick (a slow host) overshoots by millimetres, and never below a creep speed so
+the goal is reached rather than approached forever. Within tolerance it asks
+for zero; the driver reports the primitive done once the wheels are at rest
+there, so the reported pose is final. An overshoot past the tolerance is
+driven back.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from services.base_driver.config import DriverConfig
+from shared.motion import Action, Pose, wrap_angle
+
+BRAKING_MARGIN = 0.8  # plan braking at 80 % of the acceleration limit: the ramp lags a tick
+
+
+def _approach(remaining: float, top: float, accel: float, gain: float, creep: float) -> float:
+    """Signed speed toward a goal ``remaining`` away (positive: ahead)."""
+    d = abs(remaining)
+    speed = max(creep, min(top, math.sqrt(2 * accel * BRAKING_MARGIN * d), gain * d))
+    return math.copysign(speed, remaining)
+
+
+@dataclass(frozen=True)
+class PrimitiveTracker:
+    """Drives one primitive from ``start``; :meth:`request` gives (linear, angular) or None at goal."""
+
+    action: Action
+    start: Pose
+    config: DriverConfig
+
+    @property
+    def goal_yaw(self) -> float:
+        turn = math.radians(self.config.turn_deg)
+        sign = {Action.TURN_LEFT: 1.0, Action.TURN_RIGHT: -1.0}.get(self.action, 0.0)
+        return wrap_angle(self.start.yaw + sign * turn)
+
+    def remaining(self, pose: Pose) -> float:
+        """Metres (forward) or radians (turns) still to go; 0 for STOP."""
+        if self.action is Action.MOVE_FORWARD:
+            done = ((pose.x - self.start.x) * math.cos(self.start.yaw)
+                    + (pose.y - self.start.y) * math.sin(self.start.yaw))
+            return self.config.forward_m - done
+        if self.action in (Action.TURN_LEFT, Action.TURN_RIGHT):
+            return wrap_angle(self.goal_yaw - pose.yaw)
+        return 0.0
+
+    def request(self, pose: Pose) -> tuple[float, float] | None:
+        c, r = self.config, self.remaining(pose)
+        if self.action is Action.MOVE_FORWARD:
+            if abs(r) <= c.linear_tolerance_m:
+                return None
+            heading = c.heading_gain * wrap_angle(self.start.yaw - pose.yaw)
+            return _approach(r, c.max_linear_m_s, c.max_linear_accel_m_s2, c.approach_gain,
+                             c.creep_m_s), heading
+        if self.action in (Action.TURN_LEFT, Action.TURN_RIGHT):
+            if abs(r) <= c.angular_tolerance_rad:
+                return None
+            return 0.0, _approach(r, c.max_angular_rad_s, c.max_angular_accel_rad_s2,
+                                  c.approach_gain, c.creep_rad_s)
+        return None  # STOP: stand still

@@ -1,0 +1,140 @@
+"""The base driver service: ``plan/command`` and ``driver/estop`` in, ``odom`` and ``driver/state`` out.
+
+A thin adapter over a *base* (the CAN :class:`~services.base_driver.driver.BaseDriver`
+here, the simulated robot in ``services.sim.service``): commands go to it as they
+arrive (it executes an action id once, so the planner may re-send), and the
+tick publishes odometry at ``odom_hz`` and the driver state at ``state_hz`` and
+whenever it changes (odometry first, so a planner that sees a command completed
+already has the pose it ended at).
+
+``simulated_axes`` runs simulated ODrives on the driver's virtual CAN channel in
+this process: the whole driver, CAN frames included, without hardware.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Protocol
+
+from pydantic import Field, model_validator
+
+from services.base_driver.config import DriverConfig
+from services.base_driver.driver import BaseDriver
+from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
+from shared import keys
+from shared.bus import Bus
+from shared.messages import DriverState, EStop, Odometry, PlanCommand
+from shared.service import Service, ServiceConfig
+
+
+class Base(Protocol):
+    """What the service needs of whatever moves the robot."""
+
+    def submit(self, command: PlanCommand) -> str: ...
+    def engage_estop(self, source: str, reason: str = "") -> None: ...
+    def clear_estop(self, source: str) -> None: ...
+    def state(self) -> DriverState: ...
+    def odometry(self) -> Odometry: ...
+    def info(self) -> dict[str, object]: ...
+    def stop(self) -> None: ...
+
+
+class PublishingConfig(ServiceConfig):
+    """How often the driver's outputs go out (shared by the real and the simulated base)."""
+
+    odom_hz: float = Field(default=20.0, gt=0)
+    state_hz: float = Field(default=5.0, gt=0, description="also published on every change")
+    tick_hz: float = Field(default=50.0, gt=0, description="how often changes are looked for")
+
+
+class BaseDriverServiceConfig(PublishingConfig):
+    driver: DriverConfig = Field(default_factory=DriverConfig)
+    simulated_axes: bool = Field(default=False, description="simulated ODrives on the virtual bus")
+    sim_axes: SimAxisConfig = Field(default_factory=SimAxisConfig)
+
+    @model_validator(mode="after")
+    def _virtual_for_sim(self) -> BaseDriverServiceConfig:
+        if self.simulated_axes and self.driver.can.interface != "virtual":
+            raise ValueError("simulated_axes needs driver.can.interface = 'virtual'")
+        return self
+
+
+class _SimulatedAxesDriver(BaseDriver):
+    """The real driver plus simulated ODrives on its virtual channel, started and stopped together."""
+
+    def __init__(self, config: DriverConfig, axes: SimAxisConfig) -> None:
+        self.odrives = SimODrives([config.left.node_id, config.right.node_id], config.can.channel, axes)
+        super().__init__(config, bus_factory=self.odrives.open_driver_bus)
+
+    def start(self) -> BaseDriver:
+        self.odrives.start()
+        return super().start()
+
+    def stop(self) -> None:
+        super().stop()
+        self.odrives.stop()
+
+
+class BaseDriverService(Service):
+    name = "base_driver"
+    Config = BaseDriverServiceConfig
+    config: PublishingConfig
+
+    def __init__(self, bus: Bus, config: PublishingConfig) -> None:
+        super().__init__(bus, config)
+        self.tick_hz = config.tick_hz
+        self._last_state: DriverState | None = None
+        self._state_at = self._odom_at = -float("inf")
+
+    def make_base(self) -> Base:
+        config = self.config
+        assert isinstance(config, BaseDriverServiceConfig)
+        if config.simulated_axes:
+            return _SimulatedAxesDriver(config.driver, config.sim_axes).start()
+        return BaseDriver(config.driver).start()
+
+    def start(self) -> None:
+        robot = self.bus.robot_id
+        self.base = self.make_base()
+        self.odom_pub = self.bus.publisher(keys.odom(robot), Odometry)
+        self.state_pub = self.bus.publisher(keys.driver_state(robot), DriverState)
+        self.bus.subscribe(keys.plan_command(robot), PlanCommand, self._on_command)
+        self.bus.subscribe(keys.estop(robot), EStop, self._on_estop)
+
+    def _on_command(self, command: PlanCommand) -> None:
+        outcome = self.base.submit(command)
+        if outcome != "duplicate":
+            self.log.info("command %d (%s): %s", command.action_id,
+                          command.action.value if command.action else "velocity", outcome)
+
+    def _on_estop(self, msg: EStop) -> None:
+        if msg.engage:
+            self.base.engage_estop(msg.source, msg.reason)
+        else:
+            self.base.clear_estop(msg.source)
+
+    def tick(self) -> None:
+        self.publish(self.base.state())
+
+    def publish(self, state: DriverState) -> None:
+        """Odometry at its rate; the state at its rate and whenever it changed (odometry first)."""
+        now = time.monotonic()
+        changed = self._last_state is None or _content(state) != _content(self._last_state)
+        state_due = changed or now - self._state_at >= 1.0 / self.config.state_hz
+        if state_due or now - self._odom_at >= 1.0 / self.config.odom_hz:
+            self.odom_pub.put(self.base.odometry())
+            self._odom_at = now
+        if state_due:
+            self.state_pub.put(state)
+            self._last_state, self._state_at = state, now
+
+    def info(self) -> dict[str, Any]:
+        return self.base.info() if hasattr(self, "base") else {}
+
+    def stop(self) -> None:
+        if hasattr(self, "base"):
+            self.base.stop()
+
+
+def _content(state: DriverState) -> dict[str, Any]:
+    return state.model_dump(exclude={"stamp"})

@@ -1,0 +1,96 @@
+"""The ideal base of the simulator: a primitive is executed exactly and at once.
+
+Used for lock-step runs that must be deterministic (same seed, same
+trajectory in one process or over Zenoh) and for fast demos; the ``odrive``
+motion mode runs the real driver instead. It keeps the driver's contract: an
+action id executes once, an e-stop latches until cleared and rejects commands
+meanwhile. Velocity (teleop) commands need the ``odrive`` mode and are rejected.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter, deque
+from typing import Literal
+
+from services.sim.robot import SimRobot
+from shared.messages import DriverMode, DriverState, Odometry, PlanCommand
+
+Outcome = Literal["done", "blocked", "aborted", "rejected"]
+
+
+class KinematicBase:
+    """Commands are queued by :meth:`submit` (any thread) and run by :meth:`execute` (the tick)."""
+
+    def __init__(self, robot: SimRobot) -> None:
+        self.robot = robot
+        self.counters: Counter[str] = Counter()
+        self._lock = threading.Lock()
+        self._pending: deque[PlanCommand] = deque()
+        self._highest = 0
+        self._estop: str | None = None
+        self._completed: tuple[int, Outcome | None, float] = (0, None, 0.0)
+        self._odom_seq = 0
+
+    def submit(self, command: PlanCommand) -> str:
+        with self._lock:
+            if command.action_id <= self._highest:
+                self.counters["duplicates"] += 1
+                return "duplicate"
+            self._highest = command.action_id
+            if self._estop is not None or command.action is None:
+                self.counters["rejected"] += 1
+                self._completed = (command.action_id, "rejected", time.time())
+                return "rejected"
+            self._pending.append(command)
+            return "accepted"
+
+    def execute(self) -> bool:
+        """Run the queued primitives; True when any completed."""
+        ran = False
+        while True:
+            with self._lock:
+                if not self._pending or self._estop is not None:
+                    return ran
+                command = self._pending.popleft()
+                assert command.action is not None
+                outcome: Outcome = "done" if self.robot.apply(command.action) else "blocked"
+                self._completed = (command.action_id, outcome, time.time())
+                self.counters[outcome] += 1
+                ran = True
+
+    def engage_estop(self, source: str, reason: str = "") -> None:
+        with self._lock:
+            self._estop = f"e-stop by {source}" + (f": {reason}" if reason else "")
+            for command in self._pending:
+                self._completed = (command.action_id, "aborted", time.time())
+            self._pending.clear()
+
+    def clear_estop(self, source: str) -> None:
+        with self._lock:
+            self._estop = None
+
+    def state(self) -> DriverState:
+        with self._lock:
+            mode = (DriverMode.ESTOP if self._estop else DriverMode.MOVING if self._pending
+                    else DriverMode.READY)
+            action_id, outcome, stamp = self._completed
+            return DriverState(stamp=time.time(), mode=mode, faults=(self._estop,) if self._estop else (),
+                               estop_latched=self._estop is not None,
+                               active_action=self._pending[0].action_id if self._pending else None,
+                               last_completed=action_id, last_outcome=outcome, completed_stamp=stamp)
+
+    def odometry(self) -> Odometry:
+        """The exact pose: an ideal base has perfect odometry."""
+        with self._lock:
+            p = self.robot.pose
+            self._odom_seq += 1
+            return Odometry(seq=self._odom_seq, stamp=time.time(), x=p.x, y=p.y, yaw=p.yaw)
+
+    def info(self) -> dict[str, object]:
+        with self._lock:
+            return {"motion": "kinematic", "pending": len(self._pending), "counters": dict(self.counters)}
+
+    def stop(self) -> None:
+        pass

@@ -1,0 +1,163 @@
+"""The simulated robot service ("sim"): camera frames from the true pose, and a base that moves.
+
+It stands in for the robot's camera and base driver at once, speaking the
+base driver's keys (it *is* a :class:`BaseDriverService` whose base is
+simulated): ``plan/command`` and ``driver/estop`` in, ``odom``,
+``driver/state`` and ``sensors/rgbd`` out. The scene is a scene file or an
+episode's (``make_episode(seed, index)``, the same one the simulated
+perception backend reads).
+
+``motion``:
+
+* ``kinematic``: ideal, a primitive is executed exactly and completes at once
+  (deterministic lock-step runs, fast demos); odometry is the true pose;
+* ``odrive``: the real driver core with simulated ODrive axes on a virtual CAN
+  bus in this process; the wheels move the robot, odometry comes from the
+  encoders (it starts at the start pose, so it shares the map's world frame).
+
+Lock-step (default): after each completed command one frame is rendered and
+published, and ``DriverState.frame_seq`` carries its seq with the
+``last_completed`` it follows, so the planner waits for a map that fused it.
+The state is read *before* the frame is rendered, so a published state never
+pairs a completion with an older frame. A frame is published at start-up too,
+and the latest one is re-published (same seq) every ``republish_s`` while
+idle, for a subscriber that joined late. Free-running: a new frame every
+``1 / frame_hz`` s, and no ``frame_seq``.
+
+The renderer owns an OpenGL context, so it is created and used only on the
+service's main thread (``start`` and ``tick``).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import Field, model_validator
+
+from services.base_driver.config import DriverConfig
+from services.base_driver.odrive_sim import SimAxisConfig
+from services.base_driver.service import Base, BaseDriverService, PublishingConfig
+from services.sim.kinematic import KinematicBase
+from services.sim.render import SceneRenderer
+from services.sim.robot import MotionConfig, SimRobot
+from services.sim.wheels import WheeledSimRobot
+from shared import keys
+from shared.bus import Bus
+from shared.messages import DriverState, RgbdFrame
+from shared.motion import Pose
+
+
+class SimServiceConfig(PublishingConfig):
+    scene_file: Path | None = Field(default=None, description="else the episode's scene")
+    episode_seed: int = 0
+    episode_index: int = Field(default=0, ge=0)
+    start: Pose | None = Field(default=None, description="required with scene_file; else the episode's")
+    motion: Literal["kinematic", "odrive"] = "kinematic"
+    robot: MotionConfig = Field(default_factory=MotionConfig, description="primitive sizes, wheel geometry")
+    driver: DriverConfig = Field(default_factory=DriverConfig,
+                                 description="odrive mode; geometry and primitive sizes come from robot")
+    odrive: SimAxisConfig = Field(default_factory=SimAxisConfig)
+    lock_step: bool = True
+    frame_hz: float = Field(default=2.0, gt=0, description="free-running frame rate")
+    republish_s: float = Field(default=1.0, gt=0, description="lock-step: re-publish the latest frame")
+    width: int = Field(default=640, ge=16)
+    height: int = Field(default=480, ge=16)
+
+    @model_validator(mode="after")
+    def _start_with_scene(self) -> SimServiceConfig:
+        if self.scene_file is not None and self.start is None:
+            raise ValueError("a scene_file needs a start pose (start = {x = ..., y = ..., yaw = ...})")
+        return self
+
+
+class SimRobotService(BaseDriverService):
+    name = "sim"
+    Config = SimServiceConfig
+    config: SimServiceConfig
+
+    def __init__(self, bus: Bus, config: SimServiceConfig) -> None:
+        super().__init__(bus, config)
+        self._wheels: WheeledSimRobot | None = None
+        self._kinematic: KinematicBase | None = None
+        self._frame: RgbdFrame | None = None
+        self._frame_at = -float("inf")
+        self._frame_after = 0        # the last_completed the latest frame follows
+        self._next_seq = 0
+
+    def make_base(self) -> Base:
+        c = self.config
+        if c.scene_file is not None:
+            from services.sim.evaluator import GroundTruth
+            from services.sim.world import Scene
+            scene = Scene.load(c.scene_file)
+            truth, start = GroundTruth(scene), c.start
+        else:
+            from services.sim.episodes import make_episode
+            spec, scene, truth = make_episode(c.episode_seed, c.episode_index)
+            start = c.start or spec.start
+        assert start is not None
+        self.renderer = SceneRenderer(scene, c.width, c.height)
+        robot = SimRobot(start, truth.is_free, c.robot)
+        if c.motion == "kinematic":
+            self._kinematic = KinematicBase(robot)
+            return self._kinematic
+        self._wheels = WheeledSimRobot(robot, c.driver, c.odrive).start()
+        return self._wheels.driver
+
+    def start(self) -> None:
+        super().start()
+        self.frames = self.bus.publisher(keys.rgbd(self.bus.robot_id), RgbdFrame)
+        self._publish_frame(self._render())
+
+    def _pose(self) -> Pose:
+        return self._wheels.pose if self._wheels is not None else self.base_robot.pose
+
+    @property
+    def base_robot(self) -> SimRobot:
+        assert self._kinematic is not None
+        return self._kinematic.robot
+
+    def _render(self) -> RgbdFrame:
+        p = self._pose()
+        frame = self.renderer.render(p.x, p.y, p.yaw, seq=self._next_seq, stamp=time.time())
+        self._next_seq += 1
+        return frame
+
+    def _publish_frame(self, frame: RgbdFrame) -> None:
+        self.frames.put(frame)
+        self._frame, self._frame_at = frame, time.monotonic()
+
+    def tick(self) -> None:
+        if self._kinematic is not None:
+            self._kinematic.execute()
+        state = self.base.state()  # before rendering: the frame is then newer than its completion
+        now = time.monotonic()
+        if not self.config.lock_step:
+            if now - self._frame_at >= 1.0 / self.config.frame_hz:
+                self._publish_frame(self._render())
+            self.publish(state)
+            return
+        if state.last_completed > self._frame_after:
+            self._publish_frame(self._render())
+            self._frame_after = state.last_completed
+        elif self._frame is not None and now - self._frame_at >= self.config.republish_s:
+            self._publish_frame(self._frame)  # same seq, for late subscribers
+        assert self._frame is not None
+        self.publish(_with_frame(state, self._frame.seq))
+
+    def info(self) -> dict[str, Any]:
+        info = dict(super().info())
+        info.update(motion=self.config.motion, frame_seq=None if self._frame is None else self._frame.seq)
+        return info
+
+    def stop(self) -> None:
+        if self._wheels is not None:
+            self._wheels.stop()
+        if hasattr(self, "renderer"):
+            self.renderer.close()
+
+
+def _with_frame(state: DriverState, seq: int) -> DriverState:
+    return state.model_copy(update={"frame_seq": seq})

@@ -1,0 +1,102 @@
+"""The driver moving a simulated base: enable sequence, primitives, odometry, deadman, duplicates."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from services.base_driver.protocol import AxisState, ControlMode, InputMode
+from services.sim.wheels import WheeledSimRobot
+from shared.messages import DriverMode
+from shared.motion import Action
+from tests.base_driver_helpers import command, heading_deg, run, sim_base, wheels_at_rest
+from tests.conftest import wait_for
+
+
+@pytest.fixture
+def base() -> Iterator[WheeledSimRobot]:
+    base = sim_base()
+    yield base
+    base.stop()
+
+
+def test_enable_sequence_sets_limits_mode_and_closed_loop(base: WheeledSimRobot) -> None:
+    cfg = base.driver.config
+    for axis in base.odrives.axes.values():
+        assert axis.state is AxisState.CLOSED_LOOP_CONTROL and axis.errors == 0
+        assert axis.control_mode is ControlMode.VELOCITY_CONTROL and axis.input_mode is InputMode.VEL_RAMP
+        assert axis.vel_limit == pytest.approx(cfg.max_wheel_rev_s * 1.1, rel=1e-6)  # Set_Limits
+        assert axis.current_limit == pytest.approx(cfg.current_limit_a)
+    assert base.driver.state().faults == ()
+
+
+def test_forward_and_turns_land_within_a_centimetre_and_a_degree(base: WheeledSimRobot) -> None:
+    start = base.pose
+    assert run(base.driver, command(Action.MOVE_FORWARD)) == "done"
+    moved = base.pose
+    assert math.hypot(moved.x - start.x, moved.y - start.y) == pytest.approx(0.25, abs=0.01)
+    assert abs(heading_deg(start, moved)) < 1.0
+    assert run(base.driver, command(Action.TURN_LEFT)) == "done"
+    assert heading_deg(moved, base.pose) == pytest.approx(30.0, abs=1.0)
+    turned = base.pose
+    assert run(base.driver, command(Action.TURN_RIGHT)) == "done"
+    assert heading_deg(turned, base.pose) == pytest.approx(-30.0, abs=1.0)
+    # odometry (from the encoder estimates) agrees with the true pose once at rest
+    odom = base.driver.odometry()
+    assert (odom.x, odom.y) == pytest.approx((base.pose.x, base.pose.y), abs=0.002)
+    assert odom.yaw == pytest.approx(base.pose.yaw, abs=math.radians(0.2))
+    assert wheels_at_rest(base.driver, base.driver.config.settle_rev_s)
+
+
+def test_stop_completes_at_rest_and_a_resent_id_runs_once(base: WheeledSimRobot) -> None:
+    cmd = command(Action.MOVE_FORWARD)
+    assert run(base.driver, cmd) == "done"
+    assert base.driver.submit(cmd) == "duplicate"          # the planner re-sent it
+    assert run(base.driver, command(Action.STOP)) == "done"
+    assert base.driver.state().mode is DriverMode.READY
+    assert base.pose.x == pytest.approx(0.25, abs=0.01)    # once, not twice
+    assert base.driver.counters["duplicates"] == 1
+
+
+def test_velocity_limits_hold_for_an_excessive_teleop_command(base: WheeledSimRobot) -> None:
+    cfg = base.driver.config
+    fastest = 0.0
+    for _ in range(15):  # renewed well within the deadman
+        base.driver.submit(command(linear=5.0, angular=0.0))
+        time.sleep(0.1)
+        fastest = max(fastest, base.driver.odometry().linear)
+    assert fastest == pytest.approx(cfg.max_linear_m_s, rel=0.05)
+
+
+def test_deadman_ramps_to_zero_when_commands_stop(base: WheeledSimRobot) -> None:
+    d, cfg = base.driver, base.driver.config
+    for _ in range(10):  # a teleop stream: keeps moving past the deadman time
+        d.submit(command(linear=0.2))
+        time.sleep(0.1)
+    assert d.state().mode is DriverMode.MOVING and d.odometry().linear > 0.15
+    last = time.monotonic()
+    wait_for(lambda: wheels_at_rest(d), 10, "wheels at rest after the deadman")
+    stopped_after = time.monotonic() - last
+    ramp = 0.2 / cfg.max_linear_accel_m_s2
+    # generous: a slow CI host adds its scheduling delays to 0.5 s + the ramp
+    assert stopped_after < cfg.deadman_s + ramp + 2.0
+    state = d.state()
+    assert state.mode is DriverMode.READY and state.last_outcome == "aborted"
+    assert d.counters["deadman"] == 1
+    x = base.pose.x
+    time.sleep(0.3)
+    assert base.pose.x == pytest.approx(x, abs=1e-4)  # holding (0.2 m/s would be 6 cm)
+
+
+def test_a_blocked_move_reports_blocked_and_stops() -> None:
+    base = sim_base(is_free=lambda x, y: x < 0.1)  # a wall 10 cm ahead
+    try:
+        assert run(base.driver, command(Action.MOVE_FORWARD)) == "blocked"
+        wait_for(lambda: wheels_at_rest(base.driver), 10, "wheels at rest")
+        assert base.pose.x < 0.1
+        assert base.driver.state().mode is DriverMode.READY
+    finally:
+        base.stop()

@@ -1,0 +1,121 @@
+"""The simulated robot service over real Zenoh: lock-step frames, both motion modes, blocked moves."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from services.sim.service import SimRobotService, SimServiceConfig
+from shared import keys
+from shared.bus import Bus
+from shared.messages import DriverMode, PlanCommand, RgbdFrame
+from shared.motion import Action, Pose
+from shared.zconfig import build_config
+from tests.conftest import wait_for
+from tests.service_helpers import ROBOT, Planner, Running
+from tests.sim_scenes import two_rooms
+
+
+@pytest.fixture
+def scene_file(tmp_path: Path) -> Path:
+    path = tmp_path / "scene.json"
+    two_rooms().save(path)
+    return path
+
+
+class Robot(Planner):
+    """The planner's view plus the camera frames."""
+
+    def __init__(self, bus: Bus) -> None:
+        super().__init__(bus)
+        self.frames: list[RgbdFrame] = []
+        bus.subscribe(keys.rgbd(ROBOT), RgbdFrame, self.frames.append)
+
+    def frame(self, seq: int) -> RgbdFrame:
+        return wait_for(lambda: next((f for f in self.frames if f.seq == seq), None), 20,
+                        f"frame {seq}")  # type: ignore[return-value]
+
+
+@contextmanager
+def _start(inproc_router: str, config: SimServiceConfig) -> Iterator[Robot]:
+    running = Running(SimRobotService, inproc_router, config)
+    try:
+        with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-planner") as bus:
+            robot = Robot(bus)
+            wait_for(lambda: (s := robot.state()) and s.mode is DriverMode.READY, 60, "sim ready")
+            yield robot
+    finally:
+        running.close()
+
+
+def _config(scene_file: Path, **kw: object) -> SimServiceConfig:
+    return SimServiceConfig(scene_file=scene_file, start=Pose(x=1.5, y=2.0, yaw=0.0), width=96, height=72,
+                            republish_s=0.3, **kw)  # type: ignore[arg-type]
+
+
+@pytest.fixture
+def kinematic(inproc_router: str, scene_file: Path) -> Iterator[Robot]:
+    with _start(inproc_router, _config(scene_file)) as robot:
+        yield robot
+
+
+def _camera_xy(frame: RgbdFrame) -> tuple[float, float]:
+    m = frame.pose_matrix
+    return float(m[0, 3]), float(m[1, 3])
+
+
+def test_lock_step_kinematic_a_command_yields_a_new_frame_reported_as_frame_seq(kinematic: Robot) -> None:
+    first = kinematic.frame(0)  # published at start-up, re-published for late subscribers
+    assert kinematic.state().frame_seq == 0 and first.instance_ids is not None
+    assert _camera_xy(first) == pytest.approx((1.5, 2.0))
+    state = kinematic.execute(PlanCommand(action_id=1, stamp=0.0, action=Action.MOVE_FORWARD))
+    assert state.last_outcome == "done" and state.frame_seq == 1
+    assert _camera_xy(kinematic.frame(1)) == pytest.approx((1.75, 2.0))
+    wait_for(lambda: kinematic.odoms[-1].x == pytest.approx(1.75), 10, "odometry (exact)")
+    state = kinematic.execute(PlanCommand(action_id=2, stamp=0.0, action=Action.TURN_LEFT))
+    assert state.frame_seq == 2
+    assert kinematic.frame(2).pose_matrix[:3, 2] == pytest.approx(  # optical axis turned 30 deg
+        (math.cos(math.radians(30)), math.sin(math.radians(30)), 0.0), abs=1e-6)
+    # a re-sent command runs once: no new frame, the same state
+    for _ in range(3):
+        kinematic.commands.put(PlanCommand(action_id=2, stamp=0.0, action=Action.TURN_LEFT))
+    wait_for(lambda: len([f for f in kinematic.frames if f.seq == 2]) >= 2, 10, "frame 2 re-published")
+    assert max(f.seq for f in kinematic.frames) == 2 and kinematic.state().frame_seq == 2
+
+
+def test_a_blocked_move_reports_blocked(inproc_router: str, scene_file: Path) -> None:
+    config = _config(scene_file).model_copy(update={"start": Pose(x=2.6, y=1.0, yaw=0.0)})  # wall at x=3
+    with _start(inproc_router, config) as robot:
+        state = robot.execute(PlanCommand(action_id=1, stamp=0.0, action=Action.MOVE_FORWARD))
+        assert state.last_outcome == "blocked" and state.frame_seq == 1
+        assert _camera_xy(robot.frame(1)) == pytest.approx((2.6, 1.0))
+
+
+def test_free_running_publishes_frames_at_a_rate(inproc_router: str, scene_file: Path) -> None:
+    with _start(inproc_router, _config(scene_file, lock_step=False, frame_hz=10.0)) as robot:
+        wait_for(lambda: len({f.seq for f in robot.frames}) >= 3, 20, "three distinct frames")
+        assert robot.state().frame_seq is None
+
+
+def test_odrive_motion_moves_the_robot_with_its_wheels(inproc_router: str, scene_file: Path) -> None:
+    with _start(inproc_router, _config(scene_file, motion="odrive")) as robot:
+        state = robot.execute(PlanCommand(action_id=1, stamp=0.0, action=Action.MOVE_FORWARD))
+        assert state.last_outcome == "done" and state.frame_seq is not None and state.frame_seq >= 1
+        x, y = _camera_xy(robot.frame(state.frame_seq))  # rendered from the true pose
+        assert (x, y) == pytest.approx((1.75, 2.0), abs=0.01)
+        odom = wait_for(lambda: (o := robot.odoms[-1]) and abs(o.x - 1.75) < 0.01 and o, 10, "odometry")
+        assert odom.y == pytest.approx(2.0, abs=0.01)
+
+
+def test_config_refuses_a_scene_without_a_start_and_unknown_keys(scene_file: Path) -> None:
+    from pydantic import ValidationError
+    with pytest.raises(ValidationError, match="start pose"):
+        SimServiceConfig(scene_file=scene_file)
+    with pytest.raises(ValidationError, match="extra"):
+        SimServiceConfig.model_validate({"motion": "kinematic", "speed": 2})
+    with pytest.raises(ValidationError):
+        SimServiceConfig.model_validate({"motion": "teleport"})
