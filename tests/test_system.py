@@ -1,0 +1,83 @@
+"""The whole system under faults: every service a process, a task over HTTP, something killed mid-task.
+
+Each test runs the demo's processes (router, mapping, perception, planner, simulated robot,
+gateway) under the supervisor on free loopback ports, submits the demo episode's targets and
+kills one process once the robot is moving. The task must still complete.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from services.demo import DEMO_EPISODE, DEMO_SEED, demo_entries, write_configs
+from services.gateway.client import GatewayClient, GatewayError
+from services.gateway.models import TaskView
+from services.sim.episodes import make_episode
+from services.supervisor import Backoff, Supervisor, port_open
+from shared.procs import free_port, kill
+from tests.conftest import wait_for
+
+ROBOT = "sim"
+
+
+class System:
+    def __init__(self, supervisor: Supervisor, client: GatewayClient) -> None:
+        self.supervisor, self.client = supervisor, client
+
+    def ready(self) -> bool:
+        try:
+            services = {s["service"] for s in self.client.health()["robots"][ROBOT]["services"]}
+        except (GatewayError, OSError):
+            return False
+        return services >= {"mapping", "perception", "planner", "sim", "gateway"}
+
+    def task(self, task_id: str) -> TaskView:
+        return self.client.get(task_id)
+
+
+@pytest.fixture
+def system(tmp_path: Path) -> Iterator[System]:
+    http_port, zenoh_port = free_port(), free_port()
+    configs = write_configs(tmp_path / "config", seed=DEMO_SEED, episode=DEMO_EPISODE, robot_id=ROBOT,
+                            http_port=http_port)
+    entries = demo_entries(configs, robot_id=ROBOT, zenoh_port=zenoh_port)
+    with Supervisor(entries, log_dir=tmp_path / "logs", backoff=Backoff(initial_s=0.2, max_s=1.0)) as sup, \
+            GatewayClient(f"http://127.0.0.1:{http_port}") as client:
+        wait_for(lambda: port_open("127.0.0.1", http_port), timeout=60, what="the gateway")
+        running = System(sup, client)
+        wait_for(running.ready, timeout=90, what="every service alive")
+        yield running
+
+
+def _run_with_a_kill(system: System, victim: str, after_steps: int = 25) -> TaskView:
+    targets = list(make_episode(DEMO_SEED, DEMO_EPISODE)[0].targets)
+    task_id = system.client.submit(targets, robot_id=ROBOT).id
+    wait_for(lambda: system.task(task_id).steps >= after_steps, timeout=120, what=f"{after_steps} steps")
+    proc = system.supervisor.process(victim)
+    assert proc is not None
+    kill(proc)
+    wait_for(lambda: system.task(task_id).final, timeout=300, what="the task ends")
+    return system.task(task_id)
+
+
+def _restarted(system: System, name: str) -> int:
+    return next(s.restarts for s in system.supervisor.status() if s.name == name)
+
+
+def test_a_killed_mapping_process_is_restarted_from_its_checkpoint_and_the_task_completes(system) -> None:
+    final = _run_with_a_kill(system, "mapping", after_steps=60)  # checkpoints every 5 s: one exists
+    assert final.status.value == "done", final.message
+    assert sorted(f.label for f in final.found) == sorted(final.targets)
+    assert _restarted(system, "mapping") >= 1
+    log = (system.supervisor.status()[0].log_path.parent / "mapping.log").read_text()
+    assert "resumed the map from" in log
+
+
+def test_a_killed_router_comes_back_and_the_services_reconnect_without_restarts(system) -> None:
+    final = _run_with_a_kill(system, "router")
+    assert final.status.value == "done", final.message
+    assert _restarted(system, "router") >= 1
+    assert all(s.restarts == 0 for s in system.supervisor.status() if s.name != "router")
