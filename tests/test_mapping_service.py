@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import threading
 from collections.abc import Iterator
 
 import numpy as np
@@ -15,9 +14,9 @@ from services.sim.render import SceneRenderer
 from shared import keys
 from shared.bus import Bus
 from shared.messages import MapSnapshot, PerceptionResult, RgbdFrame
-from shared.service import run_service
 from shared.zconfig import build_config
 from tests.conftest import wait_for
+from tests.service_helpers import Running
 from tests.sim_scenes import two_rooms
 
 ROBOT = "r1"
@@ -29,25 +28,11 @@ def frames() -> list[RgbdFrame]:
         return [renderer.render(1.5, 2.0, i * math.pi / 3, seq=i) for i in range(6)]
 
 
-class Running:
-    def __init__(self, endpoint: str, config: MappingServiceConfig) -> None:
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=run_service, args=(
-            MappingService, build_config(connect=[endpoint]), config),
-            kwargs={"robot_id": ROBOT, "instance": "0", "stop": self.stop})
-        self.thread.start()
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join(20)
-        assert not self.thread.is_alive()
-
-
 @pytest.fixture
 def service(inproc_router: str, tmp_path) -> Iterator[tuple[str, MappingServiceConfig]]:
     config = MappingServiceConfig(grid_cells=300, publish_hz=10, match_timeout_s=0.5,
                                   checkpoint_path=tmp_path / "map.ckpt", checkpoint_every_s=0.5)
-    running = Running(inproc_router, config)
+    running = Running(MappingService, inproc_router, config)
     yield inproc_router, config
     running.close()
 
@@ -120,20 +105,20 @@ def test_a_restarted_service_resumes_from_its_checkpoint(inproc_router, tmp_path
                                                          frames) -> None:
     config = MappingServiceConfig(grid_cells=300, publish_hz=10, match_timeout_s=0.2,
                                   checkpoint_path=tmp_path / "map.ckpt", checkpoint_every_s=60)
-    first = Running(inproc_router, config)
+    first = Running(MappingService, inproc_router, config)
     pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
     wait_for(lambda: pub_f.put(frames[5]) or (s := query_snapshot(client)) and s.seq == 5, what="seq 5")
     before = query_snapshot(client)
     first.close()  # writes the checkpoint on shutdown
     assert config.checkpoint_path.exists()
-    second = Running(inproc_router, config)
+    second = Running(MappingService, inproc_router, config)
     try:
         after = wait_for(lambda: query_snapshot(client), what="the restarted service")
         assert after.seq == 5 and np.array_equal(after.explored, before.explored)
     finally:
         second.close()
     config.checkpoint_path.write_bytes(b"not a checkpoint")
-    third = Running(inproc_router, config)
+    third = Running(MappingService, inproc_router, config)
     try:
         fresh = wait_for(lambda: query_snapshot(client), what="a fresh map after a corrupt checkpoint")
         assert fresh.seq == -1 and not fresh.explored.any()

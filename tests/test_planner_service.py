@@ -19,9 +19,9 @@ from shared import keys
 from shared.bus import Bus
 from shared.messages import (DriverMode, DriverState, MapSnapshot, ObjectInstance, Odometry, PlanCommand,
                              ServiceStats, TaskEvent, TaskSpec, TaskStatus)
-from shared.service import run_service
 from shared.zconfig import build_config
 from tests.conftest import wait_for
+from tests.service_helpers import Running
 
 ROBOT = "r1"
 N = 120
@@ -70,17 +70,11 @@ class MockBaseAndMap:
 
 @pytest.fixture
 def planner(inproc_router: str) -> Iterator[None]:
-    stop = threading.Event()
     config = PlannerServiceConfig(tick_hz=50)
     config.agent.initial_turns = 1
-    thread = threading.Thread(target=run_service, args=(PlannerService, build_config(connect=[inproc_router]),
-                                                        config),
-                              kwargs={"robot_id": ROBOT, "instance": "0", "stop": stop})
-    thread.start()
+    running = Running(PlannerService, inproc_router, config)
     yield
-    stop.set()
-    thread.join(20)
-    assert not thread.is_alive()
+    running.close()
 
 
 def test_a_task_runs_in_lock_step_to_the_found_object(planner, inproc_router) -> None:
