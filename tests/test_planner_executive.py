@@ -22,14 +22,16 @@ def snapshot(seq: int, objects: tuple[ObjectInstance, ...] = ()) -> MapSnapshot:
 
 
 def driver(completed: int = 0, frame_seq: int | None = 0, mode: DriverMode = DriverMode.READY,
-           active: int | None = None, outcome: str | None = None) -> DriverState:
+           active: int | None = None, outcome: str | None = None, completed_stamp: float = 0.0
+           ) -> DriverState:
     return DriverState(stamp=0.0, mode=mode, last_completed=completed, frame_seq=frame_seq,
+                       completed_stamp=completed_stamp,
                        active_action=active, last_outcome=outcome,
                        faults=("axis 0: heartbeat lost",) if mode is DriverMode.FAULT else ())
 
 
-def odom(x: float = 1.0, y: float = 1.0, yaw: float = 0.0) -> Odometry:
-    return Odometry(seq=0, stamp=0.0, x=x, y=y, yaw=yaw)
+def odom(x: float = 1.0, y: float = 1.0, yaw: float = 0.0, stamp: float = 0.0) -> Odometry:
+    return Odometry(seq=0, stamp=stamp, x=x, y=y, yaw=yaw)
 
 
 def spec(targets: tuple[str, ...] = ("cup",), cancelled: bool = False) -> TaskSpec:
@@ -140,3 +142,17 @@ def test_a_blocked_move_is_reported_to_the_agent_as_a_bump(ex: Executive) -> Non
     ex.on_driver(driver(completed=1, frame_seq=1, outcome="blocked"))
     ex.poll(0.1)
     assert len(ex.agent.bumps) == 1 and ex.task.distance == 0.0
+
+
+def test_a_completion_waits_for_the_odometry_taken_after_it(ex: Executive) -> None:
+    ex.agent._scan_left = 0
+    ex.on_driver(driver())
+    ex.on_snapshot(snapshot(0))
+    ex.on_odom(odom(yaw=0.78))
+    assert [c.action for c in commands(ex.poll(0.0))] == [Action.MOVE_FORWARD]
+    ex.on_driver(driver(completed=1, frame_seq=1, completed_stamp=5.0))
+    ex.on_snapshot(snapshot(1))
+    assert commands(ex.poll(0.1)) == [] and "odometry" in ex.waiting and ex.task.steps == 0
+    ex.on_odom(odom(x=1.0 + 0.25 * 0.7109, y=1.0 + 0.25 * 0.7031, yaw=0.78, stamp=5.1))
+    assert len(commands(ex.poll(0.2))) == 1
+    assert ex.task.steps == 1 and ex.task.distance == pytest.approx(0.25, abs=1e-3)

@@ -156,6 +156,10 @@ class Executive:
         assert flight is not None and self.agent is not None
         action_id = flight.command.action_id
         if d.last_completed >= action_id:
+            if self.odom is None or self.odom.stamp < d.completed_stamp:
+                # odometry and driver state travel separately: the pose after the command must
+                # be in before the step is booked (distance) and the next one decided (pose)
+                return self._wait("waiting for odometry after the command")
             self.in_flight = None
             pose = self._pose() or flight.pose
             moved = math.hypot(pose.x - flight.pose.x, pose.y - flight.pose.y)
