@@ -197,6 +197,7 @@ class ObjectInstance(BaseModel):
     z: float = 0.0
     score: float
     hits: int = Field(ge=0)
+    views: int = Field(default=0, ge=0, description="frames that saw its place (hits included)")
     confirmed: bool = False
 
 

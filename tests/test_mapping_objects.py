@@ -310,3 +310,44 @@ def test_two_views_of_the_fridge_confirm_one_instance_and_the_other_fridge_is_an
     assert office.hits == 1 and not office.confirmed
     assert in_footprint(office.x, office.y, (5.25, 5.95), (3.05, 3.75))
     assert [i.hits for i in obj_map.instances()] == [2, 1]
+
+
+# -- negative evidence: views without detections ---------------------------------------------
+
+def test_views_without_detections_keep_a_rare_false_positive_unconfirmed() -> None:
+    obj_map = ObjectMap(confirm_hits=2, min_hit_ratio=0.3)
+    see(obj_map, "cup", 1.5, 0.0)
+    for seq in range(8):  # the place seen again and again, nothing detected there
+        obj_map.observe(patch_frame(1.5, 0.0, seq=seq), ["cup"])
+    (inst,) = see(obj_map, "cup", 1.5, 0.0)
+    assert (inst.hits, inst.views) == (2, 9) and not inst.confirmed
+    for _ in range(2):
+        (inst,) = see(obj_map, "cup", 1.5, 0.0)
+    assert inst.hits == 4 and inst.confirmed   # a real object keeps being detected
+
+
+def test_only_unoccluded_in_range_views_of_the_searched_labels_count() -> None:
+    obj_map = ObjectMap(min_hit_ratio=0.5, view_range_m=3.0)
+    see(obj_map, "cup", 1.5, 0.0)
+    blocked = np.zeros((H, W), np.float32)
+    blocked[:] = 0.5 * D  # a wall between the camera and the cup
+    obj_map.observe(patch_frame(1.5, 0.0, depth=blocked), ["cup"])
+    obj_map.observe(patch_frame(1.5, 0.0), ["bed"])         # not searched for the cup
+    far = RgbdFrame(seq=1, stamp=0.0, intrinsics=pinhole(W, H), camera_pose=camera_pose(-3.0, 0.0, 0.0),
+                    rgb=np.zeros((H, W, 3), np.uint8), depth=np.zeros((H, W), np.float32))
+    obj_map.observe(far, ["cup"])                             # 4.5 m away: beyond the view range
+    behind = RgbdFrame(seq=2, stamp=0.0, intrinsics=pinhole(W, H), camera_pose=camera_pose(3.0, 0.0, 0.0),
+                       rgb=np.zeros((H, W, 3), np.uint8), depth=np.zeros((H, W), np.float32))
+    obj_map.observe(behind, ["cup"])                          # looking away
+    assert obj_map.instances()[0].views == 1
+    obj_map.observe(patch_frame(1.5, 0.0), ["cup"])
+    assert obj_map.instances()[0].views == 2
+
+
+def test_views_survive_a_checkpoint() -> None:
+    obj_map = ObjectMap(min_hit_ratio=0.3)
+    see(obj_map, "cup", 1.5, 0.0)
+    for seq in range(5):
+        obj_map.observe(patch_frame(1.5, 0.0, seq=seq), ["cup"])
+    restored = ObjectMap.from_instances(obj_map.instances(), min_hit_ratio=0.3)
+    assert restored.instances() == obj_map.instances()

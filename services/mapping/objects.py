@@ -17,8 +17,16 @@ Decisions (DESIGN.md section 2, "Object map"):
   and the height of the median point depends on how much of an object a view
   shows (a fridge seen whole from afar vs. its lower half from close by).
 * An instance's position is the hit-weighted running mean of its detections'
-  positions; its score the best one seen. Both only grow, so once confirmed an
-  instance stays confirmed.
+  positions; its score the best one seen.
+* Negative evidence (an addition to the paper): every frame in which an
+  instance's position is in view (inside the image, within ``view_range_m``,
+  not behind something nearer in the depth image) counts as a *view* of it,
+  whether or not the detector fired. Confirmation also needs
+  ``hits >= min_hit_ratio * views``. A false positive that recurs now and then
+  over hundreds of frames (the detector's rare confusions of related objects)
+  would otherwise reach ``confirm_hits`` sooner or later and be stopped at,
+  which costs the target; a real object is detected in most frames that see it
+  up close. ``min_hit_ratio`` 0 switches this off.
 
 This module knows nothing of Zenoh: the mapping service feeds it frames and
 detections and publishes :meth:`ObjectMap.instances` in its snapshots.
@@ -89,6 +97,7 @@ class _Track:
     position: np.ndarray  # x, y, z
     score: float
     hits: int
+    views: int = 0
 
 
 class ObjectMap:
@@ -102,7 +111,9 @@ class ObjectMap:
     """
 
     def __init__(self, merge_distance_m: float = 0.5, confirm_hits: int = 2,
-                 decision_threshold: float = 0.35, *, max_points: int = 2000) -> None:
+                 decision_threshold: float = 0.35, *, max_points: int = 2000,
+                 min_hit_ratio: float = 0.0, view_range_m: float = 3.0,
+                 occlusion_margin_m: float = 0.3) -> None:
         if not merge_distance_m > 0:
             raise ValueError(f"merge_distance_m must be > 0, got {merge_distance_m}")
         if confirm_hits < 1:
@@ -113,9 +124,36 @@ class ObjectMap:
         self.confirm_hits = int(confirm_hits)
         self.decision_threshold = float(decision_threshold)
         self.max_points = int(max_points)
+        self.min_hit_ratio = float(min_hit_ratio)
+        self.view_range_m = float(view_range_m)
+        self.occlusion_margin_m = float(occlusion_margin_m)
         self._tracks: list[_Track] = []  # creation order: the order instances() reports
 
     # -- updating ----------------------------------------------------------------------------
+
+    def observe(self, frame: RgbdFrame, labels: Iterable[str]) -> None:
+        """Count a view of every instance of ``labels`` (the classes the frame was searched
+        for) whose position the frame sees: in the image, in range, not occluded."""
+        wanted = set(labels)
+        tracks = [t for t in self._tracks if t.label in wanted]
+        if not tracks:
+            return
+        pose = frame.pose_matrix
+        world = np.array([t.position for t in tracks])
+        cam = (world - pose[:3, 3]) @ pose[:3, :3]  # rows: optical-frame points
+        z = cam[:, 2]
+        k = frame.intrinsics
+        h, w = frame.depth.shape
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.floor(k.fx * cam[:, 0] / z + k.cx)
+            v = np.floor(k.fy * cam[:, 1] / z + k.cy)
+        inside = (z > 0) & (z <= self.view_range_m) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        for track, ok, ui, vi, zi in zip(tracks, inside, u, v, z):
+            if not ok:
+                continue
+            seen = float(frame.depth[int(vi), int(ui)]) * frame.depth_scale
+            if seen <= 0 or seen >= zi - self.occlusion_margin_m:  # nothing nearer in the way
+                track.views += 1
 
     def add(self, detections: Iterable[Detection], frame: RgbdFrame) -> list[ObjectInstance]:
         """Fuse one frame's detections; returns the instances they created or updated.
@@ -135,12 +173,13 @@ class ObjectMap:
                 continue
             track = self._nearest(det.label, position)
             if track is None:
-                track = _Track(det.label, position, score, 1)
+                track = _Track(det.label, position, score, 1, 1)
                 self._tracks.append(track)
             else:
                 track.position = (track.position * track.hits + position) / (track.hits + 1)
                 track.hits += 1
                 track.score = max(track.score, score)
+                track.views = max(track.views, track.hits)  # a hit is a view, seen or not by observe
             updated.append(self._instance(track))
         return updated
 
@@ -165,9 +204,10 @@ class ObjectMap:
 
     def _instance(self, track: _Track) -> ObjectInstance:
         x, y, z = (float(c) for c in track.position)
-        confirmed = track.hits >= self.confirm_hits and track.score >= self.decision_threshold
+        confirmed = (track.hits >= self.confirm_hits and track.score >= self.decision_threshold
+                     and track.hits >= self.min_hit_ratio * track.views)
         return ObjectInstance(label=track.label, x=x, y=y, z=z, score=track.score,
-                              hits=track.hits, confirmed=confirmed)
+                              hits=track.hits, views=track.views, confirmed=confirmed)
 
     def instances(self) -> tuple[ObjectInstance, ...]:
         """Every instance, in creation order (deterministic for the same inputs)."""
@@ -190,14 +230,15 @@ class ObjectMap:
     @classmethod
     def from_instances(cls, instances: Sequence[ObjectInstance], merge_distance_m: float = 0.5,
                        confirm_hits: int = 2, decision_threshold: float = 0.35, *,
-                       max_points: int = 2000) -> Self:
+                       max_points: int = 2000, **evidence: float) -> Self:
         """A map holding ``instances`` (e.g. a snapshot's ``objects``), in their order.
 
         ``confirmed`` is recomputed with this map's rule, not copied: the
         thresholds may have changed since the checkpoint was written.
         """
-        obj_map = cls(merge_distance_m, confirm_hits, decision_threshold, max_points=max_points)
+        obj_map = cls(merge_distance_m, confirm_hits, decision_threshold, max_points=max_points,
+                      **evidence)
         for inst in instances:
             obj_map._tracks.append(_Track(inst.label, np.array([inst.x, inst.y, inst.z], float),
-                                          float(inst.score), int(inst.hits)))
+                                          float(inst.score), int(inst.hits), int(inst.views)))
         return obj_map

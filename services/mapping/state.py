@@ -32,7 +32,8 @@ class MapState:
         self.counts = np.zeros(self.grid.shape, np.uint16)
         self.values: dict[str, np.ndarray] = {}
         self.confidence: dict[str, np.ndarray] = {}
-        self.objects = ObjectMap(c.object_merge_distance_m, c.object_confirm_hits, c.decision_threshold)
+        self.objects = ObjectMap(c.object_merge_distance_m, c.object_confirm_hits, c.decision_threshold,
+                                 **_evidence(c))
         self.seq = -1
         # bounding box (row0, row1, col0, col1) of everything explored: frontier search stays in it
         self._bbox: tuple[int, int, int, int] | None = None
@@ -89,6 +90,8 @@ class MapState:
                     v, conf = self.values[target][rows, cols], self.confidence[target][rows, cols]
                     self.values[target][rows, cols], self.confidence[target][rows, cols] = \
                         fuse(v, conf, float(score), confidence)
+        if scores is not None:  # the frame was searched for these targets: views count
+            self.objects.observe(frame, [t for t in scores if t in self.values])
         if detections:
             self.objects.add([d for d in detections if d.label in self.values], frame)
         self.seq = max(self.seq, frame.seq)
@@ -193,9 +196,13 @@ class MapState:
             state.confidence[target] = snapshot.confidence[i].copy()
         state.objects = ObjectMap.from_instances(
             snapshot.objects, config.object_merge_distance_m, config.object_confirm_hits,
-            config.decision_threshold)
+            config.decision_threshold, **_evidence(config))
         state.seq = snapshot.seq
         rows, cols = np.nonzero(state.explored)
         if rows.size:
             state._bbox = (int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1)
         return state
+
+
+def _evidence(config: MappingConfig) -> dict[str, float]:
+    return {"min_hit_ratio": config.object_min_hit_ratio, "view_range_m": config.object_view_range_m}
