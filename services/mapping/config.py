@@ -27,7 +27,7 @@ class MappingConfig(ServiceConfig):
     object_merge_distance_m: float = Field(default=0.5, gt=0)
     object_confirm_hits: int = Field(default=2, ge=1)
     object_min_hit_ratio: float = Field(
-        default=0.0, ge=0, le=1,
+        default=0.3, ge=0, le=1,
         description="also needed to confirm: hits / views of its place (views within "
                     "object_view_range_m, unoccluded); 0 = off (see services/mapping/objects.py)")
     object_view_range_m: float = Field(default=3.0, gt=0)
