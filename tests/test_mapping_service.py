@@ -104,20 +104,21 @@ def test_snapshots_are_published_and_malformed_input_is_counted(service, sender,
 def test_a_restarted_service_resumes_from_its_checkpoint(inproc_router, tmp_path, sender, client,
                                                          frames) -> None:
     config = MappingServiceConfig(grid_cells=300, publish_hz=10, match_timeout_s=0.2,
-                                  checkpoint_path=tmp_path / "map.ckpt", checkpoint_every_s=60)
+                                  checkpoint_path=tmp_path / "{robot_id}.ckpt", checkpoint_every_s=60)
     first = Running(MappingService, inproc_router, config)
     pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
     wait_for(lambda: pub_f.put(frames[5]) or (s := query_snapshot(client)) and s.seq == 5, what="seq 5")
     before = query_snapshot(client)
-    first.close()  # writes the checkpoint on shutdown
-    assert config.checkpoint_path.exists()
+    first.close()  # writes the checkpoint on shutdown, named for the robot
+    checkpoint = tmp_path / f"{ROBOT}.ckpt"
+    assert checkpoint.exists()
     second = Running(MappingService, inproc_router, config)
     try:
         after = wait_for(lambda: query_snapshot(client), what="the restarted service")
         assert after.seq == 5 and np.array_equal(after.explored, before.explored)
     finally:
         second.close()
-    config.checkpoint_path.write_bytes(b"not a checkpoint")
+    checkpoint.write_bytes(b"not a checkpoint")
     third = Running(MappingService, inproc_router, config)
     try:
         fresh = wait_for(lambda: query_snapshot(client), what="a fresh map after a corrupt checkpoint")

@@ -29,7 +29,8 @@ class MappingServiceConfig(MappingConfig):
     publish_hz: float = Field(default=2.0, gt=0, description="snapshot publication rate")
     match_timeout_s: float = Field(default=1.0, gt=0, description="wait this long for a frame's result")
     max_pending: int = Field(default=16, ge=1, description="frames or results waiting for their pair")
-    checkpoint_path: Path | None = None
+    checkpoint_path: Path | None = Field(
+        default=None, description="'{robot_id}' in it is replaced: one map per robot, never another's")
     checkpoint_every_s: float = Field(default=5.0, gt=0)
 
 
@@ -39,6 +40,9 @@ class MappingService(Service):
     config: MappingServiceConfig
 
     def __init__(self, bus: Bus, config: MappingServiceConfig) -> None:
+        if config.checkpoint_path is not None:
+            config = config.model_copy(update={"checkpoint_path": Path(
+                str(config.checkpoint_path).replace("{robot_id}", bus.robot_id))})
         super().__init__(bus, config)
         self.tick_hz = config.publish_hz
         self._lock = threading.Lock()
