@@ -84,6 +84,7 @@ class SimPerception:
                  config: SimPerceptionConfig | None = None) -> None:
         self.labels, self.prior = labels, prior
         self.config = config or SimPerceptionConfig()
+        self._last: tuple[RgbdFrame, tuple[list[_Visible], list[str]]] | None = None
 
     def _require_ids(self, frame: RgbdFrame) -> np.ndarray:
         if frame.instance_ids is None:
@@ -92,6 +93,13 @@ class SimPerception:
         return frame.instance_ids
 
     def _visible(self, frame: RgbdFrame) -> tuple[list[_Visible], list[str]]:
+        """Kept for the last frame: ``score`` and ``detect`` of one frame both need it, and the scan
+        is most of their cost."""
+        if self._last is None or self._last[0] is not frame:
+            self._last = (frame, self._scan(frame))
+        return self._last[1]
+
+    def _scan(self, frame: RgbdFrame) -> tuple[list[_Visible], list[str]]:
         ids = self._require_ids(frame)
         values, counts = np.unique(ids, return_counts=True)
         depth = frame.depth.astype(np.float32) * np.float32(frame.depth_scale)
