@@ -192,21 +192,35 @@ def sort_results(results: Iterable[EpisodeResult]) -> list[EpisodeResult]:
     return sorted(results, key=lambda r: (r.policy, _episode_index(r)))
 
 
+def _mark(result: EpisodeResult) -> str:
+    found = "found all" if result.success else f"found {len(set(result.found))}/{len(result.targets)}"
+    return f"{result.policy} {result.episode_id}: {found}"
+
+
 @contextmanager
 def _progress(console: Console | None, total: int) -> Iterator[Callable[[EpisodeResult], None]]:
-    """A bar (episodes done / total, elapsed, ETA) on ``console``; a no-op without one."""
+    """A bar (episodes done / total, elapsed, ETA) on a terminal; on anything else (a log file,
+    CI) a line per episode, because a bar is only drawn there when the run ends."""
     if console is None:
         yield lambda result: None
+        return
+    if not console.is_terminal:
+        started, done = time.perf_counter(), 0
+
+        def line(result: EpisodeResult) -> None:
+            nonlocal done
+            done += 1
+            elapsed = time.perf_counter() - started
+            eta = elapsed / done * (total - done)
+            console.print(f"[{done}/{total} {elapsed / 60:.1f} min, ETA {eta / 60:.1f} min] {_mark(result)}",
+                          highlight=False, soft_wrap=True)
+        yield line
         return
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("episodes"), TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn())
     with Progress(*columns, console=console) as bar:
         task = bar.add_task("search", total=total)
-
-        def advance(result: EpisodeResult) -> None:
-            mark = "found all" if result.success else f"found {len(set(result.found))}/{len(result.targets)}"
-            bar.update(task, advance=1, description=f"{result.policy} {result.episode_id}: {mark}")
-        yield advance
+        yield lambda result: bar.update(task, advance=1, description=_mark(result))
 
 
 def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = POLICY_ORDER, workers: int = 2,

@@ -130,9 +130,11 @@ def test_tables_list_the_papers_rows_in_order_with_its_numbers() -> None:
 
 def test_main_prints_one_json_object_and_writes_the_files(tmp_path: Path,
                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    log = io.StringIO()  # not a terminal: a progress line per episode instead of a bar
     main(episodes=1, seed=SEED, policies="random", workers=1, as_json=True, out=tmp_path,
-         max_steps=STEPS, err=Console(file=io.StringIO()))
+         max_steps=STEPS, err=Console(file=log))
     result = json.loads(capsys.readouterr().out)
+    assert log.getvalue().startswith("[1/1 ") and "] random 0-0: found" in log.getvalue()
     assert result["policies"]["random"]["episodes"] == 1
     for name in (EPISODES_FILE, TIMINGS_FILE, SUMMARY_FILE):
         assert (tmp_path / name).stat().st_size > 0
