@@ -11,7 +11,7 @@ from services.sim.robot import SimRobot
 from services.sim.wheels import WheeledSimRobot
 from shared.messages import DriverMode, PlanCommand
 from shared.motion import Action, Pose
-from tests.conftest import wait_for
+from tests.polling import wait_for
 
 _ids = itertools.count(1)
 

@@ -2,39 +2,21 @@
 
 from __future__ import annotations
 
-import json
 import multiprocessing as mp
-import socket
 import subprocess
-import sys
-import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 import zenoh
 
+from services.gateway.client import GatewayClient
 from shared.procs import free_port, loopback, start_cli, stop
 from shared.zconfig import build_config, open_session
+from tests.gateway_mocks import MockPlanner, RunningGateway, gateway_config
+from tests.polling import port_open, wait_for
 
 StartCli = Callable[..., subprocess.Popen]
-
-
-def wait_for(predicate: Callable[[], object], timeout: float = 20.0, what: str = "condition"
-             ) -> object:
-    """Poll until ``predicate()`` is truthy; fail the test with ``what`` after ``timeout``."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.1)
-
-
-def port_open(port: int) -> bool:
-    with socket.socket() as s:
-        return s.connect_ex(("127.0.0.1", port)) == 0
 
 
 @pytest.fixture
@@ -80,14 +62,6 @@ def client(inproc_router: str) -> Iterator[zenoh.Session]:
     session.close()
 
 
-def status_cli(port: int, robot_id: str = "*") -> list[dict]:
-    """What ``ovamos status --json`` prints, parsed."""
-    out = subprocess.run([sys.executable, "-m", "services.cli", "status", "--json",
-                          "--connect", loopback(port), "--robot-id", robot_id, "--timeout", "1"],
-                         capture_output=True, text=True, timeout=60, check=True)
-    return json.loads(out.stdout)
-
-
 @pytest.fixture(autouse=True, scope="session")
 def _no_children_left() -> Iterator[None]:
     yield
@@ -95,3 +69,24 @@ def _no_children_left() -> Iterator[None]:
     for child in leftover:
         child.kill()
     assert not leftover, f"processes left behind: {leftover}"
+
+
+# -- the gateway (tests/test_gateway_*.py) ---------------------------------------------------------
+@pytest.fixture
+def planner(inproc_router: str) -> Iterator[MockPlanner]:
+    mock = MockPlanner(inproc_router)
+    yield mock
+    mock.close()
+
+
+@pytest.fixture
+def gateway(inproc_router: str, tmp_path: Path) -> Iterator[RunningGateway]:
+    running = RunningGateway(inproc_router, gateway_config(tmp_path / "state"))
+    yield running
+    running.close()
+
+
+@pytest.fixture
+def api(gateway: RunningGateway) -> Iterator[GatewayClient]:
+    with GatewayClient(gateway.url) as client:
+        yield client

@@ -23,7 +23,7 @@ from shared.messages import FoundObject, MapSnapshot, ObjectInstance, TaskEvent,
 from shared.procs import free_port
 from shared.service import run_service
 from shared.zconfig import build_config
-from tests.conftest import port_open, wait_for
+from tests.polling import port_open, wait_for
 
 ROBOT = "sim"
 

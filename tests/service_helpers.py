@@ -11,7 +11,7 @@ from shared.messages import DriverState, Odometry, PlanCommand
 from shared.service import Service, ServiceConfig, run_service
 from shared.status import live_services
 from shared.zconfig import build_config
-from tests.conftest import wait_for
+from tests.polling import wait_for
 
 ROBOT = "r1"
 

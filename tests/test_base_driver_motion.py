@@ -13,7 +13,7 @@ from services.sim.wheels import WheeledSimRobot
 from shared.messages import DriverMode
 from shared.motion import Action
 from tests.base_driver_helpers import command, heading_deg, run, sim_base, wheels_at_rest
-from tests.conftest import wait_for
+from tests.polling import wait_for
 
 
 @pytest.fixture

@@ -22,7 +22,7 @@ from services.sim.wheels import WheeledSimRobot
 from shared.messages import DriverMode
 from shared.motion import Action
 from tests.base_driver_helpers import command, run, sim_base, wait_for_mode, wheels_at_rest
-from tests.conftest import wait_for
+from tests.polling import wait_for
 
 WATCHDOG = ODriveError.WATCHDOG_TIMER_EXPIRED
 

@@ -14,7 +14,7 @@ from shared.bus import Bus
 from shared.messages import DriverMode, EStop, PlanCommand
 from shared.motion import Action
 from shared.zconfig import build_config
-from tests.conftest import wait_for
+from tests.polling import wait_for
 from tests.service_helpers import ROBOT, Planner, Running, service_stats
 
 

@@ -15,7 +15,7 @@ from shared.bus import Bus
 from shared.messages import JsonMessage, RgbdFrame
 from shared.status import live_services
 from shared.zconfig import build_config
-from tests.conftest import wait_for
+from tests.polling import wait_for
 
 
 class Note(JsonMessage):

@@ -108,7 +108,7 @@ def test_planner_benchmark_reports_latency_and_sims() -> None:
 
 def test_submit_through_a_gateway_process(cli, router_port: int, tmp_path: Path) -> None:
     from shared.procs import free_port, loopback
-    from tests.conftest import port_open, wait_for
+    from tests.polling import port_open, wait_for
     port = free_port()
     cfg = tmp_path / "gateway.toml"
     cfg.write_text(f'port = {port}\nstate_dir = "{tmp_path / "state"}"\nrobots = ["sim"]\n')

@@ -4,7 +4,6 @@ the client helpers, and start-up refusals."""
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -20,30 +19,10 @@ from services.gateway.service import GatewayService
 from shared.messages import FoundObject, TaskStatus
 from shared.service import ServiceConfigError, load_config, run_service
 from shared.zconfig import build_config
-from tests.conftest import wait_for
+from tests.polling import wait_for
 from tests.gateway_mocks import ROBOT, MockMapping, MockPlanner, RunningGateway, gateway_config
 
 CHAIR = FoundObject(label="chair", x=0.6, y=1.4, step=2)
-
-
-@pytest.fixture
-def planner(inproc_router: str) -> Iterator[MockPlanner]:
-    mock = MockPlanner(inproc_router)
-    yield mock
-    mock.close()
-
-
-@pytest.fixture
-def gateway(inproc_router: str, tmp_path: Path) -> Iterator[RunningGateway]:
-    running = RunningGateway(inproc_router, gateway_config(tmp_path))
-    yield running
-    running.close()
-
-
-@pytest.fixture
-def api(gateway: RunningGateway) -> Iterator[GatewayClient]:
-    with GatewayClient(gateway.url) as client:
-        yield client
 
 
 class Follower:

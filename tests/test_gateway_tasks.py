@@ -6,7 +6,6 @@ malformed events, and persistence across a gateway restart.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -14,31 +13,11 @@ import pytest
 from services.gateway.client import GatewayClient, GatewayError
 from shared import keys
 from shared.messages import FoundObject, TaskStatus
-from tests.conftest import wait_for
+from tests.polling import wait_for
 from tests.gateway_mocks import ROBOT, MockPlanner, RunningGateway, gateway_config
 
 CHAIR = FoundObject(label="chair", x=1.5, y=-0.5, step=3)
 FRIDGE = FoundObject(label="fridge", x=4.0, y=2.25, step=7)
-
-
-@pytest.fixture
-def planner(inproc_router: str) -> Iterator[MockPlanner]:
-    mock = MockPlanner(inproc_router)
-    yield mock
-    mock.close()
-
-
-@pytest.fixture
-def gateway(inproc_router: str, tmp_path: Path) -> Iterator[RunningGateway]:
-    running = RunningGateway(inproc_router, gateway_config(tmp_path / "state"))
-    yield running
-    running.close()
-
-
-@pytest.fixture
-def api(gateway: RunningGateway) -> Iterator[GatewayClient]:
-    with GatewayClient(gateway.url) as client:
-        yield client
 
 
 def counter(api: GatewayClient, name: str) -> int:

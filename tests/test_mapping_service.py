@@ -15,7 +15,7 @@ from shared import keys
 from shared.bus import Bus
 from shared.messages import MapSnapshot, PerceptionResult, RgbdFrame
 from shared.zconfig import build_config
-from tests.conftest import wait_for
+from tests.polling import wait_for
 from tests.service_helpers import Running
 from tests.sim_scenes import two_rooms
 

@@ -98,7 +98,7 @@ def test_the_service_runs_the_hf_backend_from_its_config(model_dirs, inproc_rout
     from shared.bus import Bus
     from shared.messages import PerceptionResult, RgbdFrame
     from shared.zconfig import build_config
-    from tests.conftest import wait_for
+    from tests.polling import wait_for
     from tests.perception_helpers import ROBOT, RunningPerception
 
     config = PerceptionServiceConfig(backend="hf", hf=model_dirs["blip"])

@@ -17,7 +17,7 @@ from shared.codec import pack
 from shared.messages import PerceptionResult, RgbdFrame, TaskSpec
 from shared.status import live_services
 from shared.zconfig import build_config
-from tests.conftest import wait_for
+from tests.polling import wait_for
 from tests.perception_helpers import ROBOT, RunningPerception, render_frames
 from tests.sim_scenes import two_rooms
 

@@ -20,7 +20,7 @@ from shared.bus import Bus
 from shared.messages import (DriverMode, DriverState, MapSnapshot, ObjectInstance, Odometry, PlanCommand,
                              ServiceStats, TaskEvent, TaskSpec, TaskStatus)
 from shared.zconfig import build_config
-from tests.conftest import wait_for
+from tests.polling import wait_for
 from tests.service_helpers import Running
 
 ROBOT = "r1"

@@ -15,7 +15,7 @@ from shared.messages import RgbdFrame
 from shared.procs import free_port, kill, loopback, stop
 from shared.status import live_services
 from shared.zconfig import build_config, open_session
-from tests.conftest import port_open, status_cli, wait_for
+from tests.polling import port_open, status_cli, wait_for
 
 SEED = 11
 

@@ -15,7 +15,7 @@ from shared.bus import Bus
 from shared.messages import DriverMode, PlanCommand, RgbdFrame
 from shared.motion import Action, Pose
 from shared.zconfig import build_config
-from tests.conftest import wait_for
+from tests.polling import wait_for
 from tests.service_helpers import ROBOT, Planner, Running
 from tests.sim_scenes import two_rooms
 

@@ -30,7 +30,7 @@ from services.supervisor import (KNOWN_SERVICES, PROFILE_DIR, Backoff, Entry, Pr
                                  supervisor_for, tcp_address)
 from shared.procs import free_port, kill, loopback
 from shared.service import load_config
-from tests.conftest import status_cli, wait_for
+from tests.polling import status_cli, wait_for
 
 REPO = Path(__file__).resolve().parents[1]
 SHIPPED = sorted(PROFILE_DIR.glob("*.toml"))

@@ -18,7 +18,7 @@ from services.gateway.models import TaskView
 from services.sim.episodes import make_episode
 from services.supervisor import Backoff, Supervisor, port_open
 from shared.procs import free_port, kill
-from tests.conftest import wait_for
+from tests.polling import wait_for
 
 ROBOT = "sim"
 

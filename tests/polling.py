@@ -1,0 +1,44 @@
+"""Polling helpers for tests: wait for a condition, a port, or what `ovamos status` reports.
+
+Kept out of conftest.py so helper modules can import them (pytest loads conftest under its own
+module name, and importing it again from a helper would load a second copy).
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+
+import pytest
+
+from shared.procs import loopback
+
+
+def wait_for(predicate: Callable[[], object], timeout: float = 20.0, what: str = "condition"
+             ) -> object:
+    """Poll until ``predicate()`` is truthy; fail the test with ``what`` after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.1)
+
+
+def port_open(port: int) -> bool:
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def status_cli(port: int, robot_id: str = "*") -> list[dict]:
+    """What ``ovamos status --json`` prints, parsed."""
+    out = subprocess.run([sys.executable, "-m", "services.cli", "status", "--json",
+                          "--connect", loopback(port), "--robot-id", robot_id, "--timeout", "1"],
+                         capture_output=True, text=True, timeout=60, check=True)
+    return json.loads(out.stdout)
