@@ -87,6 +87,12 @@ def alive(robot_id: str, service: str = ANY, instance: str = ANY) -> str:
     return _service_key("alive", robot_id, service, instance)
 
 
+def ready(robot_id: str, service: str = ANY, instance: str = ANY) -> str:
+    """Liveliness token of an instance that has finished starting (its models loaded): replicas
+    share work among the ready ones, so a loading replica is not handed frames it cannot take."""
+    return _service_key("ready", robot_id, service, instance)
+
+
 def stats(robot_id: str, service: str = ANY, instance: str = ANY) -> str:
     """Queryable answering a service instance's message counters (for ``ovamos status``)."""
     return _service_key("stats", robot_id, service, instance)
@@ -109,8 +115,8 @@ class ServiceKey(NamedTuple):
 
 
 def parse_service_key(key: str) -> ServiceKey:
-    """Split an ``alive`` or ``stats`` key back into its robot, service and instance."""
+    """Split an ``alive``, ``ready`` or ``stats`` key back into its robot, service and instance."""
     parts = str(key).split("/")
-    if len(parts) != 5 or parts[0] != ROOT or parts[2] not in ("alive", "stats"):
-        raise KeyExprError(f"not an ovamos alive/stats key: {key!r}")
+    if len(parts) != 5 or parts[0] != ROOT or parts[2] not in ("alive", "ready", "stats"):
+        raise KeyExprError(f"not an ovamos alive/ready/stats key: {key!r}")
     return ServiceKey(parts[1], parts[3], parts[4])

@@ -22,11 +22,12 @@ SETTINGS = settings(max_examples=50, deadline=None)
 ROBOT_KEYS: list[Callable[[str], str]] = [
     keys.rgbd, keys.odom, keys.perception_result, keys.map_snapshot, keys.plan_command,
     keys.driver_state, keys.task_current, keys.task_events, keys.robot_all,
-    lambda r: keys.alive(r, "svc", "i0"), lambda r: keys.stats(r, "svc", "i0"),
-    lambda r: keys.bench(r, "echo"),
+    lambda r: keys.alive(r, "svc", "i0"), lambda r: keys.ready(r, "svc", "i0"),
+    lambda r: keys.stats(r, "svc", "i0"), lambda r: keys.bench(r, "echo"),
 ]
 ROBOT_KEY_IDS = ["rgbd", "odom", "perception_result", "map_snapshot", "plan_command", "driver_state",
-                 "task_current", "task_events", "robot_all", "alive", "stats", "bench"]
+                 "task_current", "task_events", "robot_all", "alive", "ready", "stats",
+                 "bench"]
 
 # A bare '*' is not here: it is the documented "every robot" selector (keys.rgbd("*")).
 # '@x' is a Zenoh verbatim chunk, which '*' never matches: such an id would hide its keys.
@@ -140,7 +141,7 @@ def test_check_chunk_names_what_was_wrong() -> None:
 
 
 @SETTINGS
-@given(good_ids, good_ids, good_ids, st.sampled_from([keys.alive, keys.stats]))
+@given(good_ids, good_ids, good_ids, st.sampled_from([keys.alive, keys.ready, keys.stats]))
 def test_parse_service_key_round_trip(robot: str, service: str, instance: str,
                                       build: Callable[[str, str, str], str]) -> None:
     key = build(robot, service, instance)

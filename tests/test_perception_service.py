@@ -126,6 +126,22 @@ def test_two_replicas_process_every_frame_of_a_burst_exactly_once(inproc_router,
             replica.close()
 
 
+def test_a_replica_still_loading_its_models_gets_no_frames(inproc_router, sim_config, sender,
+                                                          client, frames) -> None:
+    """A replica's session (and ``alive`` token) is up before its backend loads; until it is
+    started, the running replica keeps every frame instead of skipping the loading one's share."""
+    running = RunningPerception(inproc_router, sim_config, "a")
+    try:
+        with Bus.open(build_config(connect=[inproc_router]), ROBOT, "perception", "b"):  # loading
+            wait_for(lambda: {(s.service, s.instance) for s in live_services(client, ROBOT)}
+                     >= {("perception", "a"), ("perception", "b")}, what="both perception sessions")
+            for seq in range(4):
+                sender.until_result(frames[seq], f"frame {seq} answered by the ready replica")
+            assert stats(client, "a").info["replicas"] == ["a"]
+    finally:
+        running.close()
+
+
 def test_unusable_frames_are_rejected_and_counted_and_the_service_goes_on(inproc_router, sim_config,
                                                                           sender, client, frames) -> None:
     service = RunningPerception(inproc_router, sim_config.model_copy(update={"queue_frames": 8}))

@@ -1,7 +1,8 @@
 """Sharing one frame stream between perception replicas without duplicated work.
 
-Every replica holds a liveliness token ``alive/<robot>/perception/<instance>``
-(the bus declares it) and watches the others' tokens. Each sorts the live
+Every replica holds a liveliness token ``ready/<robot>/perception/<instance>``
+from the moment its backend is loaded and it takes frames, and watches the
+others' tokens. Each sorts the live
 instance names and takes the frames whose ``seq % n`` equals its own position:
 no coordinator, no extra messages, and every frame has exactly one owner while
 the replicas agree on the membership.
@@ -15,10 +16,11 @@ find no frame to pair with and are trimmed) or not at all (the map fuses that
 frame without values after its match timeout). A replica that died mid-frame
 loses that frame the same way. Nothing stalls and no state needs repair.
 
-One known gap: the bus declares a replica's token when its session opens,
-before its backend has loaded, so a starting replica's share of the frames is
-lost while its models load (seconds for real weights). A separate "ready"
-token, declared once :meth:`Service.start` returns, would close it.
+The ``ready`` token, not the bus's ``alive`` one, defines membership: ``alive``
+is declared when the session opens, before the models load (seconds to a
+minute for real weights), and counting a loading replica would lose its share
+of the frames all that time. A stopping replica withdraws its ``ready`` token
+before it finishes its last frame.
 """
 
 from __future__ import annotations

@@ -59,16 +59,21 @@ class PerceptionService(Service):
             config.queue_frames, lambda _frame: bus.counters.bump(self._frame_key, "dropped"))
         self._worker = threading.Thread(target=self._work, name="perception-worker", daemon=True)
         self._members_sub: Any = None
+        self._ready_token: Any = None
 
     def start(self) -> None:
         robot = self.bus.robot_id
         self.results = self.bus.publisher(keys.perception_result(robot), PerceptionResult)
         self._members_sub = self.bus.session.liveliness().declare_subscriber(
-            keys.alive(robot, self.name), self._on_member, history=True)
+            keys.ready(robot, self.name), self._on_member, history=True)
         self.bus.subscribe(keys.task_current(robot), TaskSpec, self._on_task)
         self.bus.subscribe(keys.task_events(robot), TaskEvent, self._on_event)
         self.bus.subscribe(self._frame_key, RgbdFrame, self._on_frame)
         self._worker.start()
+        # Last: the backend is loaded (in __init__) and frames are taken, so the others may now
+        # hand this replica its share.
+        self._ready_token = self.bus.session.liveliness().declare_token(
+            keys.ready(robot, self.name, self.bus.instance))
 
     # -- inputs (Zenoh threads) ----------------------------------------------------------------
     def _on_member(self, sample: zenoh.Sample) -> None:
@@ -149,6 +154,8 @@ class PerceptionService(Service):
                     "last_ms": None if self._last_ms is None else round(self._last_ms, 1)}
 
     def stop(self) -> None:
+        if self._ready_token is not None:
+            self._ready_token.undeclare()  # first: the others take over this replica's share
         self._queue.close()
         if self._worker.is_alive():
             self._worker.join(timeout=30)  # a model call in progress finishes first
