@@ -19,7 +19,7 @@ from rich.console import Console
 from bench.episode import EpisodeResult, StopRecord
 from bench.search import (CHART_FILE, EPISODES_FILE, SUMMARY_FILE, TIMINGS_FILE, EpisodeFailed, Job,
                           SearchError, SearchRun, draw_chart, iter_results, jsonl_line, legend_lines, main,
-                          parse_episode_id, parse_policies, policy_scores, print_table, read_results,
+                          paired_differences, parse_episode_id, parse_policies, policy_scores, print_table, read_results,
                           replay, run_search, summary, write_outputs)
 
 SEED, EPISODES, STEPS = 0, 2, 15
@@ -95,12 +95,29 @@ def test_a_failing_episode_names_its_work_unit(workers: int) -> None:
 
 # -- scores, table, JSON -------------------------------------------------------------------------
 def test_scores_are_success_rate_in_percent_and_mean_spl() -> None:
-    results = [fake("ovamos", 0, True, 0.5, ("cup", "bed", "tv")), fake("ovamos", 1, False, 0.0, ("cup",)),
-               fake("random", 0, False, 0.0)]
+    wrong = StopRecord(step=4, label="tv", x=0.0, y=0.0, success=False, distance_m=3.0)
+    results = [fake("ovamos", 0, True, 0.5, ("cup", "bed", "tv")),
+               fake("ovamos", 1, False, 0.0, ("cup",), stops=[wrong, wrong]), fake("random", 0, False, 0.0)]
     scores = policy_scores(results)
     assert list(scores) == ["random", "ovamos"]
-    assert scores["ovamos"] == {"sr": 50.0, "mspl": 0.25, "episodes": 2, "targets_found": 66.7}
+    assert scores["ovamos"] == {"sr": 50.0, "mspl": 0.25, "episodes": 2, "targets_found": 66.7,
+                                "wrong_stops": 2}
     assert scores["random"]["sr"] == 0.0 and scores["random"]["targets_found"] == 0.0
+
+
+def test_paired_differences_compare_the_same_episodes_with_a_seeded_interval() -> None:
+    ovamos = [fake("ovamos", i, True, 0.6) for i in range(6)]
+    always = [fake("random", i, False, 0.0) for i in range(6)]
+    half = [fake("finder", i, i % 2 == 0, 0.6 if i % 2 == 0 else 0.0) for i in range(8)]  # 2 extra episodes
+    paired = paired_differences(ovamos + always + half)
+    assert list(paired) == ["random", "finder"]
+    assert paired["random"] == {"episodes": 6, "sr_diff": 100.0, "sr_ci": [100.0, 100.0],
+                                "mspl_diff": 0.6, "mspl_ci": [0.6, 0.6]}
+    finder = paired["finder"]
+    assert finder["episodes"] == 6 and finder["sr_diff"] == 50.0
+    assert 0.0 <= finder["sr_ci"][0] < 50.0 < finder["sr_ci"][1] <= 100.0
+    assert paired_differences(ovamos + always + half) == paired  # seeded
+    assert paired_differences(always + half) == {}  # no reference policy, nothing to compare
 
 
 def test_summary_is_the_documented_json_object(run: SearchRun) -> None:
