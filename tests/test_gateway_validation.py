@@ -74,6 +74,32 @@ def test_malformed_payloads_are_4xx(http: TestClient, content: bytes, headers: d
     assert message in response.json()["detail"]
 
 
+def test_oversized_bodies_are_413_declared_or_streamed(http: TestClient) -> None:
+    huge = b'{"targets": ["' + b"x" * 70_000 + b'"]}'
+    response = http.post("/v1/tasks", content=huge, headers=JSON)
+    assert response.status_code == 413 and "at most 65536 bytes" in response.json()["detail"]
+
+    def chunks() -> Iterator[bytes]:  # no Content-Length: the limit applies as it streams in
+        yield huge[:40_000]
+        yield huge[40_000:]
+    streamed = http.post("/v1/tasks", content=chunks(), headers=JSON)
+    assert streamed.status_code == 413 and "at most 65536 bytes" in streamed.json()["detail"]
+    assert http.post("/v1/tasks", json={"targets": ["chair"]}).status_code == 202
+
+
+def test_refused_requests_are_counted_by_status(http: TestClient) -> None:
+    def counters() -> dict[str, int]:
+        return http.get("/v1/health").json()["counters"]
+    before = counters()
+    http.post("/v1/tasks", json={"targets": []})
+    http.post("/v1/tasks", json={"targets": []})
+    http.get("/v1/tasks/nope")
+    http.post("/v1/tasks", content=b"x" * 70_000, headers=JSON)
+    after = counters()
+    for name, more in (("http_422", 2), ("http_404", 1), ("http_413", 1)):
+        assert after[name] - before.get(name, 0) == more, name
+
+
 def test_other_bad_requests(http: TestClient) -> None:
     assert http.get("/v1/tasks/nope").status_code == 404
     assert "no task 'nope'" in http.get("/v1/tasks/nope").json()["detail"]

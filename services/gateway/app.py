@@ -17,6 +17,7 @@ from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from services.gateway.auth import bearer_guard
 from services.gateway.config import GatewayConfig
@@ -71,7 +72,44 @@ def create_app(config: GatewayConfig, bus_source: BusSource) -> FastAPI:
     app.include_router(router, dependencies=[Depends(bearer_guard(config.resolved_token()))])
     app.add_exception_handler(RequestValidationError, _validation_error)  # type: ignore[arg-type]
     app.add_exception_handler(StarletteHTTPException, _http_error)  # type: ignore[arg-type]
+    app.add_middleware(BodyLimit, limit=config.max_body_bytes)
     return app
+
+
+class BodyLimit:
+    """413 for a request body over ``limit`` bytes, declared or streamed.
+
+    Without it a client could make the gateway read any amount into memory before validation
+    rejects it. A pure ASGI middleware, so event streams pass through untouched; a streamed
+    body that runs over raises an HTTPException, which the app's handler answers like any
+    other error."""
+
+    def __init__(self, app: ASGIApp, limit: int) -> None:
+        self.app, self.limit = app, limit
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        declared = dict(scope["headers"]).get(b"content-length", b"0")
+        if not declared.isdigit() or int(declared) > self.limit:
+            _count_rejected(scope["app"], 413)
+            await JSONResponse({"detail": self._message(), "errors": []}, status_code=413)(scope, receive, send)
+            return
+        received = 0
+
+        async def limited() -> Message:
+            nonlocal received
+            message = await receive()
+            received += len(message.get("body", b""))
+            if received > self.limit:
+                raise StarletteHTTPException(413, self._message())
+            return message
+
+        await self.app(scope, limited, send)
+
+    def _message(self) -> str:
+        return f"request body too large or of unknown length: at most {self.limit} bytes"
 
 
 async def _republish(manager: TaskManager, period_s: float) -> None:
@@ -110,14 +148,22 @@ def _problem(error: dict, sent_json: bool) -> dict[str, str]:
     return {"field": _where(loc), "message": f"{_where(loc)}: {msg}"}
 
 
+def _count_rejected(app: FastAPI, status_code: int) -> None:
+    gateway = getattr(app.state, "gateway", None)  # None only while starting or stopping
+    if gateway is not None:
+        gateway.manager.count_rejected_request(status_code)
+
+
 async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
     """422 with one readable sentence (``detail``) and one entry per problem (``errors``)."""
+    _count_rejected(request.app, 422)
     sent_json = "json" in request.headers.get("content-type", "")
     errors = [_problem(e, sent_json) for e in exc.errors()]
     detail = "; ".join(e["message"] for e in errors) or "invalid request"
     return JSONResponse({"detail": detail, "errors": errors}, status_code=422)
 
 
-async def _http_error(_request: Request, exc: StarletteHTTPException) -> JSONResponse:
+async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+    _count_rejected(request.app, exc.status_code)
     return JSONResponse({"detail": str(exc.detail), "errors": []}, status_code=exc.status_code,
                         headers=getattr(exc, "headers", None))

@@ -46,6 +46,8 @@ class GatewayConfig(ServiceConfig):
     map_timeout_s: float = Field(default=3.0, gt=0, description="wait this long for a map snapshot")
     health_timeout_s: float = Field(default=1.0, gt=0, description="wait this long for liveliness")
     sse_heartbeat_s: float = Field(default=15.0, gt=0, description="comment line on idle event streams")
+    max_body_bytes: int = Field(default=65536, ge=1024,
+                                description="larger request bodies get 413 (a task is a short list)")
 
     @field_validator("robots")
     @classmethod

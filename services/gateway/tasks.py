@@ -129,11 +129,17 @@ class TaskManager:
                 if active is not None:
                     publisher.put(_spec(active))
 
+    def count_rejected_request(self, status_code: int) -> None:
+        with self._lock:
+            self._counters[f"http_{status_code}"] += 1
+
     def counters(self) -> dict[str, int]:
-        """Event bookkeeping, plus malformed payloads the bus dropped on ``task/events``."""
+        """Event bookkeeping, malformed payloads the bus dropped on ``task/events``, and refused
+        HTTP requests by status (``http_422``: 1, ...)."""
         with self._lock:
             out = {name: self._counters[name] for name in
                    ("events_applied", "events_unknown_task", "events_finished_task", "events_not_active")}
+            out.update(sorted((k, n) for k, n in self._counters.items() if k.startswith("http_")))
         bus_counters = self.bus.counters.snapshot()
         out["events_malformed"] = sum(bus_counters[k].malformed for k in bus_counters
                                       if k in {keys.task_events(r) for r in self.config.robots})
