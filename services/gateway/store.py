@@ -8,11 +8,17 @@ on one robot. Every write is committed before the call returns: once
 
 One connection, shared by the HTTP worker threads and Zenoh's callback
 threads, serialised by a lock (SQLite's own locking is per connection).
+
+One gateway per file: the store holds an exclusive lock on ``<file>.lock``
+while open. Two gateways on one file would each start the queued task and
+publish two TaskSpecs for one robot; the second is refused at start instead.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
+import os
 import sqlite3
 import threading
 import time
@@ -87,6 +93,25 @@ def _record(row: sqlite3.Row) -> TaskRecord:
         started=row["started"], updated=row["updated"], finished=row["finished"])
 
 
+def _take_lock(lock_path: Path) -> int:
+    """An open descriptor holding an exclusive lock on ``lock_path`` (released when closed, also
+    by the OS when the process dies: a killed gateway never leaves a stale lock)."""
+    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+        os.close(fd)
+        raise StoreError(f"the task store {lock_path.with_suffix('')} is in use by another gateway "
+                         f"(pid {holder}); give each gateway its own state_dir") from None
+    except OSError:
+        os.close(fd)
+        raise
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, str(os.getpid()).encode(), 0)
+    return fd
+
+
 class TaskStore:
     """Create, read and update tasks in ``path`` (created with its folder when missing)."""
 
@@ -95,16 +120,22 @@ class TaskStore:
         self._lock = threading.Lock()
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
+            self._owner = _take_lock(path.with_name(path.name + ".lock"))
+        except OSError as exc:
+            raise StoreError(f"cannot open the task store {path}: {exc}") from None
+        try:
             self._db = sqlite3.connect(path, check_same_thread=False)
             self._db.row_factory = sqlite3.Row
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.executescript(_SCHEMA)
         except (OSError, sqlite3.Error) as exc:
+            os.close(self._owner)
             raise StoreError(f"cannot open the task store {path}: {exc}") from None
 
     def close(self) -> None:
         with self._lock:
             self._db.close()
+            os.close(self._owner)  # releases the lock
 
     def _write(self, sql: str, args: tuple[Any, ...]) -> None:
         with self._lock, self._db:
