@@ -15,6 +15,8 @@ router is still there to tell the others.
 
 A child's stdout and stderr go to ``<log dir>/<name>.log`` (appended, one
 header line per start): that is where a person reads why something crashed.
+A log over ``max_log_bytes`` is rotated when its child (re)starts (``.log.1``
+.. ``.log.3``), so a crash loop cannot fill the robot's disk.
 
 A profile (``deploy/profiles/*.toml``) names the router and services of one
 host; :func:`load_profile` validates it completely (unknown keys, missing
@@ -174,7 +176,8 @@ class Supervisor:
 
     def __init__(self, entries: Sequence[Entry], *, log_dir: Path = DEFAULT_LOG_DIR,
                  backoff: Backoff | None = None, stop_timeout_s: float = 10.0,
-                 ready_timeout_s: float = 60.0, poll_s: float = 0.2) -> None:
+                 ready_timeout_s: float = 60.0, poll_s: float = 0.2,
+                 max_log_bytes: int = 10_000_000) -> None:
         names = [e.name for e in entries]
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:
@@ -186,6 +189,7 @@ class Supervisor:
         self.stop_timeout_s = stop_timeout_s
         self.ready_timeout_s = ready_timeout_s
         self.poll_s = poll_s
+        self.max_log_bytes = max_log_bytes
         self.restart_events: list[RestartEvent] = []
         self._children = [_Child(e, self.log_dir / f"{e.name}.log") for e in ordered]
         self._lock = threading.RLock()
@@ -301,6 +305,7 @@ class Supervisor:
     def _spawn(self, child: _Child) -> None:
         restart = child.first_started_at is not None
         try:
+            rotate(child.log_path, self.max_log_bytes)
             with child.log_path.open("ab") as out:
                 out.write(f"=== {time.strftime('%Y-%m-%d %H:%M:%S')} start: ovamos "
                           f"{' '.join(child.entry.argv)}\n".encode())
@@ -625,6 +630,18 @@ def check_service_configs(profile: Profile) -> None:
             problems.append(f"services[{i}] ({spec.entry_name}): {exc}")
     if problems:
         raise ProfileError(f"{profile.source}: " + "; ".join(problems))
+
+
+def rotate(path: Path, max_bytes: int, keep: int = 3) -> None:
+    """Shift ``path`` to ``path.1`` (``.1`` to ``.2``, ... the oldest dropped) once it is over
+    ``max_bytes``."""
+    if not path.exists() or path.stat().st_size <= max_bytes:
+        return
+    for i in range(keep - 1, 0, -1):
+        older = path.with_name(f"{path.name}.{i}")
+        if older.exists():
+            older.replace(path.with_name(f"{path.name}.{i + 1}"))
+    path.replace(path.with_name(f"{path.name}.1"))
 
 
 def supervisor_for(profile: str | Path, *, log_dir: Path = DEFAULT_LOG_DIR,

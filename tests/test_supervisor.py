@@ -184,6 +184,22 @@ def test_a_child_that_ends_cleanly_is_not_restarted(tmp_path: Path, supervisors:
     assert "ovamos" in (tmp_path / "version.log").read_text()
 
 
+def test_a_large_log_is_rotated_when_its_child_starts(tmp_path: Path, supervisors: list[Supervisor]) -> None:
+    log = tmp_path / "version.log"
+    for generation in (3, 2, 1):
+        log.with_name(f"version.log.{generation}").write_text(f"generation {generation}\n")
+    log.write_text("old output\n" * 100)
+    sup = Supervisor([Entry("version", ("--version",))], log_dir=tmp_path, backoff=FAST, max_log_bytes=500)
+    supervisors.append(sup)
+    sup.start()
+    wait_for(lambda: status_of(sup, "version").state is State.EXITED, timeout=TIMEOUT, what="the exit")
+    assert log.read_text().startswith("=== ") and "old output" not in log.read_text()
+    assert (tmp_path / "version.log.1").read_text() == "old output\n" * 100
+    assert (tmp_path / "version.log.2").read_text() == "generation 1\n"
+    assert (tmp_path / "version.log.3").read_text() == "generation 2\n"  # generation 3 dropped
+    assert not (tmp_path / "version.log.4").exists()
+
+
 def test_a_router_that_cannot_start_is_an_error_naming_its_log(tmp_path: Path) -> None:
     """Two routers on one port: the second exits, and start() says so instead of waiting forever."""
     port = free_port()
