@@ -12,6 +12,7 @@ import time
 from collections.abc import Iterator
 
 import can
+import numpy as np
 import pytest
 
 from services.base_driver.config import CanConfig, DriverConfig
@@ -77,6 +78,50 @@ def test_a_hung_driver_lets_the_watchdog_stop_the_wheels_then_recovers(base: Whe
     assert "WATCHDOG_TIMER_EXPIRED" in caplog.text
     wait_for_mode(d, DriverMode.READY)
     assert all(a.errors == 0 for a in base.odrives.axes.values())
+
+
+def test_a_stall_shorter_than_the_heartbeat_timeout_is_not_a_heartbeat_fault() -> None:
+    """A busy host stalls the control loop and the CAN reader alike for a little under the timeout.
+
+    The first tick after it sees heartbeat ages of the stall plus part of a heartbeat period from
+    before it: over the timeout although the axes never stopped talking (the reader has their
+    frames queued). The driver runs on an injected clock here, this test playing both ODrives,
+    so the timing is exact.
+    """
+    t = [0.0]
+    config = DriverConfig(can=CanConfig(interface="virtual", channel="stall-test"))
+    proto = CanSimple([config.left.node_id, config.right.node_id])
+    d = BaseDriver(config, clock=lambda: t[0])
+
+    def odrives_talk() -> None:
+        received = d.counters["frames_rx"]
+        for node in (config.left.node_id, config.right.node_id):
+            bus.send(proto.encode(node, Cmd.HEARTBEAT, Axis_Error=0, Procedure_Result=0, Trajectory_Done_Flag=1,
+                                  Axis_State=AxisState.CLOSED_LOOP_CONTROL))
+            bus.send(proto.encode(node, Cmd.GET_ENCODER_ESTIMATES, Pos_Estimate=0.0, Vel_Estimate=0.0))
+        wait_for(lambda: d.counters["frames_rx"] >= received + 4, 5, "the driver reading the frames")
+
+    with can.Bus(interface="virtual", channel="stall-test") as bus:
+        try:
+            d.tick()  # opens the bus, starts enabling
+            t[0] = 0.01
+            odrives_talk()
+            d.tick()
+            assert d.state().mode is DriverMode.READY
+            t[0] = 0.05
+            d.tick()
+            t[0] = 0.33  # stalled 0.28 s: the last heartbeats are 0.32 s old
+            d.tick()
+            assert d.counters["faults"] == 0, d.state().faults
+            odrives_talk()  # the reader catches up
+            for t[0] in (0.35, 0.40, 0.60):
+                d.tick()
+            assert d.counters["faults"] == 0, d.state().faults
+            for t[0] in np.arange(0.62, 0.96, 0.02):  # silent while the loop ticks on: a fault
+                d.tick()
+            assert any("no heartbeat" in f for f in d.state().faults)
+        finally:
+            d.stop()
 
 
 def test_heartbeat_loss_is_a_fault_until_heartbeats_return(base: WheeledSimRobot) -> None:

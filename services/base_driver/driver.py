@@ -170,7 +170,7 @@ class BaseDriver:
         next_tick = self.clock()
         while not self._stop.is_set():
             try:
-                self.tick(self.clock())
+                self.tick()
             except Exception:  # a bug must not silently stop the loop (and the watchdog feed)
                 self.counters["tick_errors"] += 1
                 log.exception("control tick failed")
@@ -331,17 +331,26 @@ class BaseDriver:
                 self._start_enable(self.clock())
 
     # -- the control loop -------------------------------------------------------------------------
-    def tick(self, now: float) -> None:
-        """One control step (the control thread calls it ``control_hz`` times a second)."""
+    def tick(self) -> None:
+        """One control step (the control thread calls it ``control_hz`` times a second).
+
+        The clock is read once the lock is held: a tick that waited for the lock (the reader or
+        anything else stalled it) must see that gap, or it would judge heartbeat ages that the
+        blocked reader thread could not refresh.
+        """
         with self._lock:
             stale = self._detach() if self._bus_error is not None and self._bus is not None else None
         if stale is not None:
             _close(*stale)
         with self._lock:
+            now = self.clock()
             gap = 0.0 if self._last_tick is None else now - self._last_tick
-            if gap > self.config.heartbeat_timeout_s:
+            if gap > self.config.heartbeat_timeout_s / 2:
                 # This loop itself was stalled (a slow or suspended host): the reader thread has a
                 # backlog of frames to deliver, so heartbeat ages mean nothing until it caught up.
+                # Half the timeout, not all of it: an age is the stall plus up to one heartbeat
+                # period from before it, so a stall a little shorter than the timeout already
+                # makes healthy axes look silent.
                 self._age_checks_from = now + self.config.heartbeat_timeout_s
             dt, self._last_tick = min(gap, 0.1), now
             if self._bus is None and now >= self._next_recovery:
