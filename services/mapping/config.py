@@ -20,8 +20,6 @@ class MappingConfig(ServiceConfig):
                                     description="readings with a lower FOV confidence are ignored")
     decision_threshold: float = Field(default=0.35, ge=0, le=1,
                                       description="detection score from which a detection counts")
-    decay_tau: float = Field(default=6.0, description="update count at which the value halves")
-    decay_kappa: float = Field(default=2.0, gt=0)
     robot_radius: float = Field(default=0.18, ge=0, description="frontiers keep this far from obstacles")
     frontier_min_cells: int = Field(default=5, ge=1, description="smaller frontier segments are dropped")
     object_merge_distance_m: float = Field(default=0.5, gt=0)

@@ -6,7 +6,7 @@ mapping service apply exactly the same decay and aggregation.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
@@ -36,11 +36,21 @@ def decay(values: np.ndarray, counts: np.ndarray, tau: float, kappa: float) -> n
     return (values / (1.0 + np.exp(exponent))).astype(np.float32)
 
 
-def aggregate(layers: Iterable[np.ndarray]) -> np.ndarray | None:
-    """Sum of max-normalised layers (one per remaining target); None without layers."""
+def aggregate(layers: Iterable[np.ndarray], fade: Callable[[np.ndarray], np.ndarray] | None = None
+              ) -> np.ndarray | None:
+    """Sum of the layers (one per remaining target), each divided by its own peak and then
+    passed through ``fade`` (the decay); None without layers.
+
+    Normalise first, decay second: normalising a decayed layer would undo the decay (a layer
+    the robot has looked at everywhere would be scaled back up to a peak of 1), so places seen
+    many times without success would stay candidates for ever, and the planner would shuttle
+    between them instead of exploring.
+    """
     total = None
     for layer in layers:
         peak = float(layer.max(initial=0.0))
         norm = layer / peak if peak > 0 else np.zeros_like(layer)
+        if fade is not None:
+            norm = fade(norm)
         total = norm if total is None else total + norm
     return total

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from services.mapping.config import MappingConfig
-from services.mapping.layers import aggregate, decay, fov_confidence, fuse
+from services.mapping.layers import fov_confidence, fuse
 from services.mapping.objects import ObjectMap
 from services.mapping.projection import View, project
 from shared.detections import Detection
@@ -127,14 +127,6 @@ class MapState:
         return (slice(lo[1], hi[1]), slice(lo[0], hi[0])), mask.astype(bool), theta
 
     # -- reading ------------------------------------------------------------------------------
-    def decayed(self, target: str) -> np.ndarray:
-        c = self.config
-        return decay(self.values[target], self.counts, c.decay_tau, c.decay_kappa)
-
-    def aggregated(self) -> np.ndarray | None:
-        """The planner's value map: decayed, normalised layers of the remaining targets, summed."""
-        return aggregate(self.decayed(t) for t in self.values)
-
     def frontiers(self) -> np.ndarray:
         """N x 2 world waypoints, one per frontier segment between explored-free and unexplored."""
         if self._bbox is None:

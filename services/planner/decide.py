@@ -45,8 +45,8 @@ class DecisionConfig(BaseModel):
     policy: Policy = Policy.OVAMOS
     candidates: CandidateConfig = Field(default_factory=CandidateConfig)
     pomdp: POMDPConfig = Field(default_factory=POMDPConfig)
-    decay_tau: float = 6.0
-    decay_kappa: float = 2.0
+    decay_tau: float = Field(default=6.0, description="update count at which a value halves")
+    decay_kappa: float = Field(default=2.0, gt=0, description="how sharply it fades around tau")
     robot_radius: float = Field(default=0.18, ge=0)
     distance_coarsening: int = Field(default=4, ge=1, description="path lengths on cells this many times larger")
     window_margin_m: float = Field(default=1.0, ge=0, description="path search beyond the explored area")
@@ -89,14 +89,10 @@ def value_map(snapshot: MapSnapshot, remaining: Sequence[str], config: DecisionC
     not), over ``window`` of the grid."""
     counts, explored = snapshot.counts[window], snapshot.explored[window]
     wanted = remaining[:1] if config.policy is Policy.VLFM else remaining
-    layers = []
-    for i, name in enumerate(snapshot.layers):
-        if name in wanted:
-            layer = snapshot.values[i][window]
-            if config.policy not in NO_DECAY:
-                layer = decay(layer, counts, config.decay_tau, config.decay_kappa)
-            layers.append(layer * explored)
-    return aggregate(layers)
+    layers = [snapshot.values[i][window] * explored for i, name in enumerate(snapshot.layers) if name in wanted]
+    if config.policy in NO_DECAY:
+        return aggregate(layers)
+    return aggregate(layers, lambda layer: decay(layer, counts, config.decay_tau, config.decay_kappa))
 
 
 class PathLengths:
