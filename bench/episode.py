@@ -120,7 +120,9 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
         while task.state is TaskState.SEARCHING:
             pose = robot.pose
             frame = renderer.render(pose.x, pose.y, pose.yaw, seq=seq, stamp=float(seq))
-            remaining = task.remaining
+            # The services map the robot's first view before the task reaches perception (no
+            # targets, no values); the same here, so the distributed demo replays this episode.
+            remaining = task.remaining if seq > 0 else []
             result = PerceptionResult.build(seq, frame.stamp, perception.score(frame, remaining),
                                             perception.detect(frame, remaining), frame.depth.shape)
             state.apply(frame, result)

@@ -58,16 +58,6 @@ def test_aggregate_normalises_each_layer() -> None:
     assert aggregate([]) is None
 
 
-def test_the_decay_is_not_undone_by_normalising() -> None:
-    """A layer looked at everywhere many times fades below the candidate threshold (0.05) although
-    its shape is unchanged: normalising after the decay would scale it back to a peak of 1."""
-    layer = np.array([0.2, 0.4, 0.8], np.float32)
-    seen = np.full(3, 14, np.uint16)
-    faded = aggregate([layer], lambda v: decay(v, seen, 6.0, 2.0))
-    assert faded.max() < 0.05
-    assert aggregate([layer]) == pytest.approx([0.25, 0.5, 1.0])
-
-
 def test_a_closed_room_gives_its_walls_and_no_frontier() -> None:
     state = MapState(CONFIG)
     look_around(closed_room(door=False), state)

@@ -23,6 +23,7 @@ Models, every constant in :class:`SimPerceptionConfig`:
 from __future__ import annotations
 
 import math
+import zlib
 from dataclasses import dataclass
 from collections.abc import Mapping, Sequence
 
@@ -124,17 +125,19 @@ class SimPerception:
         w, h = self.config.reference_image
         return frame.rgb.shape[0] * frame.rgb.shape[1] / (w * h)
 
-    def _rng(self, frame: RgbdFrame) -> np.random.Generator:
-        return np.random.default_rng([self.config.seed, frame.seq])
+    def _rng(self, frame: RgbdFrame, target: str, stream: int) -> np.random.Generator:
+        """Per (seed, frame, target, score or detect): a target's outputs do not depend on which
+        other targets are asked for (the services may still ask for a target found a moment ago)."""
+        return np.random.default_rng([self.config.seed, frame.seq, zlib.crc32(target.encode()), stream])
 
     def score(self, frame: RgbdFrame, targets: Sequence[str]) -> dict[str, float]:
         """Value score per target, in a BLIP-like range."""
         objects, rooms = self._visible(frame)
         classes = [o.cls for o in objects]
-        rng, c = self._rng(frame), self.config
-        noise = rng.normal(0.0, c.score_noise, len(targets))
+        c = self.config
         return {t: float(np.clip(c.score_base + c.score_gain * self.prior.relatedness(t, classes, rooms)
-                                 + n, 0.0, 1.0)) for t, n in zip(targets, noise)}
+                                 + self._rng(frame, t, 0).normal(0.0, c.score_noise), 0.0, 1.0))
+                for t in targets}
 
     def detect_probability(self, frame: RgbdFrame, obj: _Visible) -> float:
         c = self.config
@@ -151,11 +154,12 @@ class SimPerception:
         """Detections of the targets (true ones and some false positives), with masks."""
         objects, _ = self._visible(frame)
         ids = self._require_ids(frame)
-        rng, c = self._rng(frame), self.config
+        c = self.config
         lo, hi = c.detection_score_range
         found: list[Detection] = []
-        for obj in objects:
-            for target in targets:
+        for target in targets:
+            rng = self._rng(frame, target, 1)
+            for obj in objects:
                 if obj.cls == target:
                     p = self.detect_probability(frame, obj)
                     score = lo + (hi - lo) * p
