@@ -55,6 +55,22 @@ def test_output_is_deterministic_per_seed_and_frame(prior) -> None:
     assert perceive(scene, prior, frame, seed=1)[0] != first[0]
 
 
+def test_a_targets_output_does_not_depend_on_the_other_targets_asked_for(prior) -> None:
+    """The services may still ask for a target found a moment ago, or list targets in another
+    order: each target's score and detections must not change with it."""
+    scene = two_rooms()
+    frame = render(scene)
+    config = SimPerceptionConfig(p_max=1.0, reliable_distance_m=10.0, full_size_pixels=1, fp_rate=1.0,
+                                 fp_min_cooccurrence=0.0)
+    perception = SimPerception(FrameLabels.of(scene), prior, config)
+    together = perception.score(frame, TARGETS[::-1]), perception.detect(frame, TARGETS[::-1])
+    assert together[1]
+    for target in TARGETS:
+        alone = perception.score(frame, [target]), perception.detect(frame, [target])
+        assert alone[0][target] == together[0][target]
+        assert [(d.score, d.box) for d in alone[1]] == [(d.score, d.box) for d in together[1] if d.label == target]
+
+
 def test_hidden_objects_do_not_change_the_output(prior) -> None:
     scene = two_rooms()
     frame = render(scene)
