@@ -46,13 +46,16 @@ def test_a_visible_target_scores_high_and_is_detected_with_its_mask(prior) -> No
     assert not [d for d in detections if d.label == "cup"]  # the cup is in the other room
 
 
-def test_output_is_deterministic_per_seed_and_frame(prior) -> None:
+def test_output_is_deterministic_per_seed_scene_and_frame(prior) -> None:
     scene = two_rooms()
     frame = render(scene)
     first, again = perceive(scene, prior, frame), perceive(scene, prior, frame)
     assert first[0] == again[0]
     assert [(d.label, d.score, d.box) for d in first[1]] == [(d.label, d.score, d.box) for d in again[1]]
     assert perceive(scene, prior, frame, seed=1)[0] != first[0]
+    # the same view in another episode's scene draws other noise (episodes share frame seqs)
+    other_episode = scene.model_copy(update={"seed": (scene.seed or 0) + 1})
+    assert perceive(other_episode, prior, frame)[0] != first[0]
 
 
 def test_a_targets_output_does_not_depend_on_the_other_targets_asked_for(prior) -> None:

@@ -63,10 +63,12 @@ class FrameLabels:
 
     classes: Mapping[int, str]  # object id -> class
     rooms: Mapping[int, str]    # floor id (-(room id + 1)) -> room type
+    scene_seed: int = 0         # seeds the noise: episodes in other scenes must not share draws
 
     @classmethod
     def of(cls, scene: Scene) -> FrameLabels:
-        return cls({o.id: o.cls for o in scene.objects}, {-(r.id + 1): r.type for r in scene.rooms})
+        return cls({o.id: o.cls for o in scene.objects}, {-(r.id + 1): r.type for r in scene.rooms},
+                   scene.seed or 0)
 
 
 @dataclass(frozen=True)
@@ -79,7 +81,7 @@ class _Visible:
 
 
 class SimPerception:
-    """Deterministic per (seed, frame seq): replaying a frame gives the same output."""
+    """Deterministic per (seed, scene, frame seq): replaying a frame gives the same output."""
 
     def __init__(self, labels: FrameLabels, prior: ObjectPrior,
                  config: SimPerceptionConfig | None = None) -> None:
@@ -126,9 +128,12 @@ class SimPerception:
         return frame.rgb.shape[0] * frame.rgb.shape[1] / (w * h)
 
     def _rng(self, frame: RgbdFrame, target: str, stream: int) -> np.random.Generator:
-        """Per (seed, frame, target, score or detect): a target's outputs do not depend on which
-        other targets are asked for (the services may still ask for a target found a moment ago)."""
-        return np.random.default_rng([self.config.seed, frame.seq, zlib.crc32(target.encode()), stream])
+        """Per (seed, scene, frame, target, score or detect). A target's outputs do not depend on
+        which other targets are asked for (the services may still ask for a target found a moment
+        ago). The scene is in the seed because the frame seq alone would give every episode that
+        searches for a target the same false detections at the same step."""
+        return np.random.default_rng([self.config.seed, self.labels.scene_seed, frame.seq,
+                                      zlib.crc32(target.encode()), stream])
 
     def score(self, frame: RgbdFrame, targets: Sequence[str]) -> dict[str, float]:
         """Value score per target, in a BLIP-like range."""
