@@ -68,3 +68,14 @@ def test_baselines_go_to_frontiers_and_vlfm_reads_one_target() -> None:
             == pytest.approx(9.5))
     assert (decide(near, (5.0, 5.0), ["cup", "bed"], DecisionConfig(policy=Policy.VLFM)).x
             == pytest.approx(1.0))
+
+
+def test_vlfm_goes_only_to_objects_of_its_current_target() -> None:
+    """VLFM is a single-object method run once per target: a confirmed object of a later target
+    waits its turn, where finder (multi-object) goes to it at once."""
+    cup = ObjectInstance(label="cup", x=2.0, y=3.0, score=0.8, hits=3, confirmed=True)
+    snap = snapshot({}, [(9.5, 9.5)], objects=[cup])
+    assert decide(snap, (5.0, 5.0), ["bed", "cup"], DecisionConfig(policy=Policy.FINDER)).kind is GoalKind.OBJECT
+    vlfm = decide(snap, (5.0, 5.0), ["bed", "cup"], DecisionConfig(policy=Policy.VLFM))
+    assert vlfm.kind is GoalKind.FRONTIER
+    assert decide(snap, (5.0, 5.0), ["cup", "bed"], DecisionConfig(policy=Policy.VLFM)).kind is GoalKind.OBJECT

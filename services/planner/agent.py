@@ -28,7 +28,7 @@ from enum import Enum
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.planner.decide import Decision, DecisionConfig, GoalKind, Policy, away, decide
+from services.planner.decide import Decision, DecisionConfig, GoalKind, Policy, away, decide, searched
 from services.planner.navigation import NavigationConfig, NavMap, Navigator, Unreachable
 from services.planner.task import Found, Task, TaskState
 from shared.messages import MapSnapshot
@@ -107,7 +107,7 @@ class SearchAgent:
             return Step(None, Reason.OVER)
         if self._scan_left > 0:
             return Step(Action.TURN_LEFT, Reason.SCAN)
-        remaining = self.task.remaining
+        remaining = searched(self.task.remaining, self.config.decision.policy)
         if self.goal is None or self._goal_expired() or (
                 self.goal.kind is not GoalKind.OBJECT and self._object_seen(snapshot, remaining)):
             self._decide(snapshot, pose, remaining)

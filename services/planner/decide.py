@@ -32,7 +32,7 @@ class Policy(str, Enum):
     GREEDY = "ovamos-greedy"      # no POMDP: the highest value among candidates and frontier
     NO_DECAY = "ovamos-nodecay"   # POMDP on the value map without decay
     FINDER = "finder"             # all targets' layers, always the best frontier
-    VLFM = "vlfm"                 # one target at a time, always the best frontier
+    VLFM = "vlfm"                 # one target at a time (see `searched`), always the best frontier
     RANDOM = "random"             # a random walk (same stop logic for found objects): no goals
 
 
@@ -83,13 +83,19 @@ def explored_window(snapshot: MapSnapshot) -> tuple[slice, slice, GridGeometry]:
     return slice(r0, r1), slice(c0, c1), grid
 
 
+def searched(remaining: Sequence[str], policy: Policy) -> list[str]:
+    """The targets ``policy`` looks for now. VLFM is a single-object method, so it runs once per
+    target in the task's order: it reads that target's value layer and goes only to that
+    target's objects (it keeps its map, so an object seen earlier is still known)."""
+    return list(remaining[:1]) if policy is Policy.VLFM else list(remaining)
+
+
 def value_map(snapshot: MapSnapshot, remaining: Sequence[str], config: DecisionConfig,
               window: tuple[slice, slice] = (slice(None), slice(None))) -> np.ndarray | None:
     """Aggregated value of the remaining targets' layers (decayed unless the ablation says
     not), over ``window`` of the grid."""
     counts, explored = snapshot.counts[window], snapshot.explored[window]
-    wanted = remaining[:1] if config.policy is Policy.VLFM else remaining
-    layers = [snapshot.values[i][window] * explored for i, name in enumerate(snapshot.layers) if name in wanted]
+    layers = [snapshot.values[i][window] * explored for i, name in enumerate(snapshot.layers) if name in remaining]
     if config.policy in NO_DECAY:
         return aggregate(layers)
     return aggregate(layers, lambda layer: decay(layer, counts, config.decay_tau, config.decay_kappa))
@@ -166,6 +172,7 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     """
     avoid = np.zeros((0, 2)) if avoid is None else np.asarray(avoid, float).reshape(-1, 2)
     radius = config.avoid_radius_m
+    remaining = searched(remaining, config.policy)
     for obj in snapshot.objects:
         if obj.confirmed and obj.label in remaining and away(np.array([[obj.x, obj.y]]), avoid,
                                                               radius)[0]:
