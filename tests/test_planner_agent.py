@@ -76,3 +76,23 @@ def test_the_decay_is_not_undone_by_normalising() -> None:
     faded = aggregate([layer], lambda v: decay(v, seen, 6.0, 2.0))
     assert faded.max() < 0.05
     assert aggregate([layer]) == pytest.approx([0.25, 0.5, 1.0])
+
+
+def test_bumps_and_unreachable_goals_are_forgotten_after_memory_steps() -> None:
+    """A narrow doorway bumped into on both sides would otherwise stay closed for ever, and every
+    goal behind it with it (a robot restarted on an older map bumps a lot)."""
+    a, pose = agent(memory_steps=3), Pose(x=2.0, y=5.0, yaw=0.0)
+    snap = snapshot({}, [(8.0, 5.0)])
+    step = a.next_step(snap, pose)
+    assert step.action is Action.MOVE_FORWARD
+    a.executed(step, 0.0, blocked=True, pose=pose)
+    bump = a._nav_map(snap).grid.to_cell(2.0 + a.config.bump_depth_m, 5.0)
+    assert a._nav_map(snap).obstacle[bump]
+    a._give_up_goal()  # the only frontier, found unreachable: nowhere to go for now
+    step = a.next_step(snap, pose)
+    assert step.reason is Reason.IDLE
+    for _ in range(3):
+        a.executed(step, 0.0, pose=pose)
+        step = a.next_step(snap, pose)
+    assert step.reason is Reason.NAVIGATE and step.goal.kind is GoalKind.FRONTIER
+    assert not a._nav_map(snap).obstacle[bump]

@@ -59,6 +59,9 @@ class AgentConfig(BaseModel):
         default=0.25, gt=0,
         description="a blocked MOVE_FORWARD marks an obstacle this far ahead: what the depth "
                     "camera cannot see (closer than its range, below its view) the bumper can")
+    memory_steps: int = Field(
+        default=100, ge=1,
+        description="bumps and goals found unreachable are forgotten after this many commands")
 
 
 class Reason(str, Enum):
@@ -80,6 +83,31 @@ class Step:
     goal: Decision | None = None
 
 
+class Recent:
+    """Places remembered for ``memory`` steps. A bump or a goal that could not be reached is
+    evidence about the map as it was: a narrow doorway the robot bumped into on both sides, and
+    every goal behind it, stay closed for ever otherwise, and a robot whose map lost part of what
+    it had seen (a restart from an older checkpoint) bumps a lot."""
+
+    def __init__(self, memory: int) -> None:
+        self.memory = memory
+        self._items: list[tuple[float, float, int]] = []
+
+    def add(self, x: float, y: float, step: int) -> None:
+        self._items.append((x, y, step))
+
+    def points(self, step: int) -> list[tuple[float, float]]:
+        """The places remembered at ``step``; older ones are dropped."""
+        self._items = [item for item in self._items if step - item[2] < self.memory]
+        return [(x, y) for x, y, _ in self._items]
+
+    def clear(self) -> None:
+        self._items.clear()
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+
 class SearchAgent:
     """Drives one task; holds the goal, the navigator and the goals found unreachable."""
 
@@ -89,7 +117,7 @@ class SearchAgent:
         self.navigator = Navigator(self.config.navigation)
         self.goal: Decision | None = None
         self.decisions = 0
-        self.unreachable: list[tuple[float, float]] = []
+        self.unreachable = Recent(self.config.memory_steps)
         self.visited: list[tuple[float, float]] = []   # candidates reached
         self._scan_left = self.config.initial_turns
         self._toward_goal = 0
@@ -97,7 +125,7 @@ class SearchAgent:
         self._idle = 0
         self._random_walk = self.config.decision.policy is Policy.RANDOM
         self._recent: list[tuple[float, float]] = []
-        self.bumps: list[tuple[float, float]] = []
+        self.bumps = Recent(self.config.memory_steps)
         if task.state is TaskState.IDLE:
             task.start()
 
@@ -124,14 +152,14 @@ class SearchAgent:
             try:
                 action = self.navigator.next_command(self._nav_map(snapshot), pose, (goal.x, goal.y))
             except Unreachable:
-                self.unreachable.append((goal.x, goal.y))
+                self.unreachable.add(goal.x, goal.y, self.task.steps)
                 self._decide(snapshot, pose, remaining)
                 continue
             if action is not Action.STOP:
                 self._idle = 0
                 return Step(action, Reason.NAVIGATE, goal)
             if goal.kind is GoalKind.OBJECT:  # as close as the map allows, still too far
-                self.unreachable.append((goal.x, goal.y))
+                self.unreachable.add(goal.x, goal.y, self.task.steps)
             elif goal.kind is GoalKind.CANDIDATE:
                 self.visited.append((goal.x, goal.y))
             self._decide(snapshot, pose, remaining, reached=goal)
@@ -154,7 +182,8 @@ class SearchAgent:
         self._blocked = self._blocked + 1 if blocked else 0
         if blocked and step.action is Action.MOVE_FORWARD and pose is not None:
             d = self.config.bump_depth_m
-            self.bumps.append((pose.x + d * math.cos(pose.yaw), pose.y + d * math.sin(pose.yaw)))
+            ahead = (pose.x + d * math.cos(pose.yaw), pose.y + d * math.sin(pose.yaw))
+            self.bumps.add(*ahead, self.task.steps)
         if self._blocked >= self.config.max_blocked or self._stuck(step, pose):
             self._give_up_goal()
         self.task.record_step(moved_m, found)
@@ -162,15 +191,15 @@ class SearchAgent:
     # -- helpers -------------------------------------------------------------------------------
     def _decide(self, snapshot: MapSnapshot, pose: Pose, remaining: list[str],
                 reached: Decision | None = None) -> None:
-        avoid = np.array(self.unreachable + self.visited + ([(reached.x, reached.y)] if reached else []),
-                         float)
+        avoid = np.array(self.unreachable.points(self.task.steps) + self.visited
+                         + ([(reached.x, reached.y)] if reached else []), float)
         self.goal = decide(snapshot, (pose.x, pose.y), remaining, self.config.decision, avoid)
         self.decisions += 1
         self._toward_goal = 0
 
     def _give_up_goal(self) -> None:
         if self.goal is not None:
-            self.unreachable.append((self.goal.x, self.goal.y))
+            self.unreachable.add(self.goal.x, self.goal.y, self.task.steps)
         self.goal, self._blocked = None, 0
         self._recent.clear()
 
@@ -190,10 +219,11 @@ class SearchAgent:
     def _nav_map(self, snapshot: MapSnapshot) -> NavMap:
         """The snapshot's obstacles plus the bumps (copied only when there are bumps)."""
         nav = NavMap.from_snapshot(snapshot)
-        if not self.bumps:
+        bumps = self.bumps.points(self.task.steps)
+        if not bumps:
             return nav
         obstacle = nav.obstacle.copy()
-        rows, cols = nav.grid.to_cell(*np.array(self.bumps).T)
+        rows, cols = nav.grid.to_cell(*np.array(bumps).T)
         inside = (rows >= 0) & (rows < nav.grid.rows) & (cols >= 0) & (cols < nav.grid.cols)
         obstacle[rows[inside], cols[inside]] = True
         return NavMap(obstacle, nav.explored, nav.grid)
@@ -201,7 +231,8 @@ class SearchAgent:
     def _object_seen(self, snapshot: MapSnapshot, remaining: list[str]) -> bool:
         """A confirmed object of a remaining target that is not known to be unreachable."""
         seen = np.array([(o.x, o.y) for o in snapshot.objects if o.confirmed and o.label in remaining])
-        return bool(len(seen)) and bool(away(seen, np.array(self.unreachable).reshape(-1, 2),
+        unreachable = np.array(self.unreachable.points(self.task.steps)).reshape(-1, 2)
+        return bool(len(seen)) and bool(away(seen, unreachable,
                                                self.config.decision.avoid_radius_m).any())
 
     def _goal_expired(self) -> bool:
@@ -232,7 +263,7 @@ class SearchAgent:
         unreachable or visited another chance (the map has changed since), then fail."""
         self._idle += 1
         if self._idle > self.config.max_idle_turns:
-            if not self.unreachable and not self.visited:
+            if not self.unreachable.points(self.task.steps) and not self.visited:
                 self.task.fail("nothing left to explore and no target seen")
                 return Step(None, Reason.OVER)
             self.unreachable.clear()
