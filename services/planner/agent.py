@@ -104,9 +104,6 @@ class Recent:
     def clear(self) -> None:
         self._items.clear()
 
-    def __len__(self) -> int:
-        return len(self._items)
-
 
 class SearchAgent:
     """Drives one task; holds the goal, the navigator and the goals found unreachable."""
@@ -232,8 +229,7 @@ class SearchAgent:
         """A confirmed object of a remaining target that is not known to be unreachable."""
         seen = np.array([(o.x, o.y) for o in snapshot.objects if o.confirmed and o.label in remaining])
         unreachable = np.array(self.unreachable.points(self.task.steps)).reshape(-1, 2)
-        return bool(len(seen)) and bool(away(seen, unreachable,
-                                               self.config.decision.avoid_radius_m).any())
+        return bool(len(seen)) and bool(away(seen, unreachable, self.config.decision.avoid_radius_m).any())
 
     def _goal_expired(self) -> bool:
         """Time to decide again. A candidate is the POMDP's macro action MoveTo(candidate): it is
