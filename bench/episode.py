@@ -22,6 +22,7 @@ from collections.abc import Callable
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from bench.funnel import FunnelRecorder, TargetFunnel
 from services.mapping.config import MappingConfig
 from services.mapping.state import MapState
 from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
@@ -80,6 +81,7 @@ class EpisodeResult(BaseModel):
     blocked: int
     stops: list[StopRecord]
     trajectory: list[tuple[float, float, float]]
+    funnel: list[TargetFunnel] = []  # per target: how far its search got (older files: none)
     seconds: float
 
 
@@ -115,6 +117,7 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
     stops: list[StopRecord] = []
     trajectory = [(robot.pose.x, robot.pose.y, robot.pose.yaw)]
     renderer = SceneRenderer(scene, config.width, config.height)
+    funnel = FunnelRecorder(scene, spec.targets)
     try:
         seq = 0
         while task.state is TaskState.SEARCHING:
@@ -123,10 +126,13 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
             # The services map the robot's first view before the task reaches perception (no
             # targets, no values); the same here, so the distributed demo replays this episode.
             remaining = task.remaining if seq > 0 else []
-            result = PerceptionResult.build(seq, frame.stamp, perception.score(frame, remaining),
-                                            perception.detect(frame, remaining), frame.depth.shape)
-            state.apply(frame, result)
-            step = agent.next_step(state.snapshot(frame.stamp, with_confidence=False), pose)
+            detections = perception.detect(frame, remaining)
+            funnel.frame(task.steps, frame, perception.visible_classes(frame), detections)
+            state.apply(frame, PerceptionResult.build(seq, frame.stamp, perception.score(frame, remaining),
+                                                      detections, frame.depth.shape))
+            snapshot = state.snapshot(frame.stamp, with_confidence=False)
+            funnel.map(task.steps, snapshot.objects)
+            step = agent.next_step(snapshot, pose)
             if step.action is None:
                 break
             before = robot.distance
@@ -135,6 +141,7 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
                 outcome = truth.stop(step.goal.label, pose.x, pose.y)
                 stops.append(StopRecord(step=task.steps + 1, label=step.goal.label, x=pose.x, y=pose.y,
                                         success=outcome.success, distance_m=outcome.distance))
+                funnel.stop(task.steps + 1, step.goal.label, outcome.success)
             agent.executed(step, robot.distance - before, blocked, pose)
             trajectory.append((robot.pose.x, robot.pose.y, robot.pose.yaw))
             if on_step is not None:
@@ -150,6 +157,6 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
         targets=spec.targets, success=success, spl=spl(success, shortest, robot.distance),
         found=found, steps=task.steps, path_m=round(robot.distance, 4), shortest_m=round(shortest, 4),
         state=task.state.value, reason=task.reason, decisions=agent.decisions, blocked=robot.blocked,
-        stops=stops, trajectory=[tuple(round(v, 4) for v in p) for p in trajectory],
+        stops=stops, funnel=funnel.result(), trajectory=[tuple(round(v, 4) for v in p) for p in trajectory],
         seconds=round(time.perf_counter() - started, 3))
 

@@ -40,6 +40,7 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, 
 from rich.table import Table
 
 from bench.episode import EpisodeResult, episode_config, run_episode
+from bench.funnel import Miss
 from services.mapping.render import write_png
 from services.sim.draw import MARGIN_M, draw_scene
 from services.sim.episodes import make_episode
@@ -258,6 +259,19 @@ def policy_scores(results: Sequence[EpisodeResult]) -> dict[str, dict[str, float
     return scores
 
 
+def miss_reasons(results: Sequence[EpisodeResult]) -> dict[str, dict[str, int]]:
+    """Per policy: how many targets were missed at each stage (:class:`Miss`), and how many were
+    searched for. Results read from files written before the funnel was recorded count nothing."""
+    out: dict[str, dict[str, int]] = {}
+    for r in sorted(results, key=lambda r: _policy_rank(r.policy)):
+        counts = out.setdefault(r.policy, {"targets": 0, **{m.value: 0 for m in Miss}})
+        for funnel in r.funnel:
+            counts["targets"] += 1
+            if (miss := funnel.miss) is not None:
+                counts[miss.value] += 1
+    return out
+
+
 def paired_differences(results: Sequence[EpisodeResult], reference: str = "ovamos",
                        resamples: int = 2000, seed: int = 0) -> dict[str, dict[str, Any]]:
     """Each policy against ``reference`` on the episodes both ran: the mean difference in SR (%)
@@ -294,6 +308,7 @@ def _policy_rank(policy: str) -> int:
 def summary(run: SearchRun) -> dict[str, Any]:
     """The ``--json`` object: scores per policy, the run's settings and its wall time."""
     return {"policies": policy_scores(run.results), "vs_ovamos": paired_differences(run.results),
+            "missed": miss_reasons(run.results),
             "seconds": round(run.seconds, 1),
             "episodes_per_min": round(60 * len(run.results) / max(run.seconds, 1e-9), 2),
             "seed": run.seed, "episodes": run.episodes, "workers": run.workers,
@@ -326,6 +341,13 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
             table.add_row(LABELS.get(policy, policy), str(d["episodes"]), f"{d['sr_diff']:+.1f}",
                           f"[{d['sr_ci'][0]:+.1f}, {d['sr_ci'][1]:+.1f}]", f"{d['mspl_diff']:+.3f}",
                           f"[{d['mspl_ci'][0]:+.3f}, {d['mspl_ci'][1]:+.3f}]")
+        console.print(table)
+    missed = {p: m for p, m in result.get("missed", {}).items() if m["targets"]}
+    if missed:
+        table = Table("method", "targets", *(m.value for m in Miss),
+                      title="Targets missed, by the first stage they never reached")
+        for policy, m in missed.items():
+            table.add_row(LABELS.get(policy, policy), str(m["targets"]), *(str(m[k.value]) for k in Miss))
         console.print(table)
     total = sum(s["episodes"] for s in scores.values())
     console.print(f"{total} episodes in {result['seconds']:.0f} s on {result['workers']} worker(s): "
@@ -486,7 +508,8 @@ def legend_lines(result: EpisodeResult) -> list[tuple[str, tuple[int, int, int]]
     lines = [(f"episode {result.episode_id}  policy {result.policy}", INK),
              (f"{verdict}   SPL {result.spl:.3f}", SUCCESS_COLOUR if result.success else FAILURE_COLOUR),
              (f"scene seed {result.scene_seed}", INK), ("targets:", INK)]
-    lines += [(f"  T{n} {t}: {'found' if t in found else 'missed'}",
+    why = {f.label: f.miss for f in result.funnel}
+    lines += [(f"  T{n} {t}: " + ("found" if t in found else "missed" + (f" ({why[t].value})" if why.get(t) else "")),
                SUCCESS_COLOUR if t in found else MISSED_COLOUR) for n, t in enumerate(result.targets, 1)]
     lines += [(f"steps {result.steps}, decisions {result.decisions}, blocked {result.blocked}", INK),
               (f"path {result.path_m:.1f} m, shortest tour {result.shortest_m:.1f} m", INK),

@@ -17,8 +17,9 @@ import pytest
 from rich.console import Console
 
 from bench.episode import EpisodeResult, StopRecord
+from bench.funnel import TargetFunnel
 from bench.search import (CHART_FILE, EPISODES_FILE, SUMMARY_FILE, TIMINGS_FILE, EpisodeFailed, Job,
-                          SearchError, SearchRun, draw_chart, iter_results, jsonl_line, legend_lines, main,
+                          SearchError, SearchRun, draw_chart, iter_results, jsonl_line, legend_lines, main, miss_reasons,
                           paired_differences, parse_episode_id, parse_policies, policy_scores, print_table, read_results,
                           replay, run_search, summary, write_outputs)
 
@@ -40,13 +41,20 @@ def run() -> SearchRun:
 
 
 def fake(policy: str, index: int, success: bool, spl: float, found: tuple[str, ...] = (),
-         targets: tuple[str, ...] = ("cup", "bed", "tv"), stops: list[StopRecord] | None = None
-         ) -> EpisodeResult:
+         targets: tuple[str, ...] = ("cup", "bed", "tv"), stops: list[StopRecord] | None = None,
+         funnel: list[TargetFunnel] | None = None) -> EpisodeResult:
     """A hand-made result: scores and pictures are checked against known numbers."""
     return EpisodeResult(episode_id=f"0-{index}", policy=policy, scene_seed=1, targets=targets,
                          success=success, spl=spl, found=found, steps=10, path_m=2.0, shortest_m=1.0,
                          state="done" if success else "failed", decisions=3, blocked=0,
-                         stops=stops or [], trajectory=[(1.0, 1.0, 0.0), (1.5, 1.0, 0.0)], seconds=0.5)
+                         stops=stops or [], funnel=funnel or [],
+                         trajectory=[(1.0, 1.0, 0.0), (1.5, 1.0, 0.0)], seconds=0.5)
+
+
+def funnel(**stages: int) -> list[TargetFunnel]:
+    """cup at the given stages, bed found, tv never in view."""
+    return [TargetFunnel(label="cup", **stages), TargetFunnel(label="bed", seen=1, detected=2, confirmed=3,
+                                                              stopped=9), TargetFunnel(label="tv")]
 
 
 # -- arguments -----------------------------------------------------------------------------------
@@ -120,6 +128,24 @@ def test_paired_differences_compare_the_same_episodes_with_a_seeded_interval() -
     assert paired_differences(always + half) == {}  # no reference policy, nothing to compare
 
 
+def test_missed_targets_are_counted_by_the_first_stage_they_never_reached() -> None:
+    results = [fake("ovamos", 0, False, 0.0, ("bed",), funnel=funnel(seen=2, detected=4)),
+               fake("ovamos", 1, False, 0.0, ("bed",), funnel=funnel(seen=2, wrong_stops=1)),
+               fake("random", 0, False, 0.0), fake("random", 1, False, 0.0, funnel=funnel())]
+    missed = miss_reasons(results)
+    assert list(missed) == ["random", "ovamos"]
+    assert missed["ovamos"] == {"targets": 6, "wrong stop": 1, "never in view": 2, "never detected": 0,
+                                "never confirmed": 1, "not reached": 0}
+    assert missed["random"]["targets"] == 3 and missed["random"]["never in view"] == 2
+    out = io.StringIO()
+    print_table(Console(file=out, width=200), {"policies": policy_scores(results), "missed": missed,
+                                               "seconds": 1.0, "episodes_per_min": 1.0, "seed": 0,
+                                               "workers": 1, "max_steps": None})
+    missed_table = out.getvalue().split("Targets missed")[1]
+    row = next(line for line in missed_table.splitlines() if "OVAMOS" in line)
+    assert [cell.strip() for cell in row.split("│")[1:-1]] == ["OVAMOS", "6", "1", "2", "0", "1", "0"]
+
+
 def test_summary_is_the_documented_json_object(run: SearchRun) -> None:
     result = json.loads(json.dumps(summary(run)))
     assert set(result["policies"]) == set(POLICIES)
@@ -127,6 +153,7 @@ def test_summary_is_the_documented_json_object(run: SearchRun) -> None:
         assert {"sr", "mspl", "episodes"} <= set(scores)
         assert scores["episodes"] == EPISODES and 0 <= scores["sr"] <= 100 and 0 <= scores["mspl"] <= 1
     assert result["seconds"] >= 0 and result["max_steps"] == STEPS
+    assert {p: m["targets"] for p, m in result["missed"].items()} == {p: 3 * EPISODES for p in POLICIES}
 
 
 def test_tables_list_the_papers_rows_in_order_with_its_numbers() -> None:
@@ -180,9 +207,11 @@ def test_chart_bars_grow_with_the_scores() -> None:
 
 def test_legend_says_which_stop_was_wrong_and_which_target_was_missed() -> None:
     wrong = StopRecord(step=7, label="cup", x=1.0, y=1.0, success=False, distance_m=2.5)
-    text = [line for line, _ in legend_lines(fake("ovamos", 3, False, 0.0, ("bed",), stops=[wrong]))]
+    text = [line for line, _ in legend_lines(fake("ovamos", 3, False, 0.0, ("bed",), stops=[wrong],
+                                                  funnel=funnel(seen=1, wrong_stops=1)))]
     assert any("FAILURE: found 1/3" in line for line in text)
-    assert any("cup: missed" in line for line in text) and any("bed: found" in line for line in text)
+    assert any("cup: missed (wrong stop)" in line for line in text)
+    assert any("tv: missed (never in view)" in line for line in text) and any("bed: found" in line for line in text)
     assert any("S1 step 7 cup: WRONG, 2.50 m" in line for line in text)
 
 

@@ -71,7 +71,8 @@ class Run:
 
 
 def drive(m: NavMap, start: Pose, goal: tuple[float, float], max_commands: int = 400,
-          navigator: Navigator | None = None, blocked: np.ndarray | None = None) -> Run:
+          navigator: Navigator | None = None, blocked: np.ndarray | None = None,
+          snap_radius_m: float | None = None) -> Run:
     """Execute commands until STOP, Unreachable or ``max_commands``; assert every forward step
     stays on cells that are free of the inflated obstacles (``blocked``, default the map's)."""
     nav = navigator or Navigator()
@@ -81,7 +82,7 @@ def drive(m: NavMap, start: Pose, goal: tuple[float, float], max_commands: int =
     run = Run(poses=[start])
     for _ in range(max_commands):
         try:
-            action = nav.next_command(m, robot.pose, goal)
+            action = nav.next_command(m, robot.pose, goal, snap_radius_m)
         except Unreachable as exc:
             run.error = exc
             return run
@@ -344,6 +345,20 @@ def test_goal_in_a_small_obstacle_is_snapped_to_a_reachable_cell() -> None:
     tx, ty = nav.target
     assert math.hypot(tx - goal[0], ty - goal[1]) <= NavigationConfig().snap_radius_m
     assert math.hypot(end.x - tx, end.y - ty) <= TOL
+
+
+def test_a_goal_deep_in_a_wide_obstacle_is_reached_with_a_larger_snap_radius() -> None:
+    obs = np.zeros((80, 80), dtype=bool)
+    obs[28:52, 28:52] = True  # a 1.2 m table, the goal (an object on it) at its centre
+    m, goal, start = nav_map(obs), (2.0, 2.0), Pose(x=0.4, y=0.4, yaw=0.0)
+    with pytest.raises(Unreachable, match="obstacle"):  # 0.75 m to the nearest free cell
+        Navigator().next_command(m, start, goal)
+    nav = Navigator()
+    run = drive(m, start, goal, navigator=nav, snap_radius_m=0.9)
+    assert run.error is None and run.stopped
+    tx, ty = nav.target
+    assert 0.75 <= math.hypot(tx - goal[0], ty - goal[1]) <= 0.9
+    assert math.hypot(run.poses[-1].x - tx, run.poses[-1].y - ty) <= TOL
 
 
 def test_replans_when_the_map_blocks_the_path() -> None:

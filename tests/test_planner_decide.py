@@ -31,6 +31,18 @@ def test_a_confirmed_object_of_a_remaining_target_wins() -> None:
     assert decide(snap, (5.0, 5.0), ["bed"], DecisionConfig()).kind is not GoalKind.OBJECT
 
 
+def test_a_visited_place_blocks_candidates_there_but_not_an_object_confirmed_there() -> None:
+    snap = snapshot({(6.0, 5.0): 0.9}, [(9.5, 9.5)])
+    there = np.array([[6.1, 5.0]])
+    d = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig(), visited=there)
+    assert (d.x, d.y) != pytest.approx((6.0, 5.0), abs=0.1)
+    cup = ObjectInstance(label="cup", x=6.0, y=5.2, score=0.8, hits=3, confirmed=True)
+    with_cup = snapshot({(6.0, 5.0): 0.9}, [(9.5, 9.5)], objects=[cup])
+    d = decide(with_cup, (5.0, 5.0), ["cup"], DecisionConfig(), visited=there)
+    assert d.kind is GoalKind.OBJECT
+    assert decide(with_cup, (5.0, 5.0), ["cup"], DecisionConfig(), avoid=there).kind is not GoalKind.OBJECT
+
+
 def test_nothing_to_go_to_is_none_and_only_a_frontier_is_the_frontier() -> None:
     assert decide(snapshot({}, []), (5.0, 5.0), ["cup"], DecisionConfig()) is None
     d = decide(snapshot({}, [(1.0, 1.0)]), (5.0, 5.0), ["cup"], DecisionConfig())

@@ -56,6 +56,17 @@ def test_a_small_object_is_reached_at_its_support(truth) -> None:
     assert d == pytest.approx(0.6 + 0.3 - 0.04, abs=0.06)
 
 
+def test_a_class_is_stoppable_only_where_a_reachable_place_is_within_1_m(truth) -> None:
+    assert truth.stoppable_classes(1.5, 1.0) == ["cup", "fridge", "table"]
+    # a 3 m wide table in the office: the cup in its middle is 1.5 m from any free cell
+    scene = two_rooms()
+    table, cup = (o for o in scene.objects if o.cls in ("table", "cup"))
+    wide = scene.model_copy(update={"objects": tuple(
+        o.model_copy(update={"sx": 2.6, "sy": 2.6, "x": 4.5, "y": 1.9}) if o is table else
+        o.model_copy(update={"x": 4.5, "y": 1.9}) if o is cup else o for o in scene.objects)})
+    assert GroundTruth(wide).stoppable_classes(1.5, 1.0) == ["fridge", "table"]
+
+
 def test_an_optimal_path_gets_mspl_1(truth) -> None:
     start = (1.5, 1.0)
     shortest = truth.shortest_tour(start, ["cup"])

@@ -122,6 +122,7 @@ def test_episodes_are_seeded_reachable_and_have_a_small_target(tmp_path, prior) 
         assert len(set(spec.targets)) == 3 and any(prior[t].small for t in spec.targets)
         assert truth.is_free(spec.start.x, spec.start.y)
         assert math.isfinite(truth.shortest_tour((spec.start.x, spec.start.y), spec.targets))
+        assert set(spec.targets) <= set(truth.stoppable_classes(spec.start.x, spec.start.y))
     path = tmp_path / "episodes.jsonl"
     save_episodes([e[0] for e in episodes], path)
     assert load_episodes(path) == [e[0] for e in episodes]

@@ -147,7 +147,8 @@ class SearchAgent:
                 self._decide(snapshot, pose, remaining)  # the close views unconfirmed it
                 continue
             try:
-                action = self.navigator.next_command(self._nav_map(snapshot), pose, (goal.x, goal.y))
+                action = self.navigator.next_command(self._nav_map(snapshot), pose, (goal.x, goal.y),
+                                                     self._snap_radius(goal))
             except Unreachable:
                 self.unreachable.add(goal.x, goal.y, self.task.steps)
                 self._decide(snapshot, pose, remaining)
@@ -188,9 +189,9 @@ class SearchAgent:
     # -- helpers -------------------------------------------------------------------------------
     def _decide(self, snapshot: MapSnapshot, pose: Pose, remaining: list[str],
                 reached: Decision | None = None) -> None:
-        avoid = np.array(self.unreachable.points(self.task.steps) + self.visited
-                         + ([(reached.x, reached.y)] if reached else []), float)
-        self.goal = decide(snapshot, (pose.x, pose.y), remaining, self.config.decision, avoid)
+        visited = self.visited + ([(reached.x, reached.y)] if reached else [])
+        self.goal = decide(snapshot, (pose.x, pose.y), remaining, self.config.decision,
+                           np.array(self.unreachable.points(self.task.steps), float), np.array(visited, float))
         self.decisions += 1
         self._toward_goal = 0
 
@@ -240,6 +241,15 @@ class SearchAgent:
         goal = self.goal
         return goal is not None and goal.kind is not GoalKind.CANDIDATE \
             and self._toward_goal >= self.config.redecide_every
+
+    def _snap_radius(self, goal: Decision) -> float | None:
+        """An object is reached from anywhere its STOP counts (less the navigator's tolerance, so
+        arriving at the snapped point is close enough): an object in the middle of a bed is
+        more than the default snap radius from the nearest free cell, and was never reached."""
+        if goal.kind is not GoalKind.OBJECT:
+            return None
+        nav = self.config.navigation
+        return max(nav.snap_radius_m, self.config.object_stop_m)
 
     def _still_confirmed(self, snapshot: MapSnapshot, goal: Decision) -> bool:
         """The map still holds a confirmed ``goal.label`` at the goal: a STOP is irrevocable, and

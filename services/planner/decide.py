@@ -164,19 +164,23 @@ def away(points: np.ndarray, avoid: np.ndarray, radius: float) -> np.ndarray:
 
 
 def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequence[str],
-           config: DecisionConfig, avoid: np.ndarray | None = None) -> Decision | None:
+           config: DecisionConfig, avoid: np.ndarray | None = None,
+           visited: np.ndarray | None = None) -> Decision | None:
     """The next goal, or None when there is nothing left to go to.
 
     ``avoid`` (K x 2 world xy) are goals that proved unreachable: objects, candidates and
-    frontiers within ``config.avoid_radius_m`` of one are not chosen again.
+    frontiers within ``config.avoid_radius_m`` of one are not chosen again. ``visited`` are
+    places already looked at from close by: candidates and frontiers there are not chosen
+    again, but an object confirmed there is (a value peak is where objects get confirmed).
     """
-    avoid = np.zeros((0, 2)) if avoid is None else np.asarray(avoid, float).reshape(-1, 2)
+    avoid = _points(avoid)
     radius = config.avoid_radius_m
     remaining = searched(remaining, config.policy)
     for obj in snapshot.objects:
         if obj.confirmed and obj.label in remaining and away(np.array([[obj.x, obj.y]]), avoid,
                                                               radius)[0]:
             return Decision(GoalKind.OBJECT, obj.x, obj.y, obj.label)
+    avoid = np.vstack([avoid, _points(visited)])
     frontiers = snapshot.frontiers[away(snapshot.frontiers, avoid, radius)]
     if config.policy is Policy.RANDOM:
         return None  # the agent walks at random between confirmed objects
@@ -196,6 +200,10 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     if config.policy is Policy.GREEDY:
         return _greedy(cands, frontier, values, grid, config)
     return _pouct(cands, frontier, robot_xy, snapshot, config)
+
+
+def _points(xy: np.ndarray | None) -> np.ndarray:
+    return np.zeros((0, 2)) if xy is None else np.asarray(xy, float).reshape(-1, 2)
 
 
 def _greedy(cands: Candidates, frontier: np.ndarray | None, values: np.ndarray, grid: GridGeometry,

@@ -438,6 +438,7 @@ class Navigator:
 
     config: NavigationConfig = field(default_factory=NavigationConfig)
     _goal: tuple[float, float] | None = field(default=None, init=False, repr=False)
+    _snap: float = field(default=0.0, init=False, repr=False)
     _plan: _Plan | None = field(default=None, init=False, repr=False)
     _replans: int = field(default=0, init=False, repr=False)
     _detour: list[_Step] = field(default_factory=list, init=False, repr=False)
@@ -479,19 +480,22 @@ class Navigator:
     # -- the two calls ---------------------------------------------------------------------------
 
     def next_command(self, nav_map: NavMap | MapSnapshot, pose: Pose | Sequence[float],
-                     goal: Sequence[float]) -> Action:
+                     goal: Sequence[float], snap_radius_m: float | None = None) -> Action:
         """The primitive to execute now to get to ``goal`` (world x, y).
 
+        ``snap_radius_m`` overrides the configured one for this goal: an object on a bed is
+        reached from beside the bed, farther than a value peak on a wall is snapped.
         Raises :class:`Unreachable` when the goal is outside the map, walled off, in an
-        obstacle with no reachable cell within ``snap_radius_m``, or when the robot's
+        obstacle with no reachable cell within the snap radius, or when the robot's
         primitives cannot make progress towards it.
         """
         cfg, m = self.config, NavMap.of(nav_map)
         x, y, yaw = (pose.x, pose.y, pose.yaw) if isinstance(pose, Pose) else map(float, pose)
         goal = (float(goal[0]), float(goal[1]))
-        if goal != self._goal:
+        snap = cfg.snap_radius_m if snap_radius_m is None else snap_radius_m
+        if goal != self._goal or snap != self._snap:
             self.reset()
-            self._goal = goal
+            self._goal, self._snap = goal, snap
         tol = cfg.goal_tolerance_m
         if math.hypot(goal[0] - x, goal[1] - y) <= tol:
             return Action.STOP
@@ -595,10 +599,10 @@ class Navigator:
 
     def _make_plan(self, m: NavMap, trav: np.ndarray, cell: tuple[int, int],
                    goal: tuple[float, float]) -> _Plan:
-        cfg, grid = self.config, m.grid
+        grid = m.grid
         name = f"goal ({goal[0]:.2f}, {goal[1]:.2f})"
         goal_cell = np.array([grid.to_cell(*goal)])
-        offsets = _snap_offsets(round(cfg.snap_radius_m / grid.resolution))
+        offsets = _snap_offsets(round(self._snap / grid.resolution))
         candidates = goal_cell + offsets
         inside = ((candidates[:, 0] >= 0) & (candidates[:, 0] < grid.rows) & (candidates[:, 1] >= 0)
                   & (candidates[:, 1] < grid.cols))
@@ -616,7 +620,7 @@ class Navigator:
             blocked = not trav[tuple(goal_cell[0])] if inside[0] else True
             why = ("is in or next to an obstacle" if blocked else "is walled off from the robot")
             raise Unreachable(f"{name} {why}, with no cell reachable from the robot within "
-                              f"{cfg.snap_radius_m} m")
+                              f"{self._snap} m")
         i = int(np.argmax(reachable))
         target_cell = (int(candidates[i, 0]), int(candidates[i, 1]))
         target = goal if i == 0 else grid.to_world(*target_cell)

@@ -33,8 +33,9 @@ def make_episode(base_seed: int, index: int, prior: ObjectPrior | None = None
                  ) -> tuple[EpisodeSpec, Scene, GroundTruth]:
     """Episode ``index`` of the set drawn from ``base_seed``, with its scene and ground truth.
 
-    Targets are distinct classes present in the scene and reachable from the
-    start, at least one of them small (the hard case the method is about).
+    Targets are distinct classes present in the scene that a STOP can succeed for (some place
+    reachable from the start is within 1 m of an instance), at least one of them small (the
+    hard case the method is about).
     """
     prior = prior or ObjectPrior.load()
     rng = np.random.default_rng([base_seed, index])
@@ -42,8 +43,7 @@ def make_episode(base_seed: int, index: int, prior: ObjectPrior | None = None
         scene = generate_scene(int(rng.integers(2**31)), prior)
         truth = GroundTruth(scene)
         start = _random_free_pose(rng, truth)
-        reachable = [c for c in scene.classes()
-                     if math.isfinite(truth.distance_to_class(c, start.x, start.y))]
+        reachable = truth.stoppable_classes(start.x, start.y)
         small = [c for c in reachable if prior[c].small]
         if len(reachable) < TARGETS_PER_EPISODE or not small:
             continue

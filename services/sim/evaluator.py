@@ -103,6 +103,16 @@ class GroundTruth:
         d = self.distance_to_class(cls, x, y)
         return StopResult(cls, d <= SUCCESS_DISTANCE, d)
 
+    def stoppable_classes(self, x: float, y: float) -> list[str]:
+        """The classes a STOP can succeed for somewhere reachable from (x, y). An object in the
+        middle of a large bed or table is more than 1 m from every free cell: an episode that
+        asks for it cannot succeed (the paper's protocol, like Habitat's, only asks for objects
+        with a viewpoint within the success distance)."""
+        row, col = self.grid.to_cell(x, y)
+        from_here = self._graph.from_cells([(row, col)])[0]
+        return [c for c in self.scene.classes()
+                if np.isfinite(from_here[self.class_field(c) <= SUCCESS_DISTANCE]).any()]
+
     def viewpoint(self, obj: SceneObject) -> tuple[float, float]:
         """The reachable cell nearest to an object: where a shortest tour visits it."""
         field = self.object_field(obj.id)

@@ -123,6 +123,11 @@ class SimPerception:
                                          int(cols.max()) + 1, int(rows.max()) + 1)))
         return objects, rooms
 
+    def visible_classes(self, frame: RgbdFrame) -> set[str]:
+        """The object classes in view with enough pixels to be seen at all: what a benchmark
+        compares with the detections to tell an unseen target from a missed one."""
+        return {o.cls for o in self._visible(frame)[0]}
+
     def _pixel_scale(self, frame: RgbdFrame) -> float:
         w, h = self.config.reference_image
         return frame.rgb.shape[0] * frame.rgb.shape[1] / (w * h)
