@@ -243,9 +243,12 @@ class SearchAgent:
             and self._toward_goal >= self.config.redecide_every
 
     def _snap_radius(self, goal: Decision) -> float | None:
-        """An object is reached from anywhere its STOP counts (less the navigator's tolerance, so
-        arriving at the snapped point is close enough): an object in the middle of a bed is
-        more than the default snap radius from the nearest free cell, and was never reached."""
+        """An object is driven to from the nearest free place within its STOP distance: an object
+        in the middle of a bed is farther than the default snap radius from every free cell, and
+        was never reached. The agent STOPs on entering that distance; arriving at a snapped
+        place at its edge can leave the robot just outside, and the object is then given up
+        like any goal the map does not let it reach (0.65 m, which cannot, lost more episodes
+        than it saved: 40 episodes, seed 0)."""
         if goal.kind is not GoalKind.OBJECT:
             return None
         nav = self.config.navigation
