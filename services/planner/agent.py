@@ -247,8 +247,8 @@ class SearchAgent:
         in the middle of a bed is farther than the default snap radius from every free cell, and
         was never reached. The agent STOPs on entering that distance; arriving at a snapped
         place at its edge can leave the robot just outside, and the object is then given up
-        like any goal the map does not let it reach (0.65 m, which cannot, lost more episodes
-        than it saved: 40 episodes, seed 0)."""
+        like any goal the map does not let it reach (0.65 m, which cannot, solved 17 of the first
+        40 episodes of seed 0 against 18, and 0.5 m also 17)."""
         if goal.kind is not GoalKind.OBJECT:
             return None
         nav = self.config.navigation
