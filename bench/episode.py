@@ -141,7 +141,6 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
                 outcome = truth.stop(step.goal.label, pose.x, pose.y)
                 stops.append(StopRecord(step=task.steps + 1, label=step.goal.label, x=pose.x, y=pose.y,
                                         success=outcome.success, distance_m=outcome.distance))
-                funnel.stop(task.steps + 1, step.goal.label, outcome.success)
             agent.executed(step, robot.distance - before, blocked, pose)
             trajectory.append((robot.pose.x, robot.pose.y, robot.pose.yaw))
             if on_step is not None:
@@ -157,6 +156,6 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
         targets=spec.targets, success=success, spl=spl(success, shortest, robot.distance),
         found=found, steps=task.steps, path_m=round(robot.distance, 4), shortest_m=round(shortest, 4),
         state=task.state.value, reason=task.reason, decisions=agent.decisions, blocked=robot.blocked,
-        stops=stops, funnel=funnel.result(), trajectory=[tuple(round(v, 4) for v in p) for p in trajectory],
+        stops=stops, funnel=funnel.result(stops), trajectory=[tuple(round(v, 4) for v in p) for p in trajectory],
         seconds=round(time.perf_counter() - started, 3))
 

@@ -12,8 +12,9 @@ policies never see this record.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from enum import Enum
+from typing import TYPE_CHECKING
 
 import numpy as np
 from pydantic import BaseModel
@@ -22,6 +23,9 @@ from services.sim.occupancy import distance_to_box
 from services.sim.world import Scene
 from shared.detections import Detection
 from shared.messages import ObjectInstance, RgbdFrame
+
+if TYPE_CHECKING:
+    from bench.episode import StopRecord
 
 #: A confirmed map object this close (horizontal, m) to a true instance's footprint is that
 #: instance: about the object map's merge distance, well under the gap between two pieces of
@@ -63,7 +67,8 @@ class TargetFunnel(BaseModel):
 
 
 class FunnelRecorder:
-    """Fed by the episode runner once per step with what the services produced."""
+    """Fed by the episode runner once per step with what the services produced; the STOPs come
+    from the runner's own record at the end."""
 
     def __init__(self, scene: Scene, targets: Sequence[str]) -> None:
         self.scene = scene
@@ -92,16 +97,16 @@ class FunnelRecorder:
             if funnel is not None and funnel.confirmed is None and obj.confirmed and self._true(obj):
                 funnel.confirmed = step
 
-    def stop(self, step: int, label: str, success: bool) -> None:
-        funnel = self.funnels[label]
-        if success:
-            funnel.stopped = step
-        else:
-            funnel.wrong_stops += 1
-
     def _true(self, obj: ObjectInstance) -> bool:
         x, y = np.array([obj.x]), np.array([obj.y])
         return any(float(distance_to_box(o, x, y)[0]) <= TRUE_OBJECT_M for o in self.scene.instances(obj.label))
 
-    def result(self) -> list[TargetFunnel]:
+    def result(self, stops: Iterable[StopRecord]) -> list[TargetFunnel]:
+        """The funnels, with the episode's STOPs (the runner's record of them) as the last stage."""
+        for stop in stops:
+            funnel = self.funnels[stop.label]
+            if stop.success:
+                funnel.stopped = stop.step
+            else:
+                funnel.wrong_stops += 1
         return list(self.funnels.values())

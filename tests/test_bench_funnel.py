@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from bench.episode import StopRecord
 from bench.funnel import FunnelRecorder, Miss, TargetFunnel
 from bench.search import Job, run_job
 from shared.detections import Detection
@@ -45,8 +46,8 @@ def test_only_true_detections_and_true_map_objects_count() -> None:
                      ObjectInstance(label="fridge", x=0.8, y=3.0, score=0.9, hits=1, confirmed=False)])
     recorder.map(6, [ObjectInstance(label="fridge", x=0.8, y=3.0, score=0.9, hits=2, confirmed=True)])
     recorder.frame(7, frame, {"fridge"}, [detection("fridge", frame, 1)])  # later steps keep the first
-    recorder.stop(9, "cup", success=False)
-    cup, fridge = recorder.result()
+    wrong = StopRecord(step=9, label="cup", x=0.0, y=0.0, success=False, distance_m=4.0)
+    cup, fridge = recorder.result([wrong])
     assert (cup.seen, cup.detected, cup.confirmed, cup.wrong_stops) == (None, None, None, 1)
     assert (fridge.seen, fridge.detected, fridge.confirmed, fridge.stopped) == (4, 4, 6, None)
     assert (cup.miss, fridge.miss) == (Miss.WRONG_STOP, Miss.NOT_REACHED)
