@@ -43,12 +43,12 @@ def make_episode(base_seed: int, index: int, prior: ObjectPrior | None = None
         scene = generate_scene(int(rng.integers(2**31)), prior)
         truth = GroundTruth(scene)
         start = _random_free_pose(rng, truth)
-        reachable = truth.stoppable_classes(start.x, start.y)
-        small = [c for c in reachable if prior[c].small]
-        if len(reachable) < TARGETS_PER_EPISODE or not small:
+        stoppable = truth.stoppable_classes(start.x, start.y)
+        small = [c for c in stoppable if prior[c].small]
+        if len(stoppable) < TARGETS_PER_EPISODE or not small:
             continue
         first = str(rng.choice(small))
-        rest = [c for c in reachable if c != first]
+        rest = [c for c in stoppable if c != first]
         others = [str(c) for c in rng.choice(rest, TARGETS_PER_EPISODE - 1, replace=False)]
         spec = EpisodeSpec(episode_id=f"{base_seed}-{index}", scene_seed=scene.seed or 0,
                            start=start, targets=(first, *others))
