@@ -30,7 +30,7 @@ def loopback(port: int) -> str:
 def start_cli(args: Sequence[str], *, stdout: IO | int | None = None,
               stderr: IO | int | None = None) -> subprocess.Popen:
     """Start ``ovamos ARGS...`` with this interpreter in a new process group."""
-    return subprocess.Popen([sys.executable, "-m", "services.cli", *args], stdout=stdout,
+    return subprocess.Popen([sys.executable, "-m", "ovamos.cli", *args], stdout=stdout,
                             stderr=stderr, start_new_session=True)
 
 

@@ -38,7 +38,7 @@ def port_open(port: int) -> bool:
 
 def status_cli(port: int, robot_id: str = "*") -> list[dict]:
     """What ``ovamos status --json`` prints, parsed."""
-    out = subprocess.run([sys.executable, "-m", "services.cli", "status", "--json",
+    out = subprocess.run([sys.executable, "-m", "ovamos.cli", "status", "--json",
                           "--connect", loopback(port), "--robot-id", robot_id, "--timeout", "1"],
                          capture_output=True, text=True, timeout=60, check=True)
     return json.loads(out.stdout)

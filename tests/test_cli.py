@@ -14,7 +14,7 @@ from shared import __version__
 
 
 def ovamos(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "services.cli", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "ovamos.cli", *args], capture_output=True,
                           text=True, timeout=timeout)
 
 
@@ -46,6 +46,39 @@ def test_multicast_config_is_refused(tmp_path: Path) -> None:
 def test_bad_robot_id_is_a_clear_error() -> None:
     out = ovamos("run", "monitor", "--robot-id", "a/b", "--connect", "tcp/127.0.0.1:1")
     assert out.returncode == 2 and "robot id" in out.stderr
+
+
+def _ports(node: dict, kind: str) -> set[tuple[str, str | None]]:
+    return {(p["key"], p["message"]) for p in node.get(kind, [])}
+
+
+def test_graph_json_is_the_declared_topology() -> None:
+    """``ovamos graph --json`` prints shared/topology.py's table: keys in and out with message types."""
+    from shared.topology import TOPOLOGY, graph
+    out = ovamos("graph", "--json")
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout)
+    assert data == graph() and set(data["services"]) == set(TOPOLOGY)
+    planner, mapping = data["services"]["planner"], data["services"]["mapping"]
+    assert ("ovamos/{robot_id}/task/current", "TaskSpec") in _ports(planner, "inputs")
+    assert ("ovamos/{robot_id}/plan/command", "PlanCommand") in _ports(planner, "outputs")
+    assert ("ovamos/{robot_id}/map/snapshot", "MapSnapshot") in _ports(planner, "queries")
+    assert _ports(mapping, "answers") == {("ovamos/{robot_id}/map/snapshot", "MapSnapshot")}
+    # every key a service subscribes to or queries is published or answered by another service,
+    # except the e-stop, which comes from outside (an operator's tool)
+    produced = set().union(*(_ports(n, "outputs") | _ports(n, "answers") for n in data["services"].values()))
+    consumed = set().union(*(_ports(n, "inputs") | _ports(n, "queries") for name, n in data["services"].items()
+                             if name != "monitor"))
+    assert consumed - produced == {("ovamos/{robot_id}/driver/estop", "EStop")}
+
+
+def test_graph_table_has_a_row_per_service() -> None:
+    from shared.topology import TOPOLOGY
+    out = ovamos("graph")
+    assert out.returncode == 0, out.stderr
+    assert all(name in out.stdout for name in TOPOLOGY)
+    for text in ("task/current", "TaskSpec", "plan/command", "PlanCommand", "answers", "ovamos/{robot_id}/"):
+        assert text in out.stdout, text
 
 
 def test_demo_finds_every_target_through_the_http_api_and_cleans_up(tmp_path: Path) -> None:

@@ -137,12 +137,12 @@ def test_the_map_command_draws_the_current_map(service, sender, client, frames, 
     wait_for(lambda: pub_f.put(frames[0]) or (s := query_snapshot(client)) and s.seq == 0,
              what="frame 0 fused")
     endpoint = service[0]
-    out = subprocess.run([sys.executable, "-m", "services.cli", "map", "--robot-id", ROBOT,
+    out = subprocess.run([sys.executable, "-m", "ovamos.cli", "map", "--robot-id", ROBOT,
                           "--connect", endpoint, "--out", str(tmp_path / "map.png")],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert cv2.imread(str(tmp_path / "map.png")) is not None
-    missing = subprocess.run([sys.executable, "-m", "services.cli", "map", "--robot-id", "nobody",
+    missing = subprocess.run([sys.executable, "-m", "ovamos.cli", "map", "--robot-id", "nobody",
                               "--connect", endpoint, "--timeout", "1", "--out", str(tmp_path / "x.png")],
                              capture_output=True, text=True, timeout=60)
     assert missing.returncode == 2 and "no mapping service" in missing.stderr

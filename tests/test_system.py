@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from services.demo import DEMO_EPISODE, DEMO_SEED, demo_entries, write_configs
+from ovamos.demo import DEMO_EPISODE, DEMO_SEED, demo_entries, write_configs
+from ovamos.supervisor import Backoff, Supervisor, port_open
 from services.gateway.client import GatewayClient, GatewayError
 from services.gateway.models import TaskView
 from services.sim.episodes import make_episode
-from services.supervisor import Backoff, Supervisor, port_open
 from shared.procs import free_port, kill
 from tests.polling import wait_for
 

@@ -27,7 +27,7 @@ from bench.episode import scene_mapping
 from services.gateway.client import GatewayClient, GatewayError
 from services.gateway.models import TaskView
 from services.sim.episodes import make_episode
-from services.supervisor import Entry, Supervisor, port_open
+from ovamos.supervisor import Entry, Supervisor, port_open
 from shared.procs import free_port, loopback
 
 DEMO_SEED, DEMO_EPISODE = 0, 5

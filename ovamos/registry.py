@@ -7,8 +7,10 @@ dependencies (torch, MuJoCo) of the services it does not run.
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING
 
-from shared.service import Service
+if TYPE_CHECKING:  # importing shared.service loads Zenoh; profiles only need the names
+    from shared.service import Service
 
 SERVICES: dict[str, str] = {
     "testpattern": "services.diag.service:TestPatternService",
@@ -20,6 +22,7 @@ SERVICES: dict[str, str] = {
     "sim": "services.sim.service:SimRobotService",
     "base_driver": "services.base_driver.service:BaseDriverService",
 }
+
 
 class UnknownServiceError(LookupError):
     """A service name ``ovamos run`` cannot start."""

@@ -1,4 +1,4 @@
-"""A small process supervisor for ``ovamos up PROFILE`` and ``ovamos demo``.
+"""A small process supervisor (behind ``ovamos up PROFILE`` and ``ovamos demo``).
 
 Each service runs as its own ``ovamos`` process (a fresh interpreter, never a
 fork: a fork after a Zenoh session was opened hangs the child's
@@ -18,10 +18,8 @@ header line per start): that is where a person reads why something crashed.
 A log over ``max_log_bytes`` is rotated when its child (re)starts (``.log.1``
 .. ``.log.3``), so a crash loop cannot fill the robot's disk.
 
-A profile (``deploy/profiles/*.toml``) names the router and services of one
-host; :func:`load_profile` validates it completely (unknown keys, missing
-files, unknown services) before anything starts, with errors that name the
-file and the entry.
+What to run comes from elsewhere: a deployment profile (:mod:`ovamos.profiles`,
+``ovamos up``) or the demo (:mod:`ovamos.demo`) hand over a list of :class:`Entry`.
 """
 
 from __future__ import annotations
@@ -32,38 +30,25 @@ import socket
 import subprocess
 import threading
 import time
-import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Self
+from typing import Self
 
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 from rich.table import Table
 
-from services.registry import SERVICES
 from shared.procs import start_cli, stop as stop_process
 
 log = logging.getLogger("ovamos.supervisor")
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-PROFILE_DIR = REPO_ROOT / "deploy" / "profiles"
 DEFAULT_LOG_DIR = Path("state/logs")
-
-# Services a profile may name: what `ovamos run` starts today, plus those being written now
-# (issues 7-9). Naming them here lets profiles for the whole system exist and be checked
-# before every service is registered; `ovamos run` still refuses one that is not built yet.
-KNOWN_SERVICES: frozenset[str] = frozenset(SERVICES) | {"gateway", "perception", "sim", "base_driver"}
 
 
 class SupervisorError(RuntimeError):
     """The supervised system could not be brought up (a router that never opened its port)."""
-
-
-class ProfileError(ValueError):
-    """A profile file that cannot be used; the message names the file and the entry."""
 
 
 # -- entries and restart policy -----------------------------------------------------------------
@@ -112,6 +97,18 @@ def exit_reason(returncode: int) -> str:
         return f"killed by {signal.Signals(-returncode).name}"
     except ValueError:
         return f"killed by signal {-returncode}"
+
+
+def rotate(path: Path, max_bytes: int, keep: int = 3) -> None:
+    """Shift ``path`` to ``path.1`` (``.1`` to ``.2``, ... the oldest dropped) once it is over
+    ``max_bytes``."""
+    if not path.exists() or path.stat().st_size <= max_bytes:
+        return
+    for i in range(keep - 1, 0, -1):
+        older = path.with_name(f"{path.name}.{i}")
+        if older.exists():
+            older.replace(path.with_name(f"{path.name}.{i + 1}"))
+    path.replace(path.with_name(f"{path.name}.1"))
 
 
 # -- supervisor -----------------------------------------------------------------------------
@@ -401,260 +398,3 @@ def status_table(statuses: Sequence[ChildStatus], title: str = "supervised proce
         table.add_row(s.name, s.state.value, str(s.pid or "-"), str(s.restarts), up, s.last_exit or "-",
                       str(s.log_path))
     return table
-
-
-# -- profiles -------------------------------------------------------------------------------
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class RouterSpec(_Strict):
-    """The host's Zenoh router (``ovamos router``); paths are relative to the profile file."""
-
-    name: str = "router"
-    config: Path | None = None
-    listen: list[str] = Field(default_factory=list, description="replace the config's listen endpoints")
-    connect: list[str] = Field(default_factory=list, description="replace the config's connect endpoints")
-
-
-class ServiceSpec(_Strict):
-    """One ``ovamos run SERVICE`` process; paths are relative to the profile file."""
-
-    service: str
-    name: str | None = Field(default=None, description="unique entry name (log file); default: service")
-    config: Path | None = None
-    zenoh: Path | None = None
-    connect: list[str] = Field(default_factory=list, description="replace the Zenoh file's connect endpoints")
-    instance: str = "0"
-    robot_id: str | None = Field(default=None, description="default: the profile's robot_id")
-    delay_s: float = Field(default=0.0, ge=0, description="start this long after the previous service")
-
-    @property
-    def entry_name(self) -> str:
-        return self.name or (self.service if self.instance == "0" else f"{self.service}-{self.instance}")
-
-
-class Profile(_Strict):
-    """What ``ovamos up`` runs on one host."""
-
-    description: str = ""
-    robot_id: str = "robot1"
-    router: RouterSpec | None = None
-    services: list[ServiceSpec] = Field(default_factory=list)
-    restart: Backoff = Field(default_factory=Backoff)
-    stop_timeout_s: float = Field(default=10.0, gt=0, description="SIGTERM, then SIGKILL after this")
-    _source: Path = PrivateAttr(default=Path("<memory>"))
-
-    @property
-    def source(self) -> Path:
-        """The file it was loaded from (named in every error)."""
-        return self._source
-
-    def entries(self, router_connect: Sequence[str] | None = None,
-                endpoint: str | None = None) -> list[Entry]:
-        """The processes to supervise.
-
-        ``router_connect`` replaces the router's connect endpoints (``--connect-laptop``
-        on the robot); ``endpoint`` moves the router there and connects every service
-        to it (tests and the demo use a free port rather than the shipped one).
-        """
-        found = [self._router_entry(router_connect, endpoint)] if self.router is not None else []
-        return found + [self._service_entry(s, endpoint) for s in self.services]
-
-    def _router_entry(self, connect: Sequence[str] | None, endpoint: str | None) -> Entry:
-        assert self.router is not None
-        router = self.router
-        listen = [endpoint] if endpoint else router.listen
-        connect = list(connect) if connect is not None else router.connect
-        argv = ["router", *_opt("--config", router.config), *_repeat("--listen", listen),
-                *_repeat("--connect", connect)]
-        return Entry(router.name, tuple(argv), ready=self._router_address(listen))
-
-    def _router_address(self, listen: list[str]) -> tuple[str, int]:
-        """Where the router listens, from its config and overrides: what the services wait for."""
-        from shared.zconfig import ZenohConfigError, build_config
-        assert self.router is not None
-        try:
-            cfg = build_config("router", file=self.router.config, listen=listen)
-        except ZenohConfigError as exc:
-            raise ProfileError(f"{self.source}: router: {exc}") from None
-        for address in map(tcp_address, _flat_endpoints(cfg.get_json("listen/endpoints"))):
-            if address is not None:
-                return address
-        raise ProfileError(f"{self.source}: router: no tcp listen endpoint to wait for")
-
-    def _service_entry(self, spec: ServiceSpec, endpoint: str | None) -> Entry:
-        argv = ["run", spec.service, "--robot-id", spec.robot_id or self.robot_id,
-                "--instance", spec.instance, *_opt("--config", spec.config), *_opt("--zenoh", spec.zenoh),
-                *_repeat("--connect", [endpoint] if endpoint else spec.connect)]
-        return Entry(spec.entry_name, tuple(argv), delay_s=spec.delay_s)
-
-
-def _opt(flag: str, value: Path | None) -> list[str]:
-    return [flag, str(value)] if value is not None else []
-
-
-def _repeat(flag: str, values: Sequence[str]) -> list[str]:
-    return [arg for value in values for arg in (flag, value)]
-
-
-def _flat_endpoints(raw_json: str) -> list[str]:
-    """Zenoh endpoints are a list, or per mode ``{"router": [...], ...}``."""
-    import json
-    value = json.loads(raw_json)
-    if isinstance(value, dict):
-        return [e for per_mode in value.values() for e in per_mode]
-    return list(value or [])
-
-
-def tcp_address(endpoint: str) -> tuple[str, int] | None:
-    """(host, port) of a ``tcp/HOST:PORT`` endpoint to probe; a wildcard host is probed on loopback."""
-    if not endpoint.startswith("tcp/"):
-        return None
-    host, _, port = endpoint[4:].split("#")[0].rpartition(":")
-    if not port.isdigit() or not host:
-        return None
-    host = host.strip("[]")
-    return ("127.0.0.1" if host in ("0.0.0.0", "::") else host), int(port)
-
-
-def laptop_endpoint(address: str) -> str:
-    """``HOST:PORT`` (from ``--connect-laptop``) as a Zenoh endpoint, or a clear error."""
-    host, _, port = address.rpartition(":")
-    if not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise ProfileError(f"--connect-laptop wants HOST:PORT (e.g. 192.168.1.10:7447), not {address!r}")
-    return f"tcp/{host}:{port}"
-
-
-def resolve_profile(name_or_path: str | Path) -> Path:
-    """A profile file path, or a shipped profile's name (``all``, ``laptop``, ``robot``)."""
-    path = Path(name_or_path)
-    if path.suffix == ".toml" or path.exists():
-        return path
-    shipped = PROFILE_DIR / f"{name_or_path}.toml"
-    if shipped.exists():
-        return shipped
-    names = ", ".join(sorted(p.stem for p in PROFILE_DIR.glob("*.toml")))
-    raise ProfileError(f"unknown profile {str(name_or_path)!r}: give a .toml file or one of: {names}")
-
-
-def load_profile(path: str | Path) -> Profile:
-    """Read and fully check a profile; every problem is a :class:`ProfileError` naming file and entry.
-
-    Relative paths in the file are taken from the file's folder (so ``ovamos up``
-    works from any directory) and come back absolute.
-    """
-    path = Path(path)
-    try:
-        raw = tomllib.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise ProfileError(f"cannot read profile {path}: {exc}") from None
-    try:
-        profile = Profile.model_validate(raw)
-    except ValidationError as exc:
-        raise ProfileError(f"{path}: " + "; ".join(_describe(e, raw) for e in exc.errors())) from None
-    profile._source = path
-    _resolve_paths(profile, path.parent.resolve())
-    _check(profile)
-    return profile
-
-
-def _describe(error: Any, raw: dict[str, Any]) -> str:
-    """``services[2] (mapping): bogus: Extra inputs are not permitted`` from a pydantic error."""
-    loc = list(error["loc"])
-    where = ""
-    if len(loc) >= 2 and loc[0] == "services" and isinstance(loc[1], int):
-        item = raw.get("services", [])[loc[1]]
-        label = item.get("name") or item.get("service") if isinstance(item, dict) else None
-        where = f"services[{loc[1]}]" + (f" ({label})" if label else "")
-        loc = loc[2:]
-    field_path = ".".join(map(str, loc))
-    return ": ".join(p for p in (where, field_path, error["msg"]) if p)
-
-
-def _resolve_paths(profile: Profile, base: Path) -> None:
-    def absolute(p: Path | None) -> Path | None:
-        return p if p is None or p.is_absolute() else (base / p).resolve()
-    if profile.router is not None:
-        profile.router.config = absolute(profile.router.config)
-    for spec in profile.services:
-        spec.config, spec.zenoh = absolute(spec.config), absolute(spec.zenoh)
-
-
-def _check(profile: Profile) -> None:
-    """Unknown services, missing files and duplicate names, each reported with its entry."""
-    problems: list[str] = []
-    router = profile.router
-    if router is not None and router.config is not None and not router.config.is_file():
-        problems.append(f"router: config file {router.config} does not exist")
-    names = [router.name] if router is not None else []
-    for i, spec in enumerate(profile.services):
-        problems += _service_problems(f"services[{i}] ({spec.entry_name})", spec, names)
-        names.append(spec.entry_name)
-    if not names:
-        problems.append("no router and no services: nothing to run")
-    if problems:
-        raise ProfileError(f"{profile.source}: " + "; ".join(problems))
-
-
-def _service_problems(where: str, spec: ServiceSpec, taken: list[str]) -> list[str]:
-    problems = []
-    if spec.service not in KNOWN_SERVICES:
-        problems.append(f"{where}: unknown service {spec.service!r}; "
-                        f"known: {', '.join(sorted(KNOWN_SERVICES))}")
-    for what, p in (("config", spec.config), ("zenoh", spec.zenoh)):
-        if p is not None and not p.is_file():
-            problems.append(f"{where}: {what} file {p} does not exist")
-    if spec.entry_name in taken:
-        problems.append(f"{where}: name {spec.entry_name!r} is used twice (set a unique name)")
-    return problems
-
-
-def check_service_configs(profile: Profile) -> None:
-    """Validate each service's config file against its service's model, before anything starts.
-
-    Services not registered yet (being written) cannot be checked here;
-    ``ovamos run`` reports them when it starts them.
-    """
-    from services.registry import UnknownServiceError, service_class
-    from shared.service import ServiceConfigError, load_config
-    problems: list[str] = []
-    for i, spec in enumerate(profile.services):
-        try:
-            cls = service_class(spec.service)
-        except UnknownServiceError:
-            continue
-        try:
-            load_config(cls, spec.config)
-        except ServiceConfigError as exc:
-            problems.append(f"services[{i}] ({spec.entry_name}): {exc}")
-    if problems:
-        raise ProfileError(f"{profile.source}: " + "; ".join(problems))
-
-
-def rotate(path: Path, max_bytes: int, keep: int = 3) -> None:
-    """Shift ``path`` to ``path.1`` (``.1`` to ``.2``, ... the oldest dropped) once it is over
-    ``max_bytes``."""
-    if not path.exists() or path.stat().st_size <= max_bytes:
-        return
-    for i in range(keep - 1, 0, -1):
-        older = path.with_name(f"{path.name}.{i}")
-        if older.exists():
-            older.replace(path.with_name(f"{path.name}.{i + 1}"))
-    path.replace(path.with_name(f"{path.name}.1"))
-
-
-def supervisor_for(profile: str | Path, *, log_dir: Path = DEFAULT_LOG_DIR,
-                   connect_laptop: str | None = None, endpoint: str | None = None,
-                   check_configs: bool = True) -> Supervisor:
-    """What ``ovamos up PROFILE`` runs: the profile loaded, checked and turned into a supervisor.
-
-    ``endpoint`` runs the profile's router there instead of its shipped port (see
-    :meth:`Profile.entries`).
-    """
-    loaded = load_profile(resolve_profile(profile))
-    if check_configs:
-        check_service_configs(loaded)
-    connect = [laptop_endpoint(connect_laptop)] if connect_laptop else None
-    return Supervisor(loaded.entries(router_connect=connect, endpoint=endpoint), log_dir=log_dir,
-                      backoff=loaded.restart, stop_timeout_s=loaded.stop_timeout_s)

@@ -82,7 +82,7 @@ def run(service: Annotated[str, typer.Argument(help="Service to run.")],
         zenoh_file: ZenohFile = None, connect: Connect = None, listen: Listen = None,
         log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Run one service until SIGINT / SIGTERM."""
-    from services.registry import UnknownServiceError, service_class
+    from ovamos.registry import UnknownServiceError, service_class
     from shared.keys import KeyExprError
     from shared.service import ServiceConfigError, load_config, run_service
     setup_logging(json_lines=log_json, level=log_level)
@@ -104,7 +104,8 @@ def up(profile: Annotated[str, typer.Argument(help="all | laptop | robot, or a p
        = None,
        log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Run a deployment profile: its router, then its services; restart crashed ones; Ctrl-C stops all."""
-    from services.supervisor import ProfileError, SupervisorError, status_table, supervisor_for
+    from ovamos.profiles import ProfileError, supervisor_for
+    from ovamos.supervisor import SupervisorError, status_table
     setup_logging(json_lines=log_json, level=log_level)
     try:
         sup = supervisor_for(profile, log_dir=log_dir, connect_laptop=connect_laptop)
@@ -167,6 +168,45 @@ def status(robot_id: RobotId = "*", zenoh_file: ZenohFile = None, connect: Conne
     console.print(table)
 
 
+def _port_lines(ports: list[dict], note: str = "") -> list[str]:
+    """``task/current  TaskSpec`` per port, the common ``ovamos/{robot_id}/`` prefix left out."""
+    lines = []
+    for port in ports:
+        notes = [note] if note else []
+        if port.get("keep_latest"):
+            notes.append("latest" if port["keep_latest"] == 1 else f"latest {port['keep_latest']}")
+        lines.append(f"{port['key'].removeprefix(GRAPH_PREFIX)}  [cyan]{port['message'] or 'any'}[/cyan]"
+                     + (f" ({', '.join(notes)})" if notes else ""))
+    return lines
+
+
+GRAPH_PREFIX = "ovamos/{robot_id}/"
+
+
+def graph_table(data: dict) -> Table:
+    """``ovamos graph`` for people: one row per service, its keys in and out with their message types."""
+    table = Table("service", "inputs", "outputs", show_lines=True,
+                  title=f"the services' dataflow (keys under {GRAPH_PREFIX})",
+                  caption="latest: only the newest sample is kept while the service is busy; "
+                          "get: queries the key; answers: replies to gets on it")
+    for name, node in data["services"].items():
+        inputs = _port_lines(node["inputs"]) + _port_lines(node.get("queries", []), "get")
+        outputs = _port_lines(node["outputs"]) + _port_lines(node.get("answers", []), "answers")
+        table.add_row(name, "\n".join(inputs) or "-", "\n".join(outputs) or "-")
+    return table
+
+
+@app.command()
+def graph(as_json: AsJson = False) -> None:
+    """The services' dataflow (shared/topology.py): each service's keys in and out, with message types."""
+    from shared.topology import graph as dataflow
+    data = dataflow()
+    if as_json:
+        print(json.dumps(data))
+    else:
+        console.print(graph_table(data))
+
+
 @app.command()
 def demo(seed: Annotated[int, typer.Option(help="Episode set seed.")] = 0,
          episode: Annotated[int, typer.Option(help="Episode index (scene, start, targets).")] = 5,
@@ -177,7 +217,7 @@ def demo(seed: Annotated[int, typer.Option(help="Episode set seed.")] = 0,
          out: Annotated[Path, typer.Option(help="Folder for the report, map, configs and logs.")]
          = Path("out/demo")) -> None:
     """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
-    from services.demo import run_demo
+    from ovamos.demo import run_demo
     try:
         code = run_demo(console, out_dir=out, seed=seed, episode=episode, targets=targets,
                         keep_running=keep_running, timeout_s=timeout)

@@ -1,0 +1,266 @@
+"""Deployment profiles: what ``ovamos up PROFILE`` runs on one host.
+
+A profile (``deploy/profiles/*.toml``) names the router and the services of one
+host, each with its config and Zenoh files; :func:`load_profile` validates it
+completely (unknown keys, missing files, unknown services) before anything
+starts, with errors that name the file and the entry, and
+:func:`check_service_configs` checks each service's config file against its
+service's model. :func:`supervisor_for` turns a profile into the
+:class:`~ovamos.supervisor.Supervisor` that runs it.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field, PrivateAttr, ValidationError
+
+from ovamos.registry import SERVICES
+from ovamos.supervisor import DEFAULT_LOG_DIR, Backoff, Entry, Supervisor
+from shared.config import StrictModel
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+PROFILE_DIR = REPO_ROOT / "deploy" / "profiles"
+
+
+class ProfileError(ValueError):
+    """A profile file that cannot be used; the message names the file and the entry."""
+
+
+class RouterSpec(StrictModel):
+    """The host's Zenoh router (``ovamos router``); paths are relative to the profile file."""
+
+    name: str = "router"
+    config: Path | None = None
+    listen: list[str] = Field(default_factory=list, description="replace the config's listen endpoints")
+    connect: list[str] = Field(default_factory=list, description="replace the config's connect endpoints")
+
+
+class ServiceSpec(StrictModel):
+    """One ``ovamos run SERVICE`` process; paths are relative to the profile file."""
+
+    service: str
+    name: str | None = Field(default=None, description="unique entry name (log file); default: service")
+    config: Path | None = None
+    zenoh: Path | None = None
+    connect: list[str] = Field(default_factory=list, description="replace the Zenoh file's connect endpoints")
+    instance: str = "0"
+    robot_id: str | None = Field(default=None, description="default: the profile's robot_id")
+    delay_s: float = Field(default=0.0, ge=0, description="start this long after the previous service")
+
+    @property
+    def entry_name(self) -> str:
+        return self.name or (self.service if self.instance == "0" else f"{self.service}-{self.instance}")
+
+
+class Profile(StrictModel):
+    """What ``ovamos up`` runs on one host."""
+
+    description: str = ""
+    robot_id: str = "robot1"
+    router: RouterSpec | None = None
+    services: list[ServiceSpec] = Field(default_factory=list)
+    restart: Backoff = Field(default_factory=Backoff)
+    stop_timeout_s: float = Field(default=10.0, gt=0, description="SIGTERM, then SIGKILL after this")
+    _source: Path = PrivateAttr(default=Path("<memory>"))
+
+    @property
+    def source(self) -> Path:
+        """The file it was loaded from (named in every error)."""
+        return self._source
+
+    def entries(self, router_connect: Sequence[str] | None = None,
+                endpoint: str | None = None) -> list[Entry]:
+        """The processes to supervise.
+
+        ``router_connect`` replaces the router's connect endpoints (``--connect-laptop``
+        on the robot); ``endpoint`` moves the router there and connects every service
+        to it (tests and the demo use a free port rather than the shipped one).
+        """
+        found = [self._router_entry(router_connect, endpoint)] if self.router is not None else []
+        return found + [self._service_entry(s, endpoint) for s in self.services]
+
+    def _router_entry(self, connect: Sequence[str] | None, endpoint: str | None) -> Entry:
+        assert self.router is not None
+        router = self.router
+        listen = [endpoint] if endpoint else router.listen
+        connect = list(connect) if connect is not None else router.connect
+        argv = ["router", *_opt("--config", router.config), *_repeat("--listen", listen),
+                *_repeat("--connect", connect)]
+        return Entry(router.name, tuple(argv), ready=self._router_address(listen))
+
+    def _router_address(self, listen: list[str]) -> tuple[str, int]:
+        """Where the router listens, from its config and overrides: what the services wait for."""
+        from shared.zconfig import ZenohConfigError, build_config
+        assert self.router is not None
+        try:
+            cfg = build_config("router", file=self.router.config, listen=listen)
+        except ZenohConfigError as exc:
+            raise ProfileError(f"{self.source}: router: {exc}") from None
+        for address in map(tcp_address, _flat_endpoints(cfg.get_json("listen/endpoints"))):
+            if address is not None:
+                return address
+        raise ProfileError(f"{self.source}: router: no tcp listen endpoint to wait for")
+
+    def _service_entry(self, spec: ServiceSpec, endpoint: str | None) -> Entry:
+        argv = ["run", spec.service, "--robot-id", spec.robot_id or self.robot_id,
+                "--instance", spec.instance, *_opt("--config", spec.config), *_opt("--zenoh", spec.zenoh),
+                *_repeat("--connect", [endpoint] if endpoint else spec.connect)]
+        return Entry(spec.entry_name, tuple(argv), delay_s=spec.delay_s)
+
+
+def _opt(flag: str, value: Path | None) -> list[str]:
+    return [flag, str(value)] if value is not None else []
+
+
+def _repeat(flag: str, values: Sequence[str]) -> list[str]:
+    return [arg for value in values for arg in (flag, value)]
+
+
+def _flat_endpoints(raw_json: str) -> list[str]:
+    """Zenoh endpoints are a list, or per mode ``{"router": [...], ...}``."""
+    value = json.loads(raw_json)
+    if isinstance(value, dict):
+        return [e for per_mode in value.values() for e in per_mode]
+    return list(value or [])
+
+
+def tcp_address(endpoint: str) -> tuple[str, int] | None:
+    """(host, port) of a ``tcp/HOST:PORT`` endpoint to probe; a wildcard host is probed on loopback."""
+    if not endpoint.startswith("tcp/"):
+        return None
+    host, _, port = endpoint[4:].split("#")[0].rpartition(":")
+    if not port.isdigit() or not host:
+        return None
+    host = host.strip("[]")
+    return ("127.0.0.1" if host in ("0.0.0.0", "::") else host), int(port)
+
+
+def laptop_endpoint(address: str) -> str:
+    """``HOST:PORT`` (from ``--connect-laptop``) as a Zenoh endpoint, or a clear error."""
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ProfileError(f"--connect-laptop wants HOST:PORT (e.g. 192.168.1.10:7447), not {address!r}")
+    return f"tcp/{host}:{port}"
+
+
+def resolve_profile(name_or_path: str | Path) -> Path:
+    """A profile file path, or a shipped profile's name (``all``, ``laptop``, ``robot``)."""
+    path = Path(name_or_path)
+    if path.suffix == ".toml" or path.exists():
+        return path
+    shipped = PROFILE_DIR / f"{name_or_path}.toml"
+    if shipped.exists():
+        return shipped
+    names = ", ".join(sorted(p.stem for p in PROFILE_DIR.glob("*.toml")))
+    raise ProfileError(f"unknown profile {str(name_or_path)!r}: give a .toml file or one of: {names}")
+
+
+def load_profile(path: str | Path) -> Profile:
+    """Read and fully check a profile; every problem is a :class:`ProfileError` naming file and entry.
+
+    Relative paths in the file are taken from the file's folder (so ``ovamos up``
+    works from any directory) and come back absolute.
+    """
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ProfileError(f"cannot read profile {path}: {exc}") from None
+    try:
+        profile = Profile.model_validate(raw)
+    except ValidationError as exc:
+        raise ProfileError(f"{path}: " + "; ".join(_describe(e, raw) for e in exc.errors())) from None
+    profile._source = path
+    _resolve_paths(profile, path.parent.resolve())
+    _check(profile)
+    return profile
+
+
+def _describe(error: Any, raw: dict[str, Any]) -> str:
+    """``services[2] (mapping): bogus: Extra inputs are not permitted`` from a pydantic error."""
+    loc = list(error["loc"])
+    where = ""
+    if len(loc) >= 2 and loc[0] == "services" and isinstance(loc[1], int):
+        item = raw.get("services", [])[loc[1]]
+        label = item.get("name") or item.get("service") if isinstance(item, dict) else None
+        where = f"services[{loc[1]}]" + (f" ({label})" if label else "")
+        loc = loc[2:]
+    field_path = ".".join(map(str, loc))
+    return ": ".join(p for p in (where, field_path, error["msg"]) if p)
+
+
+def _resolve_paths(profile: Profile, base: Path) -> None:
+    def absolute(p: Path | None) -> Path | None:
+        return p if p is None or p.is_absolute() else (base / p).resolve()
+    if profile.router is not None:
+        profile.router.config = absolute(profile.router.config)
+    for spec in profile.services:
+        spec.config, spec.zenoh = absolute(spec.config), absolute(spec.zenoh)
+
+
+def _check(profile: Profile) -> None:
+    """Unknown services, missing files and duplicate names, each reported with its entry."""
+    problems: list[str] = []
+    router = profile.router
+    if router is not None and router.config is not None and not router.config.is_file():
+        problems.append(f"router: config file {router.config} does not exist")
+    names = [router.name] if router is not None else []
+    for i, spec in enumerate(profile.services):
+        problems += _service_problems(f"services[{i}] ({spec.entry_name})", spec, names)
+        names.append(spec.entry_name)
+    if not names:
+        problems.append("no router and no services: nothing to run")
+    if problems:
+        raise ProfileError(f"{profile.source}: " + "; ".join(problems))
+
+
+def _service_problems(where: str, spec: ServiceSpec, taken: list[str]) -> list[str]:
+    problems = []
+    if spec.service not in SERVICES:
+        problems.append(f"{where}: unknown service {spec.service!r}; "
+                        f"known: {', '.join(sorted(SERVICES))}")
+    for what, p in (("config", spec.config), ("zenoh", spec.zenoh)):
+        if p is not None and not p.is_file():
+            problems.append(f"{where}: {what} file {p} does not exist")
+    if spec.entry_name in taken:
+        problems.append(f"{where}: name {spec.entry_name!r} is used twice (set a unique name)")
+    return problems
+
+
+def check_service_configs(profile: Profile) -> None:
+    """Validate each service's config file against its service's model, before anything starts.
+
+    This imports each named service (lazily, see :mod:`ovamos.registry`), so it
+    is a separate step from :func:`load_profile`.
+    """
+    from ovamos.registry import UnknownServiceError, service_class
+    from shared.service import ServiceConfigError, load_config
+    problems: list[str] = []
+    for i, spec in enumerate(profile.services):
+        try:
+            load_config(service_class(spec.service), spec.config)
+        except (UnknownServiceError, ServiceConfigError) as exc:
+            problems.append(f"services[{i}] ({spec.entry_name}): {exc}")
+    if problems:
+        raise ProfileError(f"{profile.source}: " + "; ".join(problems))
+
+
+def supervisor_for(profile: str | Path, *, log_dir: Path = DEFAULT_LOG_DIR,
+                   connect_laptop: str | None = None, endpoint: str | None = None,
+                   check_configs: bool = True) -> Supervisor:
+    """What ``ovamos up PROFILE`` runs: the profile loaded, checked and turned into a supervisor.
+
+    ``endpoint`` runs the profile's router there instead of its shipped port (see
+    :meth:`Profile.entries`).
+    """
+    loaded = load_profile(resolve_profile(profile))
+    if check_configs:
+        check_service_configs(loaded)
+    connect = [laptop_endpoint(connect_laptop)] if connect_laptop else None
+    return Supervisor(loaded.entries(router_connect=connect, endpoint=endpoint), log_dir=log_dir,
+                      backoff=loaded.restart, stop_timeout_s=loaded.stop_timeout_s)
