@@ -8,31 +8,20 @@ process.
 
 from __future__ import annotations
 
-import json
 import logging
 import signal
 import threading
 import time
-import tomllib
 from pathlib import Path
 from typing import Any, ClassVar
 
 import zenoh
-from pydantic import BaseModel, ConfigDict, ValidationError
-
 from shared.bus import Bus
+from shared.config import ServiceConfig, ServiceConfigError, read_config
+
+__all__ = ["Service", "ServiceConfig", "ServiceConfigError", "load_config", "run_service"]
 
 log = logging.getLogger("ovamos.service")
-
-
-class ServiceConfigError(ValueError):
-    """A service config file that cannot be read or does not fit the service."""
-
-
-class ServiceConfig(BaseModel):
-    """Base of every service's config: unknown keys are errors (typos must not pass)."""
-
-    model_config = ConfigDict(extra="forbid")
 
 
 class Service:
@@ -65,23 +54,7 @@ class Service:
 def load_config(cls: type[Service], path: str | Path | None, overrides: dict[str, Any] | None = None
                 ) -> ServiceConfig:
     """Read a service config (TOML or JSON) and validate it against the service's model."""
-    data: dict[str, Any] = {}
-    if path is not None:
-        path = Path(path)
-        try:
-            text = path.read_text()
-            data = tomllib.loads(text) if path.suffix.lower() == ".toml" else json.loads(text)
-        except (OSError, ValueError) as exc:
-            raise ServiceConfigError(f"cannot read config {path}: {exc}") from None
-        if not isinstance(data, dict):
-            raise ServiceConfigError(f"config {path} must hold a table/object of settings, "
-                                     f"not {type(data).__name__}")
-    data.update(overrides or {})
-    try:
-        return cls.Config.model_validate(data)
-    except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
-        raise ServiceConfigError(f"invalid config for {cls.name}: {problems}") from None
+    return read_config(cls.Config, path, overrides, what=f"config for {cls.name}")
 
 
 def install_signal_handlers(stop: threading.Event) -> None:

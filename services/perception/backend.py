@@ -14,7 +14,7 @@ from typing import Protocol, runtime_checkable
 from services.perception.config import PerceptionServiceConfig
 from shared.detections import Detection
 from shared.messages import RgbdFrame
-from shared.service import ServiceConfigError
+from shared.config import ServiceConfigError
 
 
 class FrameRejected(ValueError):

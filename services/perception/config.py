@@ -5,17 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from services.sim.perception import SimPerceptionConfig
-from shared.service import ServiceConfig
+from shared.config import ServiceConfig, StrictModel
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class SimBackendConfig(_Strict):
+class SimBackendConfig(StrictModel):
     """Where the simulated perception gets its scene: a scene file, else an episode's scene.
 
     The scene must be the one the simulated robot renders (same file, or the
@@ -29,7 +25,7 @@ class SimBackendConfig(_Strict):
     perception: SimPerceptionConfig = SimPerceptionConfig()
 
 
-class HfBackendConfig(_Strict):
+class HfBackendConfig(StrictModel):
     """Real models through transformers, from local directories only (never a download).
 
     Each directory holds what ``save_pretrained`` (or ``hf download --local-dir``)
@@ -53,7 +49,7 @@ class HfBackendConfig(_Strict):
     max_detections: int = Field(default=20, ge=1)
 
 
-class FrameLimits(_Strict):
+class FrameLimits(StrictModel):
     """Frames outside these limits are rejected (counted as malformed) before any model sees them."""
 
     min_side: int = Field(default=32, ge=1, description="pixels; smaller images break the detectors")

@@ -1,0 +1,97 @@
+"""The services' dataflow, declared once: what each service takes in and puts out.
+
+This table is the architecture in data (like a dora dataflow or ``ros2 node
+info``): services wire themselves from it (:meth:`shared.service.Service.wire`),
+so a key a service uses but does not declare cannot exist, and ``ovamos graph``
+prints it. Keys are named by their builder in :mod:`shared.keys`; every key is
+under ``ovamos/<robot_id>/``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from shared import keys
+from shared.messages import (DriverState, EStop, MapSnapshot, Odometry, PerceptionResult, PlanCommand,
+                             RgbdFrame, TaskEvent, TaskSpec)
+
+__all__ = ["Port", "Node", "TOPOLOGY", "graph"]
+
+
+@dataclass(frozen=True)
+class Port:
+    """One key a service uses, with its message type.
+
+    ``keep``: for inputs, 0 = every message, in order; n > 0 = only the newest n are
+    kept while the service is busy (frames, maps, odometry: a slow consumer drops
+    stale samples, counted, instead of queueing them without bound).
+    """
+
+    name: str
+    message: type | None  # None: raw payloads of any type (monitoring)
+    keep: int = 0
+
+    def key(self, robot_id: str) -> str:
+        return getattr(keys, self.name)(robot_id)
+
+    def describe(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"key": self.key("{robot_id}"),
+                               "message": None if self.message is None else self.message.__name__}
+        if self.keep:
+            out["keep_latest"] = self.keep
+        return out
+
+
+@dataclass(frozen=True)
+class Node:
+    """A service's ports: subscriptions, publications, queryables it answers, keys it queries."""
+
+    inputs: tuple[Port, ...] = ()
+    outputs: tuple[Port, ...] = ()
+    answers: tuple[Port, ...] = ()
+    queries: tuple[Port, ...] = ()
+
+    def port(self, kind: str, name: str) -> Port:
+        for port in getattr(self, kind):
+            if port.name == name:
+                return port
+        raise KeyError(f"no {kind[:-1]} {name!r} declared")
+
+
+_DRIVER = Node(inputs=(Port("plan_command", PlanCommand), Port("estop", EStop)),
+               outputs=(Port("odom", Odometry), Port("driver_state", DriverState)))
+
+TOPOLOGY: dict[str, Node] = {
+    "sim": Node(inputs=_DRIVER.inputs, outputs=(*_DRIVER.outputs, Port("rgbd", RgbdFrame))),
+    "base_driver": _DRIVER,
+    "perception": Node(inputs=(Port("task_current", TaskSpec), Port("task_events", TaskEvent),
+                               Port("rgbd", RgbdFrame, keep=1)),
+                       outputs=(Port("perception_result", PerceptionResult),)),
+    "mapping": Node(inputs=(Port("rgbd", RgbdFrame, keep=1), Port("perception_result", PerceptionResult)),
+                    outputs=(Port("map_snapshot", MapSnapshot),),
+                    answers=(Port("map_snapshot", MapSnapshot),)),
+    "planner": Node(inputs=(Port("task_current", TaskSpec), Port("driver_state", DriverState),
+                            Port("odom", Odometry, keep=1), Port("map_snapshot", MapSnapshot, keep=1)),
+                    outputs=(Port("plan_command", PlanCommand), Port("task_events", TaskEvent)),
+                    queries=(Port("map_snapshot", MapSnapshot),)),
+    "gateway": Node(inputs=(Port("task_events", TaskEvent),),
+                    outputs=(Port("task_current", TaskSpec),),
+                    queries=(Port("map_snapshot", MapSnapshot),)),
+    "testpattern": Node(outputs=(Port("rgbd", RgbdFrame),)),
+    "monitor": Node(inputs=(Port("robot_all", None),)),
+}
+
+
+def graph() -> dict[str, Any]:
+    """The table as plain data: ``{"services": {name: {"inputs": [...], "outputs": [...], ...}}}``."""
+    services: dict[str, Any] = {}
+    for name, node in TOPOLOGY.items():
+        entry: dict[str, Any] = {"inputs": [p.describe() for p in node.inputs],
+                                 "outputs": [p.describe() for p in node.outputs]}
+        if node.answers:
+            entry["answers"] = [p.describe() for p in node.answers]
+        if node.queries:
+            entry["queries"] = [p.describe() for p in node.queries]
+        services[name] = entry
+    return {"services": services}
