@@ -59,7 +59,7 @@ def _echo(variant: str, endpoint: str, stop_event: Any) -> None:
         with Bus.open(cfg, ROBOT, "bench-echo") as bus:
             ack_pub = bus.publisher(OVAMOS_ACK, Ack)
             bus.subscribe(OVAMOS_FRAME, RgbdFrame, lambda f: ack_pub.put(Ack(seq=f.seq)),
-                          latest_only=True)
+                          keep=1)
             stop_event.wait()
 
 

@@ -6,11 +6,14 @@ guarantees for free: payloads are validated on receipt, a malformed one is
 logged, counted and dropped, a handler that raises is logged and counted, and
 neither ever reaches Zenoh's threads (which would swallow the exception).
 
-Threads: a plain subscription runs its handler on a Zenoh thread, one per
-subscription; a ``latest_only`` subscription hands samples to its own worker
-thread through a one-slot mailbox, so a slow consumer drops stale frames
-(counted) instead of queueing them without bound. Handlers of different
-subscriptions can run concurrently: services lock their shared state.
+Threads: Zenoh's callbacks only enqueue on the bus's :class:`~shared.inbox.Inbox`;
+handlers, query answers and request replies all run on one thread, the inbox's
+taker (a service's main loop, see :func:`shared.service.run_service`, or a
+dispatcher thread of the bus for tools). A service's handlers therefore never
+run concurrently with each other or with its tick, and need no locks. A
+``keep=n`` subscription keeps only its newest ``n`` samples while the service
+is busy, so a slow consumer drops stale frames (counted) instead of queueing
+them without bound.
 """
 
 from __future__ import annotations
@@ -20,12 +23,13 @@ import os
 import threading
 import time
 from collections import defaultdict
-from typing import Any, Generic, Protocol, Self, TypeVar
+from typing import Any, Generic, Literal, Protocol, Self, TypeVar
 from collections.abc import Callable
 
 import zenoh
 
 from shared import keys
+from shared.inbox import Inbox
 from shared.log import fields, sampled
 from shared.messages import CounterSet, DecodeError, ServiceStats
 from shared.zconfig import open_session
@@ -67,11 +71,11 @@ class Counters:
 class Publisher(Generic[M]):
     """Publishes messages of one type on one key."""
 
-    def __init__(self, bus: Bus, key: str, msg_type: type[M], **options: Any) -> None:
+    def __init__(self, bus: BusCore, key: str, msg_type: type[M]) -> None:
         self.key, self.msg_type, self._bus = key, msg_type, bus
-        self._pub = bus.session.declare_publisher(key, **options)
+        self._put, self.undeclare = bus._publish(key)
         self._lock = threading.Lock()
-        # Zenoh copies the payload during put(), so one buffer serves every message.
+        # The transport copies the payload during put(), so one buffer serves every message.
         self._buffer = bytearray()
 
     def put(self, msg: M) -> None:
@@ -79,64 +83,15 @@ class Publisher(Generic[M]):
         if not isinstance(msg, self.msg_type):
             raise TypeError(f"{self.key} carries {self.msg_type.__name__}, got {type(msg).__name__}")
         with self._lock:
-            self._pub.put(msg.to_bytes(self._buffer))
+            self._put(msg.to_bytes(self._buffer))
         self._bus.counters.bump(self.key, "published")
-
-    def undeclare(self) -> None:
-        self._pub.undeclare()
-
-
-class _Mailbox:
-    """Latest-only hand-off from Zenoh's thread to a worker thread.
-
-    Zenoh's ``RingChannel(1)`` gives the same bounded memory but cannot say how
-    many samples it overwrote; this one counts them as ``dropped``.
-    """
-
-    def __init__(self, name: str, deliver: Callable[[zenoh.Sample], None],
-                 on_drop: Callable[[], Any]) -> None:
-        self._cond = threading.Condition()
-        self._slot: zenoh.Sample | None = None
-        self._closed = False
-        self._deliver, self._on_drop = deliver, on_drop
-        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
-        self._thread.start()
-
-    def offer(self, sample: zenoh.Sample) -> None:
-        with self._cond:
-            if self._slot is not None:
-                self._on_drop()
-            self._slot = sample
-            self._cond.notify()
-
-    def _loop(self) -> None:
-        while True:
-            with self._cond:
-                while self._slot is None and not self._closed:
-                    self._cond.wait()
-                if self._closed:
-                    return
-                sample, self._slot = self._slot, None
-            self._deliver(sample)
-
-    def close(self) -> None:
-        with self._cond:
-            self._closed = True
-            self._cond.notify()
-        if threading.current_thread() is not self._thread:
-            self._thread.join(timeout=5)
 
 
 class Subscription:
     """A declared subscriber; ``undeclare()`` stops delivery."""
 
-    def __init__(self, sub: zenoh.Subscriber, mailbox: _Mailbox | None) -> None:
-        self._sub, self._mailbox = sub, mailbox
-
-    def undeclare(self) -> None:
-        self._sub.undeclare()
-        if self._mailbox is not None:
-            self._mailbox.close()
+    def __init__(self, undeclare: Callable[[], None]) -> None:
+        self.undeclare = undeclare
 
 
 def _check_identity(robot_id: str, service: str, instance: str) -> None:
@@ -145,95 +100,124 @@ def _check_identity(robot_id: str, service: str, instance: str) -> None:
     keys.check_chunk(instance, "instance")
 
 
-class Bus:
-    """One service instance's Zenoh session, with its liveliness token and stats queryable."""
+class BusCore:
+    """Everything a service sees of its bus, whatever carries the bytes.
 
-    def __init__(self, session: zenoh.Session, robot_id: str, service: str, instance: str,
-                 info: Callable[[], dict[str, Any]] | None = None) -> None:
+    Declarations are typed; every callback from the transport only enqueues on
+    :attr:`inbox`, and the handlers run when the inbox's taker (the service's
+    main loop, or a dispatcher thread) gets to them. Subclasses provide the
+    transport: :class:`Bus` (Zenoh) and :class:`shared.fake_bus.FakeBus`.
+    """
+
+    def __init__(self, robot_id: str, service: str, instance: str,
+                 info: Callable[[], dict[str, Any]] | None = None, inbox: Inbox | None = None) -> None:
         _check_identity(robot_id, service, instance)
-        self.session = session
         self.robot_id, self.service, self.instance = robot_id, service, instance
         self.counters = Counters()
         self.log = logging.getLogger(f"ovamos.{service}.{instance}")
         self.started = time.time()
+        self.inbox = inbox or Inbox()
         self._info = info or dict
         self._declared: list[Any] = []  # keep references: a dropped declaration is undeclared
         self._closed = False
-        self.queryable(keys.stats(robot_id, service, instance), lambda _query: self.stats())
-        self._token = session.liveliness().declare_token(keys.alive(robot_id, service, instance))
 
-    @classmethod
-    def open(cls, cfg: zenoh.Config, robot_id: str, service: str, instance: str = "0",
-             info: Callable[[], dict[str, Any]] | None = None) -> Bus:
-        _check_identity(robot_id, service, instance)  # first: opening may wait for a router
-        return cls(open_session(cfg), robot_id, service, instance, info)
+    # -- transport (subclasses) -----------------------------------------------------------
+    def _publish(self, key: str) -> tuple[Callable[[bytes | bytearray], None], Callable[[], None]]:
+        """The put and undeclare functions of a publisher on ``key``."""
+        raise NotImplementedError
+
+    def _listen(self, key_expr: str, on_payload: Callable[[str, Callable[[], bytes]], None]
+                ) -> Callable[[], None]:
+        """Call ``on_payload(key, read_payload)`` per sample; return the undeclare function."""
+        raise NotImplementedError
+
+    def _answer(self, key: str, on_query: Callable[[Callable[[bytes | bytearray], None],
+                                                    Callable[[], None]], None]) -> Callable[[], None]:
+        """Call ``on_query(reply, finish)`` per query; return the undeclare function."""
+        raise NotImplementedError
+
+    def _ask(self, key: str, timeout_s: float, on_reply: Callable[[bytes], None],
+             on_done: Callable[[], None]) -> None:
+        raise NotImplementedError
 
     # -- declarations ---------------------------------------------------------------------
-    def publisher(self, key: str, msg_type: type[M], **options: Any) -> Publisher[M]:
-        pub = Publisher(self, key, msg_type, **options)
+    def publisher(self, key: str, msg_type: type[M]) -> Publisher[M]:
+        pub = Publisher(self, key, msg_type)
         self._declared.append(pub)
         return pub
 
     def subscribe(self, key: str, msg_type: type[M], handler: Callable[[M], None], *,
-                  latest_only: bool = False) -> Subscription:
-        """Deliver valid ``msg_type`` messages on ``key`` to ``handler``.
+                  keep: int = 0) -> Subscription:
+        """Deliver valid ``msg_type`` messages on ``key`` to ``handler`` (on the inbox's taker).
 
-        ``latest_only`` is for streams where only the newest sample matters
-        (frames, maps): the handler runs on a worker thread and samples that
-        arrive while it is busy replace each other.
+        ``keep=n`` is for streams where only the newest samples matter (frames,
+        maps): while the handler is busy, only the newest ``n`` samples wait,
+        the others are dropped and counted.
         """
-        def deliver(sample: zenoh.Sample) -> None:
-            msg = self.decode(key, msg_type, sample.payload.to_bytes())
+        def deliver(read: Callable[[], bytes]) -> None:
+            msg = self.decode(key, msg_type, read())
             if msg is not None:
                 handler(msg)
 
-        return self._declare_subscriber(key, self._guard(deliver, key), latest_only)
+        return self._subscribe(key, self._guard(deliver, key), keep)
 
     def subscribe_raw(self, key_expr: str, handler: Callable[[str, bytes], None]) -> Subscription:
         """Deliver every payload under ``key_expr`` undecoded, with its key (monitoring tools)."""
-        def deliver(sample: zenoh.Sample) -> None:
-            handler(str(sample.key_expr), sample.payload.to_bytes())
+        def on_payload(key: str, read: Callable[[], bytes]) -> None:
+            self.counters.bump(key, "received")
+            self.inbox.put(self._guard(lambda _: handler(key, read()), key_expr), None)
 
-        return self._declare_subscriber(key_expr, self._guard(deliver, key_expr), False)
-
-    def queryable(self, key: str, answer: Callable[[zenoh.Query], Codec]) -> None:
-        """Answer queries on ``key`` with the message ``answer`` returns."""
-        def reply(query: zenoh.Query) -> None:
-            query.reply(key, answer(query).to_bytes())
-
-        self._declared.append(self.session.declare_queryable(key, self._guard(reply, key)))
-
-    def get(self, key: str, msg_type: type[M], timeout_s: float = 1.0) -> M | None:
-        """Ask the queryable(s) on ``key``; the first valid answer, or None (none answered in
-        time, or only malformed answers, which are counted)."""
-        for reply in self.session.get(key, timeout=timeout_s):
-            if reply.ok is not None:
-                msg = self.decode(key, msg_type, reply.ok.payload.to_bytes())
-                if msg is not None:
-                    return msg
-        return None
-
-    def _declare_subscriber(self, key_expr: str, deliver: Callable[[zenoh.Sample], None],
-                            latest_only: bool) -> Subscription:
-        def count(sample: zenoh.Sample) -> None:
-            self.counters.bump(str(sample.key_expr), "received")
-
-        if latest_only:
-            mailbox = _Mailbox(f"sub:{key_expr}", deliver,
-                               lambda: self.counters.bump(key_expr, "dropped"))
-
-            def on_sample(sample: zenoh.Sample) -> None:
-                count(sample)
-                mailbox.offer(sample)
-        else:
-            mailbox = None
-
-            def on_sample(sample: zenoh.Sample) -> None:
-                count(sample)
-                deliver(sample)
-        sub = Subscription(self.session.declare_subscriber(key_expr, on_sample), mailbox)
+        sub = Subscription(self._listen(key_expr, on_payload))
         self._declared.append(sub)
         return sub
+
+    def _subscribe(self, key_expr: str, deliver: Callable[[Callable[[], bytes]], None], keep: int
+                   ) -> Subscription:
+        def dropped() -> None:
+            self.counters.bump(key_expr, "dropped")
+
+        def on_payload(key: str, read: Callable[[], bytes]) -> None:
+            self.counters.bump(key, "received")
+            self.inbox.put(deliver, read, channel=key_expr, keep=keep, on_drop=dropped)
+
+        sub = Subscription(self._listen(key_expr, on_payload))
+        self._declared.append(sub)
+        return sub
+
+    def queryable(self, key: str, answer: Callable[[], Codec]) -> None:
+        """Answer queries on ``key`` with the message ``answer()`` returns (run by the inbox's taker)."""
+        def respond(args: tuple[Callable[[bytes | bytearray], None], Callable[[], None]]) -> None:
+            reply, finish = args
+            try:
+                reply(answer().to_bytes())
+            finally:
+                finish()
+
+        def on_query(reply: Callable[[bytes | bytearray], None], finish: Callable[[], None]) -> None:
+            self.inbox.put(self._guard(respond, key), (reply, finish))
+
+        self._declared.append(Subscription(self._answer(key, on_query)))
+
+    def request(self, key: str, msg_type: type[M], handler: Callable[[M | None], None],
+                timeout_s: float = 1.0) -> None:
+        """Ask the queryable(s) on ``key`` without waiting: ``handler`` gets the first valid
+        answer, or None once every answer came in invalid or the timeout passed (once either
+        way, on the inbox's taker)."""
+        answered = False
+
+        def on_reply(payload: bytes) -> None:
+            nonlocal answered
+            if not answered and (msg := self.decode(key, msg_type, payload)) is not None:
+                answered = True
+                handler(msg)
+
+        def on_done(_: object) -> None:
+            if not answered:
+                handler(None)
+
+        guarded_reply, guarded_done = self._guard(on_reply, key), self._guard(on_done, key)
+        self._ask(key, timeout_s, lambda payload: self.inbox.put(guarded_reply, payload),
+                  lambda: self.inbox.put(guarded_done, None))
 
     # -- errors ---------------------------------------------------------------------------
     def _guard(self, fn: Callable[[Any], None], key: str) -> Callable[[Any], None]:
@@ -268,18 +252,105 @@ class Bus:
                             counters=self.counters.snapshot(), info=self._info())
 
     def close(self) -> None:
-        """Undeclare everything and close the session (idempotent)."""
+        """Undeclare everything and drop what is queued (idempotent)."""
         if self._closed:
             return
         self._closed = True
-        self._token.undeclare()
         for item in reversed(self._declared):
             item.undeclare()
         self._declared.clear()
-        self.session.close()
+        self.inbox.close()
 
     def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class Bus(BusCore):
+    """One service instance's Zenoh session, with its liveliness token and stats queryable.
+
+    ``dispatch="thread"`` (tools, tests, embedding programs): a thread of the bus
+    takes the inbox's events. ``"caller"``: the owner takes them
+    (:func:`shared.service.run_service` runs them between a service's ticks).
+    """
+
+    def __init__(self, session: zenoh.Session, robot_id: str, service: str, instance: str,
+                 info: Callable[[], dict[str, Any]] | None = None, *,
+                 dispatch: Literal["thread", "caller"] = "thread") -> None:
+        super().__init__(robot_id, service, instance, info)
+        self.session = session
+        if dispatch == "thread":
+            self.inbox.run_forever(f"bus:{service}/{instance}")
+        self.queryable(keys.stats(robot_id, service, instance), self.stats)
+        self._token = session.liveliness().declare_token(keys.alive(robot_id, service, instance))
+
+    @classmethod
+    def open(cls, cfg: zenoh.Config, robot_id: str, service: str, instance: str = "0",
+             info: Callable[[], dict[str, Any]] | None = None, *,
+             dispatch: Literal["thread", "caller"] = "thread") -> Bus:
+        _check_identity(robot_id, service, instance)  # first: opening may wait for a router
+        return cls(open_session(cfg), robot_id, service, instance, info, dispatch=dispatch)
+
+    def _publish(self, key: str) -> tuple[Callable[[bytes | bytearray], None], Callable[[], None]]:
+        pub = self.session.declare_publisher(key)
+        return pub.put, pub.undeclare
+
+    def _listen(self, key_expr: str, on_payload: Callable[[str, Callable[[], bytes]], None]
+                ) -> Callable[[], None]:
+        def on_sample(sample: zenoh.Sample) -> None:
+            on_payload(str(sample.key_expr), sample.payload.to_bytes)
+
+        return self.session.declare_subscriber(key_expr, on_sample).undeclare
+
+    def _answer(self, key: str, on_query: Callable[[Callable[[bytes | bytearray], None],
+                                                    Callable[[], None]], None]) -> Callable[[], None]:
+        def on_zenoh_query(query: zenoh.Query) -> None:
+            # Kept alive until answered on the inbox's taker; drop() then ends the query.
+            on_query(lambda payload: query.reply(key, bytes(payload)), query.drop)
+
+        return self.session.declare_queryable(key, on_zenoh_query).undeclare
+
+    def _ask(self, key: str, timeout_s: float, on_reply: Callable[[bytes], None],
+             on_done: Callable[[], None]) -> None:
+        def reply(r: zenoh.Reply) -> None:
+            if r.ok is not None:
+                on_reply(r.ok.payload.to_bytes())
+
+        self.session.get(key, zenoh.handlers.Callback(reply, on_done), timeout=timeout_s)
+
+    def get(self, key: str, msg_type: type[M], timeout_s: float = 1.0) -> M | None:
+        """Ask the queryable(s) on ``key`` and wait (HTTP handlers, tools; never a service's loop):
+        the first valid answer, or None (none in time, or only malformed ones, counted)."""
+        for reply in self.session.get(key, timeout=timeout_s):
+            if reply.ok is not None:
+                msg = self.decode(key, msg_type, reply.ok.payload.to_bytes())
+                if msg is not None:
+                    return msg
+        return None
+
+    def watch_liveliness(self, key_expr: str, handler: Callable[[str, bool], None]) -> None:
+        """``handler(key, alive)`` for every liveliness token under ``key_expr``, those already
+        declared first (on the inbox's taker)."""
+        def on_sample(sample: zenoh.Sample) -> None:
+            key, alive = str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT
+            self.inbox.put(self._guard(lambda _: handler(key, alive), key_expr), None)
+
+        sub = self.session.liveliness().declare_subscriber(key_expr, on_sample, history=True)
+        self._declared.append(Subscription(sub.undeclare))
+
+    def declare_token(self, key: str) -> Subscription:
+        """A liveliness token; ``undeclare()`` withdraws it (before the bus closes, if need be)."""
+        token = self.session.liveliness().declare_token(key)
+        handle = Subscription(token.undeclare)
+        self._declared.append(handle)
+        return handle
+
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent)."""
+        if self._closed:
+            return
+        self._token.undeclare()
+        super().close()
+        self.session.close()

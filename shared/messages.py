@@ -24,10 +24,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from shared.codec import DecodeError, loan, pack, unpack
 from shared.detections import Detection
 from shared.motion import Action
+from shared.robot import Primitives
 
 __all__ = ["DecodeError", "JsonMessage", "BinaryMessage", "ArraySpec", "Intrinsics", "RgbdFrame",
            "MapSnapshot", "ObjectInstance", "PerceptionResult", "CounterSet", "ServiceStats", "Odometry", "PlanCommand", "DriverMode",
-           "DriverState", "EStop", "TaskSpec", "TaskStatus", "FoundObject", "TaskEvent"]
+           "Outcome", "DriverState", "EStop", "TaskSpec", "TaskStatus", "FINAL", "FoundObject",
+           "TaskEvent"]
 
 
 def _validation_error(cls: type, exc: ValidationError) -> DecodeError:
@@ -142,6 +144,12 @@ class RgbdFrame(BinaryMessage):
     forward, y left, z up). ``depth`` is metres when float32, or units of
     ``depth_scale`` metres when uint16 (0.001 for millimetre sensors); 0 means
     no reading. ``instance_ids`` exists only on simulated frames.
+
+    ``after_action`` makes lock-step causal: the id of the last command the base
+    had completed when the frame was captured (the camera reads it from
+    ``driver/state``). A planner waits for a map that fused a frame after its
+    command, and never compares the clocks of two machines (``stamp`` is the
+    capture time on the camera's host, for people and latency figures only).
     """
 
     KIND: ClassVar[str] = "rgbd"
@@ -152,6 +160,7 @@ class RgbdFrame(BinaryMessage):
     }
     seq: int = Field(ge=0)
     stamp: float
+    after_action: int = Field(default=0, ge=0, description="last completed command at capture")
     intrinsics: Intrinsics
     camera_pose: tuple[float, ...] = _IDENTITY
     depth_scale: float = Field(default=1.0, gt=0)
@@ -208,6 +217,12 @@ class MapSnapshot(BinaryMessage):
     ``origin`` (world metres); ``values`` has one layer per name in ``layers``
     (raw fused values: readers apply the decay with ``counts``).
     Compressed on the wire: most of a map is empty early in a search.
+
+    Freshness is causal: ``seq`` is the newest fused frame's seq and
+    ``after_action`` the newest ``RgbdFrame.after_action`` among the fused
+    frames, so a planner knows whether the map has seen the world after its
+    last command without reading any clock. ``stamp`` (the mapping host's
+    clock) is for people only.
     """
 
     KIND: ClassVar[str] = "map"
@@ -221,6 +236,7 @@ class MapSnapshot(BinaryMessage):
         "frontiers": ArraySpec(("<f8",), 2),
     }
     seq: int = Field(ge=-1, description="seq of the last fused frame, -1 before the first")
+    after_action: int = Field(default=0, ge=0, description="newest after_action of a fused frame")
     stamp: float
     resolution: float = Field(gt=0)
     origin: tuple[float, float]
@@ -323,10 +339,16 @@ class ServiceStats(JsonMessage):
 
 
 class Odometry(JsonMessage):
-    """The base's pose estimate (odometry frame, metres/radians) and body velocities."""
+    """The base's pose estimate (odometry frame, metres/radians) and body velocities.
+
+    ``after_action``: the last command the base had completed when this pose was
+    measured, so the planner books a command's distance with the pose it ended
+    at (causal, like :attr:`RgbdFrame.after_action`: no clock comparison).
+    """
 
     seq: int = Field(ge=0)
     stamp: float
+    after_action: int = Field(default=0, ge=0, description="last completed command when measured")
     x: float
     y: float
     yaw: float
@@ -365,13 +387,19 @@ class DriverMode(str, Enum):
     ESTOP = "estop"        # latched until an explicit clear
 
 
+Outcome = Literal["done", "blocked", "aborted", "rejected"]
+"""How a command ended: executed, stopped by an obstacle (a bump), cut short (e-stop, fault,
+timeout, superseded) or refused (e-stop latched, fault, a command kind the base cannot run)."""
+
+
 class DriverState(JsonMessage):
     """What the base reports: its mode, why it is not moving, and how far the commands got.
 
-    Lock-step: ``frame_seq`` is the seq of the first camera frame taken after
-    ``last_completed`` finished, when the driver knows it (the simulated robot
-    does); otherwise a planner waits for a map built from a frame newer than
-    ``completed_stamp``.
+    ``last_completed`` is the id of the newest command that ended (with
+    ``last_outcome``). Lock-step freshness is causal: a planner that sees
+    ``last_completed`` reach its command waits for an :class:`Odometry` and a
+    :class:`MapSnapshot` whose ``after_action`` reaches it too; no stamp is
+    compared across machines.
     """
 
     stamp: float
@@ -380,9 +408,10 @@ class DriverState(JsonMessage):
     estop_latched: bool = False
     active_action: int | None = None
     last_completed: int = Field(default=0, ge=0)
-    last_outcome: Literal["done", "blocked", "aborted", "rejected"] | None = None
-    completed_stamp: float = 0.0
-    frame_seq: int | None = None
+    last_outcome: Outcome | None = None
+    primitives: Primitives | None = Field(
+        default=None, description="the primitive sizes this base executes (None: it does not say); "
+                                  "a planner whose own differ refuses to plan")
 
 
 class EStop(JsonMessage):
@@ -395,11 +424,19 @@ class EStop(JsonMessage):
 
 
 class TaskStatus(str, Enum):
+    """A task's life, the same word at the gateway and in the planner: queued (the gateway:
+    behind another task; the planner: not started) -> searching -> done | failed (the step
+    limit, nothing left to explore) | cancelled."""
+
     QUEUED = "queued"
     SEARCHING = "searching"
     DONE = "done"
     FAILED = "failed"
     CANCELLED = "cancelled"
+
+
+FINAL = (TaskStatus.DONE, TaskStatus.FAILED, TaskStatus.CANCELLED)
+"""The statuses a task never leaves."""
 
 
 class TaskSpec(JsonMessage):
@@ -416,6 +453,8 @@ class TaskSpec(JsonMessage):
 
 
 class FoundObject(BaseModel):
+    """A target declared found: where (world metres) and at which step of its task."""
+
     model_config = ConfigDict(extra="forbid", frozen=True)
     label: str
     x: float

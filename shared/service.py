@@ -1,9 +1,14 @@
-"""The life cycle every service shares: configure, start, tick, stop on a signal.
+"""The life cycle every service shares: configure, start, one event loop, stop on a signal.
 
-A service subclass holds only its wiring (which keys feed which core methods);
-the core it wraps knows nothing of Zenoh. :func:`run_service` is what
-``ovamos run SERVICE`` calls, and what tests and the demo start in a spawned
-process.
+A service subclass holds only its wiring (which of its declared inputs feed
+which core methods, see :mod:`shared.topology`); the core it wraps knows
+nothing of Zenoh. :func:`run_service` is what ``ovamos run SERVICE`` calls,
+and what tests and the demo start in a spawned process.
+
+One thread per service (dora's node model): the main thread takes the bus's
+events (messages, queries, replies) one at a time and runs the ticks between
+them, so a service's state is touched by one thread only and needs no lock.
+Zenoh's callbacks only enqueue (:mod:`shared.inbox`).
 """
 
 from __future__ import annotations
@@ -13,13 +18,16 @@ import signal
 import threading
 import time
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import zenoh
-from shared.bus import Bus
-from shared.config import ServiceConfig, ServiceConfigError, read_config
 
-__all__ = ["Service", "ServiceConfig", "ServiceConfigError", "load_config", "run_service"]
+from shared.bus import Bus, BusCore, Publisher
+from shared.config import ServiceConfig, ServiceConfigError, read_config
+from shared.topology import TOPOLOGY
+
+__all__ = ["Service", "ServiceConfig", "ServiceConfigError", "load_config", "run_loop", "run_service"]
 
 log = logging.getLogger("ovamos.service")
 
@@ -32,16 +40,47 @@ class Service:
     #: how often :meth:`tick` runs; None = never (purely event-driven services)
     tick_hz: float | None = None
 
-    def __init__(self, bus: Bus, config: ServiceConfig) -> None:
+    def __init__(self, bus: BusCore, config: ServiceConfig) -> None:
         self.bus = bus
         self.config = config
         self.log = bus.log
+        self.out: dict[str, Publisher[Any]] = {}
 
     def start(self) -> None:
-        """Declare publishers and subscriptions."""
+        """Declare publishers and subscriptions (usually one :meth:`wire` call)."""
+
+    def wire(self, handlers: dict[str, Callable[[Any], None]], *, keep: dict[str, int] | None = None,
+             answers: dict[str, Callable[[], Any]] | None = None) -> None:
+        """Subscribe ``handlers`` to this service's declared inputs and publish its declared
+        outputs as ``self.out[name]`` (:data:`shared.topology.TOPOLOGY`).
+
+        The handlers must cover the declared inputs exactly, so a service cannot
+        listen to a key the graph does not show. ``keep`` overrides an input's
+        declared keep-latest depth (a config setting); ``answers`` serves the
+        declared queryables.
+        """
+        node = TOPOLOGY[self.name]
+        declared = {p.name for p in node.inputs}
+        if set(handlers) != declared:
+            raise ValueError(f"{self.name}: handlers for {sorted(handlers)} but the topology declares "
+                             f"inputs {sorted(declared)}")
+        if set(answers or {}) != {p.name for p in node.answers}:
+            raise ValueError(f"{self.name}: answers {sorted(answers or {})} but the topology declares "
+                             f"{sorted(p.name for p in node.answers)}")
+        robot = self.bus.robot_id
+        for port in node.outputs:
+            self.out[port.name] = self.bus.publisher(port.key(robot), port.message)
+        for port in node.answers:
+            self.bus.queryable(port.key(robot), (answers or {})[port.name])
+        for port in node.inputs:
+            depth = (keep or {}).get(port.name, port.keep)
+            if port.message is None:
+                self.bus.subscribe_raw(port.key(robot), handlers[port.name])
+            else:
+                self.bus.subscribe(port.key(robot), port.message, handlers[port.name], keep=depth)
 
     def tick(self) -> None:
-        """Periodic work, called ``tick_hz`` times a second from the main thread."""
+        """Periodic work, called ``tick_hz`` times a second on the service's thread."""
 
     def info(self) -> dict[str, Any]:
         """Service-specific status shown by ``ovamos status``."""
@@ -76,24 +115,33 @@ def run_service(cls: type[Service], zenoh_config: zenoh.Config, config: ServiceC
     clean up yet (a Python handler would not run during Zenoh's blocking open).
     """
     svc: Service | None = None
-    bus = Bus.open(zenoh_config, robot_id, cls.name, instance, info=lambda: svc.info() if svc else {})
+    bus = Bus.open(zenoh_config, robot_id, cls.name, instance, info=lambda: svc.info() if svc else {},
+                   dispatch="caller")
     install_signal_handlers(stop)
     try:
         svc = cls(bus, config)
         svc.start()
         log.info("%s/%s up on robot %s", cls.name, instance, robot_id)
-        if svc.tick_hz is None:
-            stop.wait()
-        next_tick = time.monotonic()
-        while not stop.is_set():
-            _tick(svc)
-            next_tick = max(next_tick + 1.0 / svc.tick_hz, time.monotonic())
-            stop.wait(next_tick - time.monotonic())
+        run_loop(svc, stop)
     finally:
         if svc is not None:
             svc.stop()
         bus.close()
         log.info("%s/%s stopped", cls.name, instance)
+
+
+def run_loop(svc: Service, stop: threading.Event) -> None:
+    """The service's event loop: its bus's events as they come, its tick every 1/tick_hz s."""
+    next_tick = time.monotonic()
+    while not stop.is_set():
+        if svc.tick_hz is None:
+            svc.bus.inbox.run_until(time.monotonic() + 3600.0, stop)
+            continue
+        svc.bus.inbox.run_until(next_tick, stop)
+        if stop.is_set():
+            return
+        _tick(svc)
+        next_tick = max(next_tick + 1.0 / svc.tick_hz, time.monotonic())
 
 
 def _tick(svc: Service) -> None:

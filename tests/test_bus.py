@@ -45,7 +45,7 @@ def test_typed_messages_arrive_intact(open_bus) -> None:
     a, b = open_bus("a"), open_bus("b")
     got: queue.Queue[RgbdFrame] = queue.Queue()
     arrived = threading.Event()
-    b.subscribe(keys.rgbd("r1"), RgbdFrame, lambda f: (got.put(f), arrived.set()), latest_only=True)
+    b.subscribe(keys.rgbd("r1"), RgbdFrame, lambda f: (got.put(f), arrived.set()), keep=1)
     frame = pattern_frame(7, 123.25, width=64, height=48, seed=3)
     _send_until(a.publisher(keys.rgbd("r1"), RgbdFrame), frame, arrived)
     out = got.get(timeout=5)
@@ -104,7 +104,7 @@ def test_latest_only_drops_stale_frames_and_counts_them(open_bus, client: zenoh.
         release.wait(10)
         handled.append(frame.seq)
 
-    bus.subscribe(key, RgbdFrame, slow, latest_only=True)
+    bus.subscribe(key, RgbdFrame, slow, keep=1)
     wait_for(lambda: client.put(key, pattern_frame(0, 0.0, width=8, height=8).to_bytes())
              or first.wait(0.1), what="first frame")
     # BLOCK: this test is about the mailbox dropping frames, so Zenoh itself must drop none

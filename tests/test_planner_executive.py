@@ -1,4 +1,5 @@
-"""The planner's protocol message by message: lock-step, re-sends, faults, cancel, found objects."""
+"""The planner's protocol message by message: lock-step, re-sends, faults, cancel, found objects,
+clock skew between hosts, a restart during a command."""
 
 from __future__ import annotations
 
@@ -14,24 +15,26 @@ from shared.motion import Action
 N = 120  # 6 x 6 m at 5 cm
 
 
-def snapshot(seq: int, objects: tuple[ObjectInstance, ...] = ()) -> MapSnapshot:
-    return MapSnapshot(seq=seq, stamp=float(seq), resolution=0.05, origin=(0.0, 0.0), layers=("cup",),
+def snapshot(seq: int, objects: tuple[ObjectInstance, ...] = (), after: int | None = None,
+             stamp: float | None = None) -> MapSnapshot:
+    """A map whose newest fused frame is ``seq``, taken after command ``after`` (default: seq)."""
+    return MapSnapshot(seq=seq, after_action=seq if after is None else after,
+                       stamp=float(seq) if stamp is None else stamp, resolution=0.05, origin=(0.0, 0.0), layers=("cup",),
                        objects=objects, obstacle=np.zeros((N, N), bool), explored=np.ones((N, N), bool),
                        counts=np.zeros((N, N), np.uint16), values=np.zeros((1, N, N), np.float32),
                        frontiers=np.array([[5.0, 5.0]]))
 
 
-def driver(completed: int = 0, frame_seq: int | None = 0, mode: DriverMode = DriverMode.READY,
-           active: int | None = None, outcome: str | None = None, completed_stamp: float = 0.0
-           ) -> DriverState:
-    return DriverState(stamp=0.0, mode=mode, last_completed=completed, frame_seq=frame_seq,
-                       completed_stamp=completed_stamp,
+def driver(completed: int = 0, mode: DriverMode = DriverMode.READY, active: int | None = None,
+           outcome: str | None = None, stamp: float = 0.0) -> DriverState:
+    return DriverState(stamp=stamp, mode=mode, last_completed=completed,
                        active_action=active, last_outcome=outcome,
                        faults=("axis 0: heartbeat lost",) if mode is DriverMode.FAULT else ())
 
 
-def odom(x: float = 1.0, y: float = 1.0, yaw: float = 0.0, stamp: float = 0.0) -> Odometry:
-    return Odometry(seq=0, stamp=stamp, x=x, y=y, yaw=yaw)
+def odom(x: float = 1.0, y: float = 1.0, yaw: float = 0.0, stamp: float = 0.0, after: int = 0
+         ) -> Odometry:
+    return Odometry(seq=0, stamp=stamp, x=x, y=y, yaw=yaw, after_action=after)
 
 
 def spec(targets: tuple[str, ...] = ("cup",), cancelled: bool = False) -> TaskSpec:
@@ -73,11 +76,12 @@ def test_lock_step_resends_until_acknowledged_and_waits_for_the_next_frame(ex: E
     assert [c.action_id for c in commands(ex.poll(0.4))] == [1]  # lost? sent again, same id
     ex.on_driver(driver(active=1))
     assert commands(ex.poll(1.0)) == []                       # being executed: no re-send
-    ex.on_driver(driver(completed=1, frame_seq=1))
+    ex.on_driver(driver(completed=1))
+    ex.on_odom(odom(after=1))
     assert commands(ex.poll(1.1)) == []
-    assert ex.wanted_seq() == 1 and "frame 1" in ex.waiting   # the map has not fused frame 1
+    assert ex.map_wanted() == 1 and "after command 1" in ex.waiting  # no frame after it fused yet
     ex.on_snapshot(snapshot(1))
-    assert ex.wanted_seq() is None
+    assert ex.map_wanted() is None
     second = commands(ex.poll(1.2))
     assert [c.action_id for c in second] == [2] and ex.task.steps == 1
 
@@ -96,9 +100,9 @@ def test_no_command_in_fault_or_estop_and_the_event_says_why(ex: Executive) -> N
 
 
 def test_action_ids_continue_after_the_drivers_last_completed(ex: Executive) -> None:
-    ex.on_driver(driver(completed=41, frame_seq=7))
-    ex.on_snapshot(snapshot(7))
-    ex.on_odom(odom())
+    ex.on_driver(driver(completed=41))
+    ex.on_snapshot(snapshot(7, after=41))
+    ex.on_odom(odom(after=41))
     assert [c.action_id for c in commands(ex.poll(0.0))] == [42]
 
 
@@ -123,7 +127,8 @@ def test_a_confirmed_object_nearby_is_stopped_at_and_reported_found() -> None:
     ex.on_odom(odom())
     sent = commands(ex.poll(0.0))
     assert [c.action for c in sent] == [Action.STOP]
-    ex.on_driver(driver(completed=1, frame_seq=1))
+    ex.on_driver(driver(completed=1))
+    ex.on_odom(odom(after=1))
     ex.on_snapshot(snapshot(1, (cup,)))
     out = ex.poll(0.1)
     found = events(out)[-1].found
@@ -139,7 +144,8 @@ def test_a_blocked_move_is_reported_to_the_agent_as_a_bump(ex: Executive) -> Non
     ex.on_odom(odom(yaw=0.78))  # facing the frontier at (5, 5): the agent drives forward
     sent = commands(ex.poll(0.0))
     assert [c.action for c in sent] == [Action.MOVE_FORWARD]
-    ex.on_driver(driver(completed=1, frame_seq=1, outcome="blocked"))
+    ex.on_driver(driver(completed=1, outcome="blocked"))
+    ex.on_odom(odom(yaw=0.78, after=1))
     ex.poll(0.1)
     assert len(ex.agent.bumps.points(ex.task.steps)) == 1 and ex.task.distance == 0.0
 
@@ -150,9 +156,75 @@ def test_a_completion_waits_for_the_odometry_taken_after_it(ex: Executive) -> No
     ex.on_snapshot(snapshot(0))
     ex.on_odom(odom(yaw=0.78))
     assert [c.action for c in commands(ex.poll(0.0))] == [Action.MOVE_FORWARD]
-    ex.on_driver(driver(completed=1, frame_seq=1, completed_stamp=5.0))
+    ex.on_driver(driver(completed=1))
     ex.on_snapshot(snapshot(1))
+    ex.on_odom(odom(yaw=0.78, stamp=99.0))  # a newer stamp, but measured before the completion
     assert commands(ex.poll(0.1)) == [] and "odometry" in ex.waiting and ex.task.steps == 0
-    ex.on_odom(odom(x=1.0 + 0.25 * 0.7109, y=1.0 + 0.25 * 0.7031, yaw=0.78, stamp=5.1))
+    ex.on_odom(odom(x=1.0 + 0.25 * 0.7109, y=1.0 + 0.25 * 0.7031, yaw=0.78, stamp=-99.0, after=1))
     assert len(commands(ex.poll(0.2))) == 1
     assert ex.task.steps == 1 and ex.task.distance == pytest.approx(0.25, abs=1e-3)
+
+
+def test_no_plan_while_the_drivers_primitives_differ_from_the_planners(ex: Executive) -> None:
+    from shared.robot import PRIMITIVES, Primitives
+
+    ex.on_snapshot(snapshot(0))
+    ex.on_odom(odom())
+    longer = Primitives(forward_m=0.30, turn_deg=30.0)
+    ex.on_driver(DriverState.from_bytes(driver().model_copy(update={"primitives": longer}).to_bytes()))
+    out = ex.poll(0.0)
+    assert commands(out) == []
+    assert events(out)[-1].message == ("driver's primitives (move 0.30 m, turn 30 deg) differ from "
+                                       "the planner's (move 0.25 m, turn 30 deg): fix the configs")
+    ex.on_driver(driver().model_copy(update={"primitives": PRIMITIVES}))  # the same sizes: go
+    assert len(commands(ex.poll(0.1))) == 1
+
+
+@pytest.mark.parametrize("skew_s", [5.0, -5.0])
+def test_lock_step_is_causal_whatever_the_clocks_of_the_other_hosts(skew_s: float) -> None:
+    """The driver's clock runs 5 s ahead of (or behind) the mapping host's: the planner still
+    runs a task to its end, and never decides on a map that has not seen the world after its
+    last command, however the stamps of the maps and states compare."""
+    ex = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=0)))
+    ex.on_task(TaskSpec(task_id="t1", targets=("cup",), max_steps=12, stamp=0.0))
+    now = 100.0
+    ex.on_driver(driver(stamp=now + skew_s))
+    ex.on_snapshot(snapshot(0, stamp=now))
+    ex.on_odom(odom(stamp=now + skew_s))
+    sent = commands(ex.poll(0.0))
+    decisions = 0
+    while sent:
+        (command,) = sent
+        decisions += 1
+        k = command.action_id
+        now += 1.0
+        # the completion and the pose after it arrive, then a map that has not fused a frame after
+        # the command yet, stamped later than the completion on any clock
+        ex.on_driver(driver(completed=k, stamp=now + skew_s))
+        ex.on_odom(odom(stamp=now + skew_s, after=k))
+        ex.on_snapshot(snapshot(k - 1, after=k - 1, stamp=now + 10.0))
+        stale = commands(ex.poll(float(k)))
+        assert stale == [], f"decided after command {k} on a map that had not seen its result"
+        assert ex.map_wanted() == k
+        ex.on_snapshot(snapshot(k, after=k, stamp=now - 10.0))  # fresh, stamped earlier: still fresh
+        sent = commands(ex.poll(k + 0.5))
+    assert ex.task.state in (TaskStatus.DONE, TaskStatus.FAILED) and ex.task.steps == 12
+    assert decisions == 12
+
+
+def test_a_restarted_planner_waits_for_the_drivers_command_and_continues_after_its_id() -> None:
+    """The driver still runs command 7 from the planner before the restart: the new planner sends
+    nothing until it ends (a new command 7 would be dropped as a duplicate and the old completion
+    booked to the new step), then sends 8."""
+    ex = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=1)))
+    ex.on_task(spec())
+    ex.on_driver(driver(completed=6, active=7))
+    ex.on_snapshot(snapshot(3, after=6))
+    ex.on_odom(odom(after=6))
+    out = ex.poll(0.0)
+    assert commands(out) == [] and "command 7" in ex.waiting and ex.task.steps == 0
+    ex.on_driver(driver(completed=7))
+    ex.on_odom(odom(after=7))
+    assert commands(ex.poll(0.1)) == [] and ex.task.steps == 0  # the map has not seen after 7
+    ex.on_snapshot(snapshot(4, after=7))
+    assert [c.action_id for c in commands(ex.poll(0.2))] == [8]

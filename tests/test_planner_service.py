@@ -40,11 +40,11 @@ class MockBaseAndMap:
         cup = ObjectInstance(label="cup", x=2.5, y=1.0, score=0.9, hits=3, confirmed=True)
         self.objects = (cup,)
         bus.subscribe(keys.plan_command(ROBOT), PlanCommand, self.on_command)
-        bus.queryable(keys.map_snapshot(ROBOT), lambda _q: self.snapshot())
+        bus.queryable(keys.map_snapshot(ROBOT), self.snapshot)
 
     def snapshot(self) -> MapSnapshot:
         with self.lock:
-            return MapSnapshot(seq=self.frame_seq, stamp=time.time(), resolution=0.05, origin=(0.0, 0.0),
+            return MapSnapshot(seq=self.frame_seq, after_action=self.completed, stamp=time.time(), resolution=0.05, origin=(0.0, 0.0),
                                layers=("cup",), objects=self.objects, obstacle=np.zeros((N, N), bool),
                                explored=np.ones((N, N), bool), counts=np.zeros((N, N), np.uint16),
                                values=np.zeros((1, N, N), np.float32), frontiers=np.zeros((0, 2)))
@@ -62,8 +62,9 @@ class MockBaseAndMap:
     def publish(self) -> None:
         with self.lock:
             state = DriverState(stamp=time.time(), mode=DriverMode.READY, last_completed=self.completed,
-                                last_outcome="done" if self.completed else None, frame_seq=self.frame_seq)
-            odom = Odometry(seq=self.completed, stamp=time.time(), x=self.x, y=1.0, yaw=0.0)
+                                last_outcome="done" if self.completed else None)
+            odom = Odometry(seq=self.completed, stamp=time.time(), x=self.x, y=1.0, yaw=0.0,
+                            after_action=self.completed)
         self.odom_pub.put(odom)
         self.state_pub.put(state)
 

@@ -44,7 +44,7 @@ def _receiver(endpoint: str, results) -> None:
             results.put(_digest(frame))
 
     with Bus.open(build_config(connect=[endpoint]), "r1", "receiver") as bus:
-        bus.subscribe(keys.rgbd("r1"), RgbdFrame, on_frame, latest_only=True)
+        bus.subscribe(keys.rgbd("r1"), RgbdFrame, on_frame, keep=1)
         got.wait(60)
 
 

@@ -39,6 +39,11 @@ class Robot(Planner):
         return wait_for(lambda: next((f for f in self.frames if f.seq == seq), None), 20,
                         f"frame {seq}")  # type: ignore[return-value]
 
+    def frame_after(self, action_id: int) -> RgbdFrame:
+        """The first frame rendered after command ``action_id`` completed."""
+        return wait_for(lambda: next((f for f in self.frames if f.after_action == action_id), None), 20,
+                        f"a frame after command {action_id}")  # type: ignore[return-value]
+
 
 @contextmanager
 def _start(inproc_router: str, config: SimServiceConfig) -> Iterator[Robot]:
@@ -68,44 +73,46 @@ def _camera_xy(frame: RgbdFrame) -> tuple[float, float]:
     return float(m[0, 3]), float(m[1, 3])
 
 
-def test_lock_step_kinematic_a_command_yields_a_new_frame_reported_as_frame_seq(kinematic: Robot) -> None:
+def test_lock_step_kinematic_a_command_yields_one_new_frame_that_says_it_follows_it(kinematic: Robot
+                                                                                   ) -> None:
     first = kinematic.frame(0)  # published at start-up, re-published for late subscribers
-    assert kinematic.state().frame_seq == 0 and first.instance_ids is not None
+    assert first.after_action == 0 and first.instance_ids is not None
     assert _camera_xy(first) == pytest.approx((1.5, 2.0))
     state = kinematic.execute(PlanCommand(action_id=1, stamp=0.0, action=Action.MOVE_FORWARD))
-    assert state.last_outcome == "done" and state.frame_seq == 1
-    assert _camera_xy(kinematic.frame(1)) == pytest.approx((1.75, 2.0))
-    wait_for(lambda: kinematic.odoms[-1].x == pytest.approx(1.75), 10, "odometry (exact)")
-    state = kinematic.execute(PlanCommand(action_id=2, stamp=0.0, action=Action.TURN_LEFT))
-    assert state.frame_seq == 2
+    assert state.last_outcome == "done"
+    after = kinematic.frame_after(1)
+    assert after.seq == 1 and _camera_xy(after) == pytest.approx((1.75, 2.0))
+    odom = wait_for(lambda: (o := kinematic.odoms[-1]) and o.after_action == 1 and o, 10, "odometry")
+    assert odom.x == pytest.approx(1.75)  # exact, and measured after command 1
+    kinematic.execute(PlanCommand(action_id=2, stamp=0.0, action=Action.TURN_LEFT))
+    assert kinematic.frame_after(2).seq == 2
     assert kinematic.frame(2).pose_matrix[:3, 2] == pytest.approx(  # optical axis turned 30 deg
         (math.cos(math.radians(30)), math.sin(math.radians(30)), 0.0), abs=1e-6)
     # a re-sent command runs once: no new frame, the same state
     for _ in range(3):
         kinematic.commands.put(PlanCommand(action_id=2, stamp=0.0, action=Action.TURN_LEFT))
     wait_for(lambda: len([f for f in kinematic.frames if f.seq == 2]) >= 2, 10, "frame 2 re-published")
-    assert max(f.seq for f in kinematic.frames) == 2 and kinematic.state().frame_seq == 2
+    assert max(f.seq for f in kinematic.frames) == 2
 
 
 def test_a_blocked_move_reports_blocked(inproc_router: str, scene_file: Path) -> None:
     config = _config(scene_file).model_copy(update={"start": Pose(x=2.6, y=1.0, yaw=0.0)})  # wall at x=3
     with _start(inproc_router, config) as robot:
         state = robot.execute(PlanCommand(action_id=1, stamp=0.0, action=Action.MOVE_FORWARD))
-        assert state.last_outcome == "blocked" and state.frame_seq == 1
-        assert _camera_xy(robot.frame(1)) == pytest.approx((2.6, 1.0))
+        assert state.last_outcome == "blocked"
+        assert _camera_xy(robot.frame_after(1)) == pytest.approx((2.6, 1.0))
 
 
 def test_free_running_publishes_frames_at_a_rate(inproc_router: str, scene_file: Path) -> None:
     with _start(inproc_router, _config(scene_file, lock_step=False, frame_hz=10.0)) as robot:
         wait_for(lambda: len({f.seq for f in robot.frames}) >= 3, 20, "three distinct frames")
-        assert robot.state().frame_seq is None
 
 
 def test_odrive_motion_moves_the_robot_with_its_wheels(inproc_router: str, scene_file: Path) -> None:
     with _start(inproc_router, _config(scene_file, motion="odrive")) as robot:
         state = robot.execute(PlanCommand(action_id=1, stamp=0.0, action=Action.MOVE_FORWARD))
-        assert state.last_outcome == "done" and state.frame_seq is not None and state.frame_seq >= 1
-        x, y = _camera_xy(robot.frame(state.frame_seq))  # rendered from the true pose
+        assert state.last_outcome == "done"
+        x, y = _camera_xy(robot.frame_after(1))  # rendered from the true pose
         assert (x, y) == pytest.approx((1.75, 2.0), abs=0.01)
         odom = wait_for(lambda: (o := robot.odoms[-1]) and abs(o.x - 1.75) < 0.01 and o, 10, "odometry")
         assert odom.y == pytest.approx(2.0, abs=0.01)
@@ -119,3 +126,20 @@ def test_config_refuses_a_scene_without_a_start_and_unknown_keys(scene_file: Pat
         SimServiceConfig.model_validate({"motion": "kinematic", "speed": 2})
     with pytest.raises(ValidationError):
         SimServiceConfig.model_validate({"motion": "teleport"})
+
+
+def test_the_kinematic_base_advertises_its_primitive_sizes_and_runs_an_id_once() -> None:
+    from services.sim.kinematic import KinematicBase
+    from services.sim.robot import MotionConfig, SimRobot
+    from shared.messages import PlanCommand
+    from shared.motion import Action, Pose
+    from shared.robot import PRIMITIVES, Primitives
+
+    base = KinematicBase(SimRobot(Pose(x=0.0, y=0.0), lambda x, y: True))
+    assert base.state().primitives == PRIMITIVES
+    wide = KinematicBase(SimRobot(Pose(x=0.0, y=0.0), lambda x, y: True, MotionConfig(turn_deg=45.0)))
+    assert wide.state().primitives == Primitives(turn_deg=45.0)
+    move = PlanCommand(action_id=1, stamp=0.0, action=Action.MOVE_FORWARD)
+    assert [base.submit(move), base.submit(move)] == ["accepted", "duplicate"]
+    base.execute()
+    assert base.robot.pose.x == PRIMITIVES.forward_m and base.state().last_completed == 1

@@ -21,10 +21,10 @@ from pydantic import Field, model_validator
 from services.base_driver.config import DriverConfig
 from services.base_driver.driver import BaseDriver
 from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
-from shared import keys
-from shared.bus import Bus
+from shared.bus import BusCore
 from shared.messages import DriverState, EStop, Odometry, PlanCommand
-from shared.service import Service, ServiceConfig
+from shared.config import ServiceConfig
+from shared.service import Service
 
 
 class Base(Protocol):
@@ -80,7 +80,7 @@ class BaseDriverService(Service):
     Config = BaseDriverServiceConfig
     config: PublishingConfig
 
-    def __init__(self, bus: Bus, config: PublishingConfig) -> None:
+    def __init__(self, bus: BusCore, config: PublishingConfig) -> None:
         super().__init__(bus, config)
         self.tick_hz = config.tick_hz
         self._last_state: DriverState | None = None
@@ -94,12 +94,8 @@ class BaseDriverService(Service):
         return BaseDriver(config.driver).start()
 
     def start(self) -> None:
-        robot = self.bus.robot_id
         self.base = self.make_base()
-        self.odom_pub = self.bus.publisher(keys.odom(robot), Odometry)
-        self.state_pub = self.bus.publisher(keys.driver_state(robot), DriverState)
-        self.bus.subscribe(keys.plan_command(robot), PlanCommand, self._on_command)
-        self.bus.subscribe(keys.estop(robot), EStop, self._on_estop)
+        self.wire({"plan_command": self._on_command, "estop": self._on_estop})
 
     def _on_command(self, command: PlanCommand) -> None:
         outcome = self.base.submit(command)
@@ -122,10 +118,10 @@ class BaseDriverService(Service):
         changed = self._last_state is None or _content(state) != _content(self._last_state)
         state_due = changed or now - self._state_at >= 1.0 / self.config.state_hz
         if state_due or now - self._odom_at >= 1.0 / self.config.odom_hz:
-            self.odom_pub.put(self.base.odometry())
+            self.out["odom"].put(self.base.odometry())
             self._odom_at = now
         if state_due:
-            self.state_pub.put(state)
+            self.out["driver_state"].put(state)
             self._last_state, self._state_at = state, now
 
     def info(self) -> dict[str, Any]:

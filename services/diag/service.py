@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import threading
 import time
 from typing import Any
 
@@ -12,9 +11,10 @@ from pydantic import Field
 from services.diag.monitor import TrafficStats
 from services.diag.testpattern import pattern_frame
 from shared import keys
-from shared.bus import Bus
+from shared.bus import BusCore
+from shared.config import ServiceConfig
 from shared.messages import RgbdFrame
-from shared.service import Service, ServiceConfig
+from shared.service import Service
 
 
 class TestPatternConfig(ServiceConfig):
@@ -31,19 +31,19 @@ class TestPatternService(Service):
     Config = TestPatternConfig
     config: TestPatternConfig
 
-    def __init__(self, bus: Bus, config: TestPatternConfig) -> None:
+    def __init__(self, bus: BusCore, config: TestPatternConfig) -> None:
         super().__init__(bus, config)
         self.tick_hz = config.rate_hz
         self.seq = 0
 
     def start(self) -> None:
-        self.pub = self.bus.publisher(keys.rgbd(self.bus.robot_id), RgbdFrame)
+        self.wire({})
 
     def tick(self) -> None:
         c = self.config
         frame = pattern_frame(self.seq, 0.0, width=c.width, height=c.height, seed=c.seed)
         # Stamp when the frame is complete, as a camera driver stamps at capture.
-        self.pub.put(frame.model_copy(update={"stamp": time.time()}))
+        self.out["rgbd"].put(frame.model_copy(update={"stamp": time.time()}))
         self.seq += 1
 
     def info(self) -> dict[str, Any]:
@@ -62,15 +62,14 @@ class MonitorService(Service):
     Config = MonitorConfig
     config: MonitorConfig
 
-    def __init__(self, bus: Bus, config: MonitorConfig) -> None:
+    def __init__(self, bus: BusCore, config: MonitorConfig) -> None:
         super().__init__(bus, config)
         self.tick_hz = 1.0 / config.report_s
         self.traffic = TrafficStats(config.window_s)
-        self._lock = threading.Lock()
         self._rgbd = keys.rgbd(bus.robot_id)
 
     def start(self) -> None:
-        self.bus.subscribe_raw(keys.robot_all(self.bus.robot_id), self._on_payload)
+        self.wire({"robot_all": self._on_payload})
 
     def _on_payload(self, key: str, payload: bytes) -> None:
         now = time.time()
@@ -78,12 +77,10 @@ class MonitorService(Service):
         if key == self._rgbd:
             frame = self.bus.decode(key, RgbdFrame, payload)
             latency = None if frame is None else now - frame.stamp
-        with self._lock:
-            self.traffic.observe(key, len(payload), now, latency)
+        self.traffic.observe(key, len(payload), now, latency)
 
     def _report(self) -> list[dict[str, Any]]:
-        with self._lock:
-            return [dataclasses.asdict(r) for r in self.traffic.report(time.time())]
+        return [dataclasses.asdict(r) for r in self.traffic.report(time.time())]
 
     def tick(self) -> None:
         for row in self._report():

@@ -5,11 +5,14 @@ frame seq. A frame whose result has not come within ``match_timeout_s`` is
 fused without values (obstacles, explored area, frontiers still grow), so a
 slow or absent perception service never stalls the map. The value layers
 follow the target list of the newest perception result.
+
+Everything runs on the service's one thread (fusing, snapshots for the
+periodic put and for queries, checkpoints), so the map needs no lock and a
+snapshot is always of one consistent state (:meth:`MapState.snapshot` copies).
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -19,8 +22,7 @@ from pydantic import Field
 from services.mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from services.mapping.config import MappingConfig
 from services.mapping.state import MapState
-from shared import keys
-from shared.bus import Bus
+from shared.bus import BusCore
 from shared.messages import MapSnapshot, PerceptionResult, RgbdFrame
 from shared.service import Service
 
@@ -39,13 +41,12 @@ class MappingService(Service):
     Config = MappingServiceConfig
     config: MappingServiceConfig
 
-    def __init__(self, bus: Bus, config: MappingServiceConfig) -> None:
+    def __init__(self, bus: BusCore, config: MappingServiceConfig) -> None:
         if config.checkpoint_path is not None:
             config = config.model_copy(update={"checkpoint_path": Path(
                 str(config.checkpoint_path).replace("{robot_id}", bus.robot_id))})
         super().__init__(bus, config)
         self.tick_hz = config.publish_hz
-        self._lock = threading.Lock()
         self._frames: dict[int, tuple[RgbdFrame, float]] = {}
         self._results: dict[int, PerceptionResult] = {}
         self._published_seq = -2
@@ -64,67 +65,53 @@ class MappingService(Service):
         return MapState(self.config)
 
     def start(self) -> None:
-        robot = self.bus.robot_id
-        self.snapshots = self.bus.publisher(keys.map_snapshot(robot), MapSnapshot)
-        self.bus.subscribe(keys.rgbd(robot), RgbdFrame, self._on_frame, latest_only=True)
-        self.bus.subscribe(keys.perception_result(robot), PerceptionResult, self._on_result)
-        self.bus.queryable(keys.map_snapshot(robot), lambda _query: self.snapshot())
+        self.wire({"rgbd": self._on_frame, "perception_result": self._on_result},
+                  answers={"map_snapshot": self.snapshot})
 
     # -- inputs --------------------------------------------------------------------------------
     def _on_frame(self, frame: RgbdFrame) -> None:
-        with self._lock:
-            result = self._results.pop(frame.seq, None)
-            if result is None:
-                self._frames.setdefault(frame.seq, (frame, time.monotonic()))  # a repeat keeps its wait
-                _trim(self._frames, self.config.max_pending)
-                return
-            self.state.apply(frame, result)
+        result = self._results.pop(frame.seq, None)
+        if result is None:
+            self._frames.setdefault(frame.seq, (frame, time.monotonic()))  # a repeat keeps its wait
+            _trim(self._frames, self.config.max_pending)
+            return
+        self.state.apply(frame, result)
 
     def _on_result(self, result: PerceptionResult) -> None:
-        with self._lock:
-            pending = self._frames.pop(result.seq, None)
-            if pending is None:
-                self._results[result.seq] = result
-                _trim(self._results, self.config.max_pending)
-                return
-            self.state.apply(pending[0], result)
-
+        pending = self._frames.pop(result.seq, None)
+        if pending is None:
+            self._results[result.seq] = result
+            _trim(self._results, self.config.max_pending)
+            return
+        self.state.apply(pending[0], result)
 
     # -- periodic work -------------------------------------------------------------------------
     def tick(self) -> None:
         now = time.monotonic()
-        with self._lock:
-            expired = sorted(s for s, (_, t) in self._frames.items()
-                             if now - t > self.config.match_timeout_s)
-            for seq in expired:
-                self.state.apply(self._frames.pop(seq)[0], None)
-            changed = self.state.seq != self._published_seq
-            snapshot = self._snapshot() if changed else None
-        if snapshot is not None:
-            self.snapshots.put(snapshot)
+        expired = sorted(s for s, (_, t) in self._frames.items() if now - t > self.config.match_timeout_s)
+        for seq in expired:
+            self.state.apply(self._frames.pop(seq)[0], None)
+        if self.state.seq != self._published_seq:
+            snapshot = self.snapshot()
+            self.out["map_snapshot"].put(snapshot)
             self._published_seq = snapshot.seq
         if self.config.checkpoint_path and now - self._last_checkpoint >= self.config.checkpoint_every_s:
             self._checkpoint()
 
-    def _snapshot(self) -> MapSnapshot:
-        return self.state.snapshot(time.time(), with_confidence=False)
-
     def snapshot(self) -> MapSnapshot:
-        with self._lock:
-            return self._snapshot()
+        return self.state.snapshot(time.time(), with_confidence=False)
 
     def _checkpoint(self) -> None:
         assert self.config.checkpoint_path is not None
-        with self._lock:
-            save_checkpoint(self.state, self.config.checkpoint_path, time.time())
+        save_checkpoint(self.state, self.config.checkpoint_path, time.time())
         self._last_checkpoint = time.monotonic()
 
     def info(self) -> dict[str, Any]:
-        with self._lock:
-            return {"seq": self.state.seq, "layers": list(self.state.layers),
-                    "explored_m2": round(float(self.state.explored.sum()) * self.config.resolution ** 2, 2),
-                    "objects": len(self.state.objects.instances()),
-                    "pending_frames": len(self._frames), "pending_results": len(self._results)}
+        return {"seq": self.state.seq, "after_action": self.state.after_action,
+                "layers": list(self.state.layers),
+                "explored_m2": round(float(self.state.explored.sum()) * self.config.resolution ** 2, 2),
+                "objects": len(self.state.objects.instances()),
+                "pending_frames": len(self._frames), "pending_results": len(self._results)}
 
     def stop(self) -> None:
         if self.config.checkpoint_path:

@@ -35,6 +35,7 @@ class MapState:
         self.objects = ObjectMap(c.object_merge_distance_m, c.object_confirm_hits, c.decision_threshold,
                                  **_evidence(c))
         self.seq = -1
+        self.after_action = 0  # newest RgbdFrame.after_action fused: the map's causal freshness
         # bounding box (row0, row1, col0, col1) of everything explored: frontier search stays in it
         self._bbox: tuple[int, int, int, int] | None = None
         for target in targets:
@@ -95,6 +96,7 @@ class MapState:
         if detections:
             self.objects.add([d for d in detections if d.label in self.values], frame)
         self.seq = max(self.seq, frame.seq)
+        self.after_action = max(self.after_action, frame.after_action)
 
     def _grow_bbox(self, rows: slice, cols: slice) -> None:
         box = (rows.start, rows.stop, cols.start, cols.stop)
@@ -158,7 +160,9 @@ class MapState:
 
     # -- snapshots and checkpoints --------------------------------------------------------------
     def snapshot(self, stamp: float, *, with_confidence: bool = True) -> MapSnapshot:
-        """The map as a message; checkpoints need the confidences, the planner does not."""
+        """The map as a message: a copy, so it stays one consistent state however long its
+        encoding takes and whatever is fused meanwhile. Checkpoints need the confidences, the
+        planner does not."""
         layers = self.layers
 
         def stacked(grids: dict[str, np.ndarray]) -> np.ndarray:
@@ -167,10 +171,11 @@ class MapState:
 
         values = stacked(self.values)
         confidence = stacked(self.confidence) if with_confidence else None
-        return MapSnapshot(seq=self.seq, stamp=stamp, resolution=self.grid.resolution,
-                           origin=(self.grid.x0, self.grid.y0), layers=layers,
-                           objects=self.objects.instances(), obstacle=self.obstacle,
-                           explored=self.explored, counts=self.counts, values=values,
+        return MapSnapshot(seq=self.seq, after_action=self.after_action, stamp=stamp,
+                           resolution=self.grid.resolution, origin=(self.grid.x0, self.grid.y0),
+                           layers=layers, objects=self.objects.instances(),
+                           obstacle=self.obstacle.copy(), explored=self.explored.copy(),
+                           counts=self.counts.copy(), values=values,
                            confidence=confidence, frontiers=self.frontiers())
 
     @classmethod
@@ -190,6 +195,7 @@ class MapState:
             snapshot.objects, config.object_merge_distance_m, config.object_confirm_hits,
             config.decision_threshold, **_evidence(config))
         state.seq = snapshot.seq
+        state.after_action = snapshot.after_action
         rows, cols = np.nonzero(state.explored)
         if rows.size:
             state._bbox = (int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1)

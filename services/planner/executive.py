@@ -8,30 +8,38 @@ rules be tested message by message:
 * one command in flight at a time, identified by ``action_id``; it is re-sent
   until the driver reports it active or completed (a put can be lost), and the
   driver executes an id once;
-* lock-step: after a command completes, the next decision waits for a map that
-  fused the frame taken after it (``DriverState.frame_seq``; or, from a driver
-  that cannot know it, a map and an odometry newer than the completion);
-* nothing is sent while the driver is in fault or e-stop;
+* lock-step, causal: after command N completes, the step is booked with an
+  odometry measured after it (``Odometry.after_action >= N``) and the next
+  decision waits for a map that fused a frame captured after it
+  (``MapSnapshot.after_action >= N``). No clock of another host is read, so
+  skew between laptop and robot cannot stall the planner or let it decide on a
+  stale map;
+* a command the driver is running that this planner did not send (it was
+  restarted) is waited for, and new ids continue after it, so the driver
+  never drops a new command as a duplicate of an old one;
+* nothing is sent while the driver is in fault or e-stop, or advertises primitive sizes
+  (``DriverState.primitives``) other than the planner's;
 * the task's progress goes out as a :class:`TaskEvent` after every step and
   again every ``event_every_s`` (the gateway may have missed one).
+
+``now`` in :meth:`Executive.poll` is a monotonic clock (timers only); the
+stamps of outgoing messages come from ``wall_clock`` (for people and logs).
 """
 
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
-from services.planner.task import FINAL, Task, TaskError, TaskState
-from shared.messages import (DriverMode, DriverState, FoundObject, JsonMessage, MapSnapshot,
-                             Odometry, PlanCommand, TaskEvent, TaskSpec, TaskStatus)
+from services.planner.task import SearchTask, SearchTaskError
+from shared.messages import (FINAL, DriverMode, DriverState, JsonMessage, MapSnapshot, Odometry,
+                             PlanCommand, TaskEvent, TaskSpec, TaskStatus)
 from shared.motion import Pose
-
-_STATUS = {TaskState.IDLE: TaskStatus.QUEUED, TaskState.SEARCHING: TaskStatus.SEARCHING,
-           TaskState.DONE: TaskStatus.DONE, TaskState.FAILED: TaskStatus.FAILED,
-           TaskState.CANCELLED: TaskStatus.CANCELLED}
 
 
 class ExecutiveConfig(BaseModel):
@@ -51,9 +59,11 @@ class _InFlight:
 
 
 class Executive:
-    def __init__(self, config: ExecutiveConfig | None = None) -> None:
+    def __init__(self, config: ExecutiveConfig | None = None,
+                 wall_clock: Callable[[], float] = time.time) -> None:
         self.config = config or ExecutiveConfig()
-        self.task: Task | None = None
+        self._wall_clock = wall_clock
+        self.task: SearchTask | None = None
         self.agent: SearchAgent | None = None
         self.driver: DriverState | None = None
         self.odom: Odometry | None = None
@@ -73,7 +83,7 @@ class Executive:
                 return  # a cancelled task this planner never ran: nothing to do
             if task is not None and task.state not in FINAL:
                 task.cancel()  # superseded (the gateway runs one task per robot)
-            self.task = Task(spec.task_id, list(spec.targets), max_steps=spec.max_steps)
+            self.task = SearchTask(spec.task_id, list(spec.targets), max_steps=spec.max_steps)
             self.agent = SearchAgent(self.task, self.config.agent)
             self.in_flight = None
             self._event_due = True
@@ -91,14 +101,15 @@ class Executive:
                 task.add_targets(added)
             if removed:
                 task.remove_targets(removed)
-        except TaskError:
+        except SearchTaskError:
             return
         self._event_due = self._event_due or bool(added or removed)
 
     def on_driver(self, state: DriverState) -> None:
         self.driver = state
-        if state.last_completed >= self._next_id:  # ids continue after a planner restart
-            self._next_id = state.last_completed + 1
+        newest = max(state.last_completed, state.active_action or 0)
+        if newest >= self._next_id:  # ids continue after the driver's (a planner restart)
+            self._next_id = newest + 1
 
     def on_odom(self, odom: Odometry) -> None:
         self.odom = odom
@@ -108,34 +119,36 @@ class Executive:
             self.snapshot = snapshot
 
     # -- what the service asks -----------------------------------------------------------------
-    def wanted_seq(self) -> int | None:
-        """The frame seq a decision is waiting for in the map (lock-step), if any."""
+    def map_wanted(self) -> int | None:
+        """The command a decision waits for the map to have seen the world after (lock-step):
+        the service then asks the mapping service for a snapshot instead of waiting for its
+        next periodic one. None when nothing is waited for."""
         d = self.driver
-        if not self.config.lock_step or d is None or d.frame_seq is None or self.in_flight:
+        if not self.config.lock_step or d is None or self.in_flight:
             return None
-        if self.snapshot is not None and self.snapshot.seq >= d.frame_seq:
+        if self.snapshot is not None and self.snapshot.after_action >= d.last_completed:
             return None
-        return d.frame_seq
+        return d.last_completed
 
     def poll(self, now: float) -> list[JsonMessage]:
         """The messages to publish now (commands, task events)."""
         commands: list[JsonMessage] = []
-        if self.task is not None and self.task.state is TaskState.SEARCHING:
+        if self.task is not None and self.task.state is TaskStatus.SEARCHING:
             commands = self._drive(now)
         out: list[JsonMessage] = []
         if self.task is not None and (self._event_due or now - self._last_event >= self.config.event_every_s):
             # the event first: a found target must reach perception before the next frame does
-            out.append(self.event(now))
+            out.append(self.event())
             self._event_due, self._last_event = False, now
         return out + commands
 
-    def event(self, now: float) -> TaskEvent:
+    def event(self) -> TaskEvent:
         task = self.task
         assert task is not None
-        found = tuple(FoundObject(label=f.label, x=f.x, y=f.y, step=f.step) for f in task.found.values())
         pose = self._pose()
-        return TaskEvent(task_id=task.task_id, status=_STATUS[task.state], targets=tuple(task.targets),
-                         found=found, steps=task.steps, distance_m=task.distance, stamp=now,
+        return TaskEvent(task_id=task.task_id, status=task.state, targets=tuple(task.targets),
+                         found=tuple(task.found.values()), steps=task.steps,
+                         distance_m=task.distance, stamp=self._wall_clock(),
                          message=task.reason or self.waiting,
                          x=None if pose is None else pose.x, y=None if pose is None else pose.y)
 
@@ -147,8 +160,15 @@ class Executive:
         if d.mode in (DriverMode.FAULT, DriverMode.ESTOP):
             reason = "e-stop latched" if d.mode is DriverMode.ESTOP else f"driver fault: {', '.join(d.faults)}"
             return self._wait(reason)
+        ours = self.config.agent.primitives
+        if d.primitives is not None and not d.primitives.matches(ours):
+            return self._wait(f"driver's primitives ({d.primitives}) differ from the planner's "
+                              f"({ours}): fix the configs")
         if self.in_flight is not None:
             return self._follow_up(now, d)
+        if d.active_action is not None:
+            return self._wait(f"waiting for command {d.active_action}, sent before this planner "
+                              f"started, to finish")
         return self._decide(now, d)
 
     def _follow_up(self, now: float, d: DriverState) -> list[JsonMessage]:
@@ -156,16 +176,16 @@ class Executive:
         assert flight is not None and self.agent is not None
         action_id = flight.command.action_id
         if d.last_completed >= action_id:
-            if self.odom is None or self.odom.stamp < d.completed_stamp:
+            if self.odom is None or self.odom.after_action < action_id:
                 # odometry and driver state travel separately: the pose after the command must
                 # be in before the step is booked (distance) and the next one decided (pose)
-                return self._wait("waiting for odometry after the command")
+                return self._wait(f"waiting for odometry after command {action_id}")
             self.in_flight = None
             pose = self._pose() or flight.pose
             moved = math.hypot(pose.x - flight.pose.x, pose.y - flight.pose.y)
             self.agent.executed(flight.step, moved, d.last_outcome == "blocked", flight.pose)
             self._event_due = True
-            return self._decide(now, d) if self.task and self.task.state is TaskState.SEARCHING else []
+            return self._decide(now, d) if self.task and self.task.state is TaskStatus.SEARCHING else []
         if d.active_action != action_id and now - flight.sent >= self.config.resend_s:
             flight.sent = now
             return [flight.command]
@@ -177,11 +197,11 @@ class Executive:
         if snapshot is None or pose is None:
             return self._wait("waiting for the map" if snapshot is None else "waiting for odometry")
         if self.config.lock_step:
-            if d.frame_seq is not None and snapshot.seq < d.frame_seq:
-                return self._wait(f"waiting for the map to fuse frame {d.frame_seq}")
-            if d.frame_seq is None and (snapshot.stamp < d.completed_stamp
-                                        or self.odom is None or self.odom.stamp < d.completed_stamp):
-                return self._wait("waiting for a map and odometry newer than the last command")
+            if snapshot.after_action < d.last_completed:
+                return self._wait(f"waiting for the map to fuse a frame taken after command "
+                                  f"{d.last_completed}")
+            if self.odom is None or self.odom.after_action < d.last_completed:
+                return self._wait(f"waiting for odometry after command {d.last_completed}")
         elif snapshot.seq == self._decided_on:
             return []
         self.waiting = ""
@@ -190,7 +210,7 @@ class Executive:
         if step.action is None:
             self._event_due = True
             return []
-        command = PlanCommand(action_id=self._next_id, stamp=now, task_id=self.task.task_id if self.task
+        command = PlanCommand(action_id=self._next_id, stamp=self._wall_clock(), task_id=self.task.task_id if self.task
                               else None, action=step.action)
         self._next_id += 1
         self.in_flight = _InFlight(command, step, pose, now)

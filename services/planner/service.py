@@ -1,24 +1,26 @@
 """The planner service: task, driver state, odometry and maps in; commands and task events out.
 
-A thin adapter around :class:`services.planner.executive.Executive`. In lock-step
-mode a decision waits for the map that fused the frame taken after the last
-command; rather than wait for the mapping service's next periodic snapshot,
-the planner asks its queryable for one as soon as the driver reports the frame.
+A thin adapter around :class:`services.planner.executive.Executive`, on the
+service's one thread (handlers and ticks never overlap, so no lock). In
+lock-step mode a decision waits for a map that fused a frame taken after the
+last command; rather than wait for the mapping service's next periodic
+snapshot, the planner asks its queryable for one (without blocking: the reply
+arrives as an event like any message).
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from typing import Any
 
 from pydantic import Field
 
 from services.planner.executive import Executive, ExecutiveConfig
-from shared import keys
-from shared.bus import Bus
-from shared.messages import DriverState, JsonMessage, MapSnapshot, Odometry, PlanCommand, TaskEvent, TaskSpec
-from shared.service import Service, ServiceConfig
+from shared.bus import BusCore
+from shared.config import ServiceConfig
+from shared.messages import MapSnapshot, PlanCommand
+from shared.service import Service
+from shared.topology import TOPOLOGY
 
 
 class PlannerServiceConfig(ServiceConfig, ExecutiveConfig):
@@ -31,57 +33,39 @@ class PlannerService(Service):
     Config = PlannerServiceConfig
     config: PlannerServiceConfig
 
-    def __init__(self, bus: Bus, config: PlannerServiceConfig) -> None:
+    def __init__(self, bus: BusCore, config: PlannerServiceConfig) -> None:
         super().__init__(bus, config)
         self.tick_hz = config.tick_hz
-        self._lock = threading.Lock()
         self.executive = Executive(ExecutiveConfig.model_validate(
             config.model_dump(include=set(ExecutiveConfig.model_fields))))
+        self._asked_for: int | None = None  # the command a map request in flight is for
 
     def start(self) -> None:
-        robot = self.bus.robot_id
-        self.commands = self.bus.publisher(keys.plan_command(robot), PlanCommand)
-        self.events = self.bus.publisher(keys.task_events(robot), TaskEvent)
         ex = self.executive
-        self.bus.subscribe(keys.task_current(robot), TaskSpec, self._locked(ex.on_task))
-        self.bus.subscribe(keys.driver_state(robot), DriverState, self._locked(ex.on_driver))
-        self.bus.subscribe(keys.odom(robot), Odometry, self._locked(ex.on_odom), latest_only=True)
-        self.bus.subscribe(keys.map_snapshot(robot), MapSnapshot, self._locked(ex.on_snapshot),
-                           latest_only=True)
-
-    def _locked(self, handler: Any) -> Any:
-        def call(msg: Any) -> None:
-            with self._lock:
-                handler(msg)
-        return call
+        self.wire({"task_current": ex.on_task, "driver_state": ex.on_driver, "odom": ex.on_odom,
+                   "map_snapshot": ex.on_snapshot})
 
     def tick(self) -> None:
-        with self._lock:
-            wanted = self.executive.wanted_seq()
-        if wanted is not None:  # lock-step: fetch the map now instead of waiting for its next put
-            snapshot = self.bus.get(keys.map_snapshot(self.bus.robot_id), MapSnapshot,
-                                    self.config.query_timeout_s)
-            if snapshot is not None:
-                with self._lock:
-                    self.executive.on_snapshot(snapshot)
-        with self._lock:
-            out = self.executive.poll(time.time())
-        for msg in out:
-            self._publish(msg)
+        wanted = self.executive.map_wanted()
+        if wanted is not None and self._asked_for is None:
+            self._asked_for = wanted
+            port = TOPOLOGY[self.name].port("queries", "map_snapshot")
+            self.bus.request(port.key(self.bus.robot_id), MapSnapshot, self._on_map_reply,
+                             self.config.query_timeout_s)
+        for msg in self.executive.poll(time.monotonic()):
+            self.out["plan_command" if isinstance(msg, PlanCommand) else "task_events"].put(msg)
 
-    def _publish(self, msg: JsonMessage) -> None:
-        if isinstance(msg, PlanCommand):
-            self.commands.put(msg)
-        elif isinstance(msg, TaskEvent):
-            self.events.put(msg)
+    def _on_map_reply(self, snapshot: MapSnapshot | None) -> None:
+        self._asked_for = None
+        if snapshot is not None:
+            self.executive.on_snapshot(snapshot)
 
     def info(self) -> dict[str, Any]:
-        with self._lock:
-            ex = self.executive
-            task = ex.task
-            return {"task": None if task is None else task.task_id,
-                    "state": None if task is None else task.state.value,
-                    "steps": 0 if task is None else task.steps,
-                    "found": [] if task is None else list(task.found),
-                    "waiting": ex.waiting,
-                    "in_flight": None if ex.in_flight is None else ex.in_flight.command.action_id}
+        ex = self.executive
+        task = ex.task
+        return {"task": None if task is None else task.task_id,
+                "state": None if task is None else task.state.value,
+                "steps": 0 if task is None else task.steps,
+                "found": [] if task is None else list(task.found),
+                "waiting": ex.waiting,
+                "in_flight": None if ex.in_flight is None else ex.in_flight.command.action_id}

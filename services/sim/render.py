@@ -224,9 +224,10 @@ class SceneRenderer:
         np.divide(np.float32(f * n), out, out=out)
         return out
 
-    def render(self, x: float, y: float, yaw: float, *, seq: int = 0, stamp: float = 0.0
-               ) -> RgbdFrame:
-        """The frame a level camera at (x, y, ``CAMERA_HEIGHT_M``) sees looking along ``yaw``."""
+    def render(self, x: float, y: float, yaw: float, *, seq: int = 0, stamp: float = 0.0,
+               after_action: int = 0) -> RgbdFrame:
+        """The frame a level camera at (x, y, ``CAMERA_HEIGHT_M``) sees looking along ``yaw``
+        (``after_action``: the last command completed before it, see :class:`RgbdFrame`)."""
         if self._con is None:
             raise RuntimeError("render() after close()")
         mj = self._mj
@@ -258,7 +259,7 @@ class SceneRenderer:
         np.left_shift(seg[..., 2], 16, out=tmp, dtype=np.int32)
         code |= tmp
         np.take(self._segment_lut(), code, out=arrays["instance_ids"], mode="clip")
-        return RgbdFrame(seq=seq, stamp=stamp, intrinsics=self.intrinsics,
+        return RgbdFrame(seq=seq, stamp=stamp, after_action=after_action, intrinsics=self.intrinsics,
                          camera_pose=camera_pose(x, y, yaw), **arrays)
 
     # -- lifetime ----------------------------------------------------------------------------

@@ -15,14 +15,14 @@ perception backend reads).
   bus in this process; the wheels move the robot, odometry comes from the
   encoders (it starts at the start pose, so it shares the map's world frame).
 
-Lock-step (default): after each completed command one frame is rendered and
-published, and ``DriverState.frame_seq`` carries its seq with the
-``last_completed`` it follows, so the planner waits for a map that fused it.
-The state is read *before* the frame is rendered, so a published state never
-pairs a completion with an older frame. A frame is published at start-up too,
-and the latest one is re-published (same seq) every ``republish_s`` while
-idle, for a subscriber that joined late. Free-running: a new frame every
-``1 / frame_hz`` s, and no ``frame_seq``.
+Every frame carries ``after_action``, the last command completed when it was
+rendered (the state is read *before* the frame is rendered, so a frame never
+claims a completion it does not show). Lock-step (default): after each
+completed command one frame is rendered and published, so the planner's wait
+for a map with ``after_action`` >= its command ends with exactly that frame.
+A frame is published at start-up too, and the latest one is re-published
+(same seq) every ``republish_s`` while idle, for a subscriber that joined
+late. Free-running: a new frame every ``1 / frame_hz`` s.
 
 The renderer owns an OpenGL context, so it is created and used only on the
 service's main thread (``start`` and ``tick``).
@@ -43,9 +43,8 @@ from services.sim.kinematic import KinematicBase
 from services.sim.render import SceneRenderer
 from services.sim.robot import MotionConfig, SimRobot
 from services.sim.wheels import WheeledSimRobot
-from shared import keys
-from shared.bus import Bus
-from shared.messages import DriverState, RgbdFrame
+from shared.bus import BusCore
+from shared.messages import RgbdFrame
 from shared.motion import Pose
 
 
@@ -77,13 +76,12 @@ class SimRobotService(BaseDriverService):
     Config = SimServiceConfig
     config: SimServiceConfig
 
-    def __init__(self, bus: Bus, config: SimServiceConfig) -> None:
+    def __init__(self, bus: BusCore, config: SimServiceConfig) -> None:
         super().__init__(bus, config)
         self._wheels: WheeledSimRobot | None = None
         self._kinematic: KinematicBase | None = None
         self._frame: RgbdFrame | None = None
         self._frame_at = -float("inf")
-        self._frame_after = 0        # the last_completed the latest frame follows
         self._next_seq = 0
 
     def make_base(self) -> Base:
@@ -108,8 +106,7 @@ class SimRobotService(BaseDriverService):
 
     def start(self) -> None:
         super().start()
-        self.frames = self.bus.publisher(keys.rgbd(self.bus.robot_id), RgbdFrame)
-        self._publish_frame(self._render())
+        self._publish_frame(self._render(self.base.state().last_completed))
 
     def _pose(self) -> Pose:
         return self._wheels.pose if self._wheels is not None else self.base_robot.pose
@@ -119,14 +116,15 @@ class SimRobotService(BaseDriverService):
         assert self._kinematic is not None
         return self._kinematic.robot
 
-    def _render(self) -> RgbdFrame:
+    def _render(self, after_action: int) -> RgbdFrame:
         p = self._pose()
-        frame = self.renderer.render(p.x, p.y, p.yaw, seq=self._next_seq, stamp=time.time())
+        frame = self.renderer.render(p.x, p.y, p.yaw, seq=self._next_seq, stamp=time.time(),
+                                     after_action=after_action)
         self._next_seq += 1
         return frame
 
     def _publish_frame(self, frame: RgbdFrame) -> None:
-        self.frames.put(frame)
+        self.out["rgbd"].put(frame)
         self._frame, self._frame_at = frame, time.monotonic()
 
     def tick(self) -> None:
@@ -134,18 +132,15 @@ class SimRobotService(BaseDriverService):
             self._kinematic.execute()
         state = self.base.state()  # before rendering: the frame is then newer than its completion
         now = time.monotonic()
+        assert self._frame is not None
         if not self.config.lock_step:
             if now - self._frame_at >= 1.0 / self.config.frame_hz:
-                self._publish_frame(self._render())
-            self.publish(state)
-            return
-        if state.last_completed > self._frame_after:
-            self._publish_frame(self._render())
-            self._frame_after = state.last_completed
-        elif self._frame is not None and now - self._frame_at >= self.config.republish_s:
+                self._publish_frame(self._render(state.last_completed))
+        elif state.last_completed > self._frame.after_action:
+            self._publish_frame(self._render(state.last_completed))
+        elif now - self._frame_at >= self.config.republish_s:
             self._publish_frame(self._frame)  # same seq, for late subscribers
-        assert self._frame is not None
-        self.publish(_with_frame(state, self._frame.seq))
+        self.publish(state)
 
     def info(self) -> dict[str, Any]:
         info = dict(super().info())
@@ -158,6 +153,3 @@ class SimRobotService(BaseDriverService):
         if hasattr(self, "renderer"):
             self.renderer.close()
 
-
-def _with_frame(state: DriverState, seq: int) -> DriverState:
-    return state.model_copy(update={"frame_seq": seq})
