@@ -249,6 +249,11 @@ class MapSnapshot(BinaryMessage):
     frontiers: np.ndarray
     confidence: np.ndarray | None = None  # per-layer fusion confidence: checkpoints carry it
 
+    def has_seen_after(self, action_id: int) -> bool:
+        """Whether the map fused a frame captured after command ``action_id`` completed: the one
+        freshness rule of lock-step, for the planner service and the in-process benchmark alike."""
+        return self.after_action >= action_id
+
 
     @model_validator(mode="after")
     def _check_shapes(self) -> Self:

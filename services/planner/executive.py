@@ -126,7 +126,7 @@ class Executive:
         d = self.driver
         if not self.config.lock_step or d is None or self.in_flight:
             return None
-        if self.snapshot is not None and self.snapshot.after_action >= d.last_completed:
+        if self.snapshot is not None and self.snapshot.has_seen_after(d.last_completed):
             return None
         return d.last_completed
 
@@ -197,7 +197,7 @@ class Executive:
         if snapshot is None or pose is None:
             return self._wait("waiting for the map" if snapshot is None else "waiting for odometry")
         if self.config.lock_step:
-            if snapshot.after_action < d.last_completed:
+            if not snapshot.has_seen_after(d.last_completed):
                 return self._wait(f"waiting for the map to fuse a frame taken after command "
                                   f"{d.last_completed}")
             if self.odom is None or self.odom.after_action < d.last_completed:
