@@ -103,7 +103,7 @@ class MockMapping:
 
     def __init__(self, endpoint: str, robot_id: str = ROBOT) -> None:
         self.bus = Bus.open(build_config(connect=[endpoint]), robot_id, "mock-mapping")
-        self.bus.queryable(keys.map_snapshot(robot_id), lambda _query: small_map())
+        self.bus.queryable(keys.map_snapshot(robot_id), small_map)
 
     def close(self) -> None:
         self.bus.close()

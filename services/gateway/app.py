@@ -4,6 +4,19 @@ Nothing touches Zenoh at import: the bus is acquired in the lifespan (from
 ``bus_source``, in a worker thread since opening may wait for a router), so
 the module can be imported by a process that forks later, and one process
 can build several apps (tests restart the gateway on the same state file).
+
+Threads (see :mod:`services.gateway.tasks` for the one that owns the tasks):
+- the asyncio event loop (uvicorn's thread) runs the middleware, the error
+  handlers, the event streams and the re-publish timer; it never touches the
+  store or Zenoh and takes no lock that anything holds across I/O (the
+  counters' lock only), so a slow commit cannot stall HTTP or the streams;
+- FastAPI's worker threads run the routes that read the store or query Zenoh
+  (plain ``def``), and wait there for the owner thread on submit / cancel;
+- the bus's inbox taker owns the tasks: planner events, submits, cancels and
+  re-publish rounds run there, and it notifies the streams through
+  ``loop.call_soon_threadsafe``.
+The bus given by ``bus_source`` must have its inbox taken (``ovamos run
+gateway``'s main loop, or a bus opened with ``dispatch="thread"``).
 """
 
 from __future__ import annotations
@@ -57,6 +70,7 @@ def create_app(config: GatewayConfig, bus_source: BusSource) -> FastAPI:
                     watchers.publish(gateway.view(record))
 
             manager = TaskManager(bus, store, config, notify)
+            stack.callback(manager.close)  # first: requests still waiting get a 503
             gateway = Gateway(config, bus, store, manager, watchers)
             await asyncio.to_thread(manager.start)
             app.state.gateway = gateway
@@ -113,13 +127,11 @@ class BodyLimit:
 
 
 async def _republish(manager: TaskManager, period_s: float) -> None:
-    """Re-send the active TaskSpecs forever; a failed round is logged and the next one tried."""
+    """Every ``period_s`` (the loop's monotonic clock), queue a re-publish round for the owner
+    thread; queueing never blocks, and a failed round is logged and counted there."""
     while True:
         await asyncio.sleep(period_s)
-        try:
-            await asyncio.to_thread(manager.republish)
-        except Exception:
-            manager.bus.record_failure("republish")
+        manager.request_republish()
 
 
 def _where(loc: tuple[object, ...]) -> str:

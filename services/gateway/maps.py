@@ -13,9 +13,11 @@ from collections.abc import Sequence
 import cv2
 
 from services.mapping.render import render_map
-from shared import keys
 from shared.bus import Bus
 from shared.messages import MapSnapshot
+from shared.topology import TOPOLOGY
+
+MAP_SNAPSHOT = TOPOLOGY["gateway"].port("queries", "map_snapshot")
 
 
 class NoMap(LookupError):
@@ -24,8 +26,8 @@ class NoMap(LookupError):
 
 def fetch_snapshot(bus: Bus, robot_id: str, timeout_s: float) -> MapSnapshot:
     """The first valid snapshot a mapping service answers; NoMap when none does (a malformed
-    answer is counted by the bus and treated as none)."""
-    snapshot = bus.get(keys.map_snapshot(robot_id), MapSnapshot, timeout_s)
+    answer is counted by the bus and treated as none). Blocks: for HTTP worker threads."""
+    snapshot = bus.get(MAP_SNAPSHOT.key(robot_id), MapSnapshot, timeout_s)
     if snapshot is None:
         raise NoMap(f"no map for robot {robot_id!r}: no mapping service answered with a valid map "
                     f"within {timeout_s} s")

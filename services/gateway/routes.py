@@ -1,5 +1,11 @@
-"""The ``/v1`` HTTP endpoints. Handlers that touch Zenoh or SQLite are plain ``def``:
-FastAPI runs them on worker threads, so a slow query never blocks the event loop."""
+"""The ``/v1`` HTTP endpoints.
+
+Handlers that touch Zenoh or SQLite are plain ``def``: FastAPI runs them on
+worker threads, so a slow query never blocks the event loop; the one ``async``
+handler (the event stream) reads through ``asyncio.to_thread``. Reads go
+straight to the store (they never wait for a commit); submit and cancel are
+run by the TaskManager's owner thread while the worker thread waits (503 when
+it cannot take them in time, with nothing changed)."""
 
 from __future__ import annotations
 
@@ -17,7 +23,7 @@ from services.gateway.models import (Health, Problem, RobotHealth, ServiceEntry,
                                      TaskList, TaskRequest, TaskView, check_against_config, task_view)
 from services.gateway.sse import TaskWatchers, task_stream
 from services.gateway.store import TaskRecord, TaskStore
-from services.gateway.tasks import TaskConflict, TaskManager
+from services.gateway.tasks import GatewayBusy, TaskConflict, TaskManager
 from shared import keys
 from shared.bus import Bus
 from shared.messages import TaskStatus
@@ -52,12 +58,19 @@ GW = Annotated[Gateway, Depends(_gateway)]
 router = APIRouter(prefix="/v1", responses={401: {"model": Problem}})
 
 
+def _busy(exc: GatewayBusy) -> HTTPException:
+    return HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc))
+
+
 @router.post("/tasks", status_code=status.HTTP_202_ACCEPTED, response_model=TaskAccepted,
-             responses={422: {"model": Problem}})
+             responses={422: {"model": Problem}, 503: {"model": Problem}})
 def submit_task(body: TaskRequest, response: Response, gw: GW) -> TaskAccepted:
     """Queue a search. It starts at once when the robot is idle, else after the tasks before it."""
     robot_id, max_steps = check_against_config(body, gw.config)
-    record = gw.manager.submit(robot_id, body.targets, max_steps)
+    try:
+        record = gw.manager.submit(robot_id, body.targets, max_steps)
+    except GatewayBusy as exc:
+        raise _busy(exc) from None
     location = f"/v1/tasks/{record.id}"
     response.headers["Location"] = location
     return TaskAccepted(id=record.id, status=record.status, robot_id=robot_id, location=location,
@@ -78,13 +91,15 @@ def get_task(task_id: str, gw: GW) -> TaskView:
 
 
 @router.delete("/tasks/{task_id}", response_model=TaskView,
-               responses={404: {"model": Problem}, 409: {"model": Problem}})
+               responses={404: {"model": Problem}, 409: {"model": Problem}, 503: {"model": Problem}})
 def cancel_task(task_id: str, gw: GW) -> TaskView:
     """Cancel a queued or running task (the planner is told with a cancelled TaskSpec)."""
     try:
         record = gw.manager.cancel(task_id)
     except TaskConflict as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    except GatewayBusy as exc:
+        raise _busy(exc) from None
     if record is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no task {task_id!r}")
     return gw.view(record)

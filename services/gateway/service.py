@@ -7,6 +7,13 @@ that :func:`~shared.service.run_service` opened is lent to the app; uvicorn
 runs on its own thread (it installs no signal handlers off the main thread,
 so shutdown stays with run_service) and the app is stopped before the bus
 is closed.
+
+Threads: the main thread, once :meth:`GatewayService.start` returned, takes the
+bus's inbox (run_service's loop) and so owns the tasks (planner events,
+submits, cancels, re-publish rounds: :mod:`services.gateway.tasks`); the
+``gateway-http`` thread runs uvicorn's event loop; FastAPI's worker threads
+run the routes (:mod:`services.gateway.app`). No tick: the gateway is event
+driven, and its re-publish timer lives on the event loop.
 """
 
 from __future__ import annotations
@@ -85,6 +92,7 @@ class GatewayService(Service):
     def stop(self) -> None:
         gateway = getattr(self.app.state, "gateway", None)
         if gateway is not None:
+            gateway.manager.close()  # the main thread no longer takes requests: answer them 503
             gateway.watchers.close()
         self.server.should_exit = True
         if self._thread.is_alive():

@@ -1,8 +1,11 @@
 """Task progress as Server-Sent Events, fed from whichever thread changed the task.
 
-Changes happen on HTTP worker threads and Zenoh callback threads; the streams
-live in the event loop. :class:`TaskWatchers` crosses over with
-``loop.call_soon_threadsafe`` (Zenoh has no asyncio API). Each stream keeps
+Changes happen on the TaskManager's owner thread (the bus's inbox taker); the
+streams live in the event loop. :class:`TaskWatchers` crosses over with
+``loop.call_soon_threadsafe`` (Zenoh has no asyncio API); its lock guards only
+the table of streams and is never held across I/O, so the loop taking it never
+waits for a commit. A stream reads its task's state now through
+``asyncio.to_thread``. Each stream keeps
 only the newest state of its task: every event is a complete snapshot, so a
 slow client skips intermediate progress but never misses the final state, and
 memory stays bounded whatever the client does.

@@ -6,8 +6,14 @@ a partial unique index enforces, so a logic error cannot start two searches
 on one robot. Every write is committed before the call returns: once
 ``POST /v1/tasks`` has answered 202 the task is on disk.
 
-One connection, shared by the HTTP worker threads and Zenoh's callback
-threads, serialised by a lock (SQLite's own locking is per connection).
+Threads: every write goes through one connection, used by the one thread that
+owns the task state (the TaskManager's, see :mod:`services.gateway.tasks`); a
+lock guards it only against :meth:`TaskStore.close`. Reads, from any thread,
+take a query-only connection from a small pool, and the file is in WAL mode,
+so a read sees the last committed state and never waits for a write or a slow
+commit: an HTTP handler reading a task is never held up by the planner's
+progress being committed. No lock of the store is ever held across a commit
+by a reader, and none is taken on the asyncio event loop.
 
 One gateway per file: the store holds an exclusive lock on ``<file>.lock``
 while open. Two gateways on one file would each start the queued task and
@@ -23,6 +29,8 @@ import sqlite3
 import threading
 import time
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -117,33 +125,71 @@ class TaskStore:
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self._lock = threading.Lock()
+        self._write_lock = threading.Lock()  # the writer connection against close(); no reader takes it
+        self._pool_lock = threading.Lock()  # the idle readers (held for no query)
+        self._idle: list[sqlite3.Connection] = []
+        self._closed = False
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             self._owner = _take_lock(path.with_name(path.name + ".lock"))
         except OSError as exc:
             raise StoreError(f"cannot open the task store {path}: {exc}") from None
         try:
-            self._db = sqlite3.connect(path, check_same_thread=False)
-            self._db.row_factory = sqlite3.Row
+            self._db = self._connect()
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.executescript(_SCHEMA)
         except (OSError, sqlite3.Error) as exc:
             os.close(self._owner)
             raise StoreError(f"cannot open the task store {path}: {exc}") from None
 
+    def _connect(self) -> sqlite3.Connection:
+        db = sqlite3.connect(self.path, check_same_thread=False)  # pooled: used by many threads in turn
+        db.row_factory = sqlite3.Row
+        return db
+
     def close(self) -> None:
-        with self._lock:
+        with self._write_lock, self._pool_lock:
+            if self._closed:
+                return
+            self._closed = True
+            for reader in self._idle:
+                reader.close()
+            self._idle.clear()
             self._db.close()
             os.close(self._owner)  # releases the lock
 
+    @contextmanager
+    def _reader(self) -> Iterator[sqlite3.Connection]:
+        """A read connection of the pool (query-only), for one read. In WAL mode a reader sees
+        the last commit and never waits for the writer; the pool grows to the number of
+        threads reading at once."""
+        with self._pool_lock:
+            if self._closed:
+                raise StoreError(f"the task store {self.path} is closed")
+            db = self._idle.pop() if self._idle else None
+        if db is None:
+            db = self._connect()
+            db.execute("PRAGMA query_only = ON")
+        try:
+            yield db
+        finally:
+            with self._pool_lock:
+                if self._closed:
+                    db.close()
+                else:
+                    self._idle.append(db)
+
     def _write(self, sql: str, args: tuple[Any, ...]) -> None:
-        with self._lock, self._db:
+        with self._write_lock, self._db:
             self._db.execute(sql, args)
 
     def _read(self, sql: str, args: tuple[Any, ...] = ()) -> list[TaskRecord]:
-        with self._lock:
-            return [_record(r) for r in self._db.execute(sql, args).fetchall()]
+        with self._reader() as db:
+            return [_record(r) for r in db.execute(sql, args).fetchall()]
+
+    def _scalar(self, sql: str, args: tuple[Any, ...]) -> Any:
+        with self._reader() as db:
+            return db.execute(sql, args).fetchone()[0]
 
     # -- creating and reading ------------------------------------------------------------------
     def add(self, robot_id: str, targets: list[str], max_steps: int) -> TaskRecord:
@@ -188,17 +234,13 @@ class TaskStore:
         """1 for the next task to start, None when ``record`` is not queued."""
         if record.status is not TaskStatus.QUEUED:
             return None
-        with self._lock:
-            (ahead,) = self._db.execute(
-                "SELECT COUNT(*) FROM tasks WHERE robot_id = ? AND status = ? AND seq < ?",
-                (record.robot_id, TaskStatus.QUEUED.value, record.seq)).fetchone()
+        ahead = self._scalar("SELECT COUNT(*) FROM tasks WHERE robot_id = ? AND status = ? AND seq < ?",
+                             (record.robot_id, TaskStatus.QUEUED.value, record.seq))
         return ahead + 1
 
     def count(self, robot_id: str, status: TaskStatus) -> int:
-        with self._lock:
-            (n,) = self._db.execute("SELECT COUNT(*) FROM tasks WHERE robot_id = ? AND status = ?",
-                                    (robot_id, status.value)).fetchone()
-        return n
+        return self._scalar("SELECT COUNT(*) FROM tasks WHERE robot_id = ? AND status = ?",
+                            (robot_id, status.value))
 
     # -- state changes -------------------------------------------------------------------------
     def start(self, task_id: str) -> None:
@@ -214,7 +256,7 @@ class TaskStore:
     def progress(self, task_id: str, *, found: tuple[FoundObject, ...], steps: int, distance_m: float,
                  message: str, position: tuple[float, float] | None) -> None:
         """Record the planner's latest report; ``position`` extends the task's path."""
-        with self._lock, self._db:
+        with self._write_lock, self._db:
             row = self._db.execute("SELECT path FROM tasks WHERE id = ?", (task_id,)).fetchone()
             if row is None:
                 return

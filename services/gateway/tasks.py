@@ -11,8 +11,21 @@ Planner events for a task that is not the robot's active one (unknown, queued,
 already finished, another robot's) are counted and ignored: a late event must
 never reopen a finished task. Malformed payloads are counted by the bus.
 
-Thread safety: called from HTTP worker threads, Zenoh callback threads and the
-re-publisher; one lock serialises every state change.
+Threads: one thread owns the task state and makes every change, the taker of
+the bus's inbox (:mod:`shared.inbox`): the service's main thread under
+``ovamos run gateway``, the bus's dispatcher thread when the app was given a
+bus of its own. Planner events reach it through the inbox (Zenoh's callback
+threads only enqueue them); an HTTP worker thread hands it a submit or cancel
+and waits for the answer (never the asyncio event loop: the routes doing so are
+plain ``def``); the re-publish timer only enqueues a round. So changes need no
+lock and happen in one order, each committed to the store on that thread,
+while HTTP reads use the store's read connections and never wait for a commit.
+The counters are the only state other threads touch, behind a lock held for
+no I/O (the event loop bumps them for refused requests).
+
+Timers are monotonic: the re-publish period runs on the event loop's clock and
+a cancelled TaskSpec's linger on ``time.monotonic()``; wall-clock time only
+stamps what is stored or shown.
 """
 
 from __future__ import annotations
@@ -21,131 +34,224 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable
+from concurrent.futures import CancelledError, Future
+from typing import Any, TypeVar
 
 from services.gateway.config import GatewayConfig
 from services.gateway.store import TaskRecord, TaskStore
-from shared import keys
-from shared.bus import Bus, Publisher
-from shared.messages import TaskEvent, TaskSpec, TaskStatus
-
-FINAL = (TaskStatus.DONE, TaskStatus.FAILED, TaskStatus.CANCELLED)
+from shared.bus import BusCore, Publisher
+from shared.messages import FINAL, TaskEvent, TaskSpec, TaskStatus
+from shared.topology import TOPOLOGY
 
 Notify = Callable[[TaskRecord], None]
+T = TypeVar("T")
+
+PORTS = TOPOLOGY["gateway"]
+TASK_CURRENT = PORTS.port("outputs", "task_current")
+TASK_EVENTS = PORTS.port("inputs", "task_events")
+REPUBLISH_CHANNEL = "gateway:republish"  # an inbox channel, not a key: rounds not yet run collapse
+OWNER_WAIT_S = 30.0  # an HTTP request waits this long for the owner thread before a 503
 
 
 class TaskConflict(RuntimeError):
     """An operation the task's state does not allow (e.g. cancelling a finished task)."""
 
 
+class GatewayBusy(RuntimeError):
+    """The owner thread did not take a request in time, or the gateway is stopping; the request
+    changed nothing."""
+
+
 class TaskManager:
     """Owns the per-robot queues; every change is stored first, then published and notified."""
 
-    def __init__(self, bus: Bus, store: TaskStore, config: GatewayConfig,
+    wait_s = OWNER_WAIT_S
+
+    def __init__(self, bus: BusCore, store: TaskStore, config: GatewayConfig,
                  notify: Notify = lambda _record: None) -> None:
         self.bus, self.store, self.config = bus, store, config
-        self._notify = notify
-        self._lock = threading.RLock()
+        self._notify = notify  # called on the owner thread after each committed change
+        self._counters_lock = threading.Lock()
         self._counters: Counter[str] = Counter()
         self._publishers: dict[str, Publisher[TaskSpec]] = {}
-        self._cancelled: dict[str, tuple[TaskSpec, float]] = {}  # robot -> (spec, re-send until)
+        # robot -> (cancelled spec, re-send until on time.monotonic())
+        self._cancelled: dict[str, tuple[TaskSpec, float]] = {}
+        self._waiting_lock = threading.Lock()
+        self._waiting: set[Future[Any]] = set()  # requests handed to the owner thread, not answered
+        self._closed = False
 
     def start(self) -> None:
-        """Declare the keys, then resume: start queued tasks where no task is active."""
+        """Declare the gateway's ports (:data:`shared.topology.TOPOLOGY`) for every robot it
+        serves, and queue the resume (queued tasks start where no task is active) ahead of
+        every event and request."""
         for robot in self.config.robots:
-            self._publishers[robot] = self.bus.publisher(keys.task_current(robot), TaskSpec)
-            self.bus.subscribe(keys.task_events(robot), TaskEvent,
-                               lambda event, robot=robot: self.on_event(robot, event))
-        with self._lock:
-            for robot in self.config.robots:
-                if self.store.active(robot) is None:
-                    self._start_next(robot)
+            self._publishers[robot] = self.bus.publisher(TASK_CURRENT.key(robot), TASK_CURRENT.message)
+        self.bus.inbox.put(self._guarded(self._resume, "resume"), None)
+        for robot in self.config.robots:
+            self.bus.subscribe(TASK_EVENTS.key(robot), TASK_EVENTS.message,
+                               lambda event, robot=robot: self.on_event(robot, event),
+                               keep=TASK_EVENTS.keep)
 
-    # -- requests ------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Refuse further requests and release those still waiting for the owner thread (they
+        get GatewayBusy; what the owner already runs completes). Any thread."""
+        with self._waiting_lock:
+            self._closed = True
+            waiting = list(self._waiting)
+        for future in waiting:
+            future.cancel()
+
+    def _resume(self) -> None:
+        for robot in self.config.robots:
+            if self.store.active(robot) is None:
+                self._start_next(robot)
+
+    # -- requests (HTTP worker threads: the change runs on the owner thread, they wait) ----------
     def submit(self, robot_id: str, targets: list[str], max_steps: int) -> TaskRecord:
-        with self._lock:
-            record = self.store.add(robot_id, targets, max_steps)
-            if self.store.active(robot_id) is None:
-                self._start_next(robot_id)
-            return self._get(record.id)
+        """Queue a task (it starts at once when the robot is idle); committed when this returns."""
+        return self._on_owner(self._submit, robot_id, targets, max_steps)
 
     def cancel(self, task_id: str) -> TaskRecord | None:
         """Cancel a queued or searching task; None if unknown, TaskConflict if already over."""
-        with self._lock:
-            record = self.store.get(task_id)
-            if record is None:
-                return None
-            if record.status in FINAL:
-                raise TaskConflict(f"task {task_id} is already {record.status.value}")
-            self.store.finish(task_id, TaskStatus.CANCELLED, "cancelled by request")
-            if record.status is TaskStatus.SEARCHING:
-                spec = _spec(record, cancelled=True)
-                self._cancelled[record.robot_id] = (spec, time.monotonic() + self.config.cancel_linger_s)
-                self._publishers[record.robot_id].put(spec)
-            self._changed(task_id)
-            if record.status is TaskStatus.SEARCHING:
-                self._start_next(record.robot_id)
-            else:
-                self._notify_queue(record.robot_id)
-            return self._get(task_id)
+        return self._on_owner(self._cancel, task_id)
 
-    # -- planner events ------------------------------------------------------------------------
+    def request_republish(self) -> None:
+        """Queue a re-publish round (any thread, never blocks; rounds the owner has not reached
+        yet collapse into one)."""
+        self.bus.inbox.put(self._guarded(self.republish, "republish"), None,
+                           channel=REPUBLISH_CHANNEL, keep=1)
+
+    def _on_owner(self, fn: Callable[..., T], *args: Any) -> T:
+        """``fn(*args)`` run on the owner thread; its result or exception, once it ran.
+
+        GatewayBusy when the owner did not take it within ``wait_s`` or the gateway
+        stops first; then it never runs, so the caller may safely say nothing changed.
+        """
+        if threading.get_ident() == self.bus.inbox.owner:
+            return fn(*args)  # already on the owner: waiting for ourselves would never end
+        future: Future[T] = Future()
+
+        def run(_: object) -> None:
+            if not future.set_running_or_notify_cancel():
+                return  # given up by the caller or by close(): must not run
+            try:
+                future.set_result(fn(*args))
+            except BaseException as exc:  # the caller re-raises it (TaskConflict, a store error)
+                future.set_exception(exc)
+
+        with self._waiting_lock:
+            if self._closed or self.bus.inbox.closed:
+                raise GatewayBusy("the gateway is shutting down")
+            self._waiting.add(future)
+        try:
+            self.bus.inbox.put(run, None, on_drop=future.cancel)
+            try:
+                return future.result(self.wait_s)
+            except TimeoutError:
+                if future.cancel():
+                    raise GatewayBusy(f"the gateway did not get to the request within {self.wait_s} s; "
+                                      "nothing was changed, try again") from None
+                return future.result()  # it started in the meantime: it finishes
+        except CancelledError:
+            raise GatewayBusy("the gateway is shutting down; nothing was changed") from None
+        finally:
+            with self._waiting_lock:
+                self._waiting.discard(future)
+
+    # -- state changes (owner thread) ----------------------------------------------------------
+    def _submit(self, robot_id: str, targets: list[str], max_steps: int) -> TaskRecord:
+        record = self.store.add(robot_id, targets, max_steps)
+        if self.store.active(robot_id) is None:
+            self._start_next(robot_id)
+        return self._get(record.id)
+
+    def _cancel(self, task_id: str) -> TaskRecord | None:
+        record = self.store.get(task_id)
+        if record is None:
+            return None
+        if record.status in FINAL:
+            raise TaskConflict(f"task {task_id} is already {record.status.value}")
+        self.store.finish(task_id, TaskStatus.CANCELLED, "cancelled by request")
+        if record.status is TaskStatus.SEARCHING:
+            spec = _spec(record, cancelled=True)
+            self._cancelled[record.robot_id] = (spec, time.monotonic() + self.config.cancel_linger_s)
+            self._publishers[record.robot_id].put(spec)
+        self._changed(task_id)
+        if record.status is TaskStatus.SEARCHING:
+            self._start_next(record.robot_id)
+        else:
+            self._notify_queue(record.robot_id)
+        return self._get(task_id)
+
+    # -- planner events (owner thread, from the bus) --------------------------------------------
     def on_event(self, robot_id: str, event: TaskEvent) -> None:
         """Apply a planner report to the robot's active task (others are counted and ignored)."""
-        with self._lock:
-            record = self.store.get(event.task_id)
-            if record is None:
-                self._counters["events_unknown_task"] += 1
-                return
-            if record.status in FINAL:
-                self._counters["events_finished_task"] += 1
-                return
-            if record.robot_id != robot_id or record.status is not TaskStatus.SEARCHING:
-                self._counters["events_not_active"] += 1
-                return
-            position = (event.x, event.y) if event.x is not None and event.y is not None else None
-            self.store.progress(record.id, found=event.found, steps=event.steps,
-                                distance_m=event.distance_m, message=event.message, position=position)
-            self._counters["events_applied"] += 1
-            if event.status in FINAL:
-                self.store.finish(record.id, event.status)
-                self._changed(record.id)
-                self._start_next(robot_id)
-            else:
-                self._changed(record.id)
+        record = self.store.get(event.task_id)
+        if record is None:
+            self._count("events_unknown_task")
+            return
+        if record.status in FINAL:
+            self._count("events_finished_task")
+            return
+        if record.robot_id != robot_id or record.status is not TaskStatus.SEARCHING:
+            self._count("events_not_active")
+            return
+        position = (event.x, event.y) if event.x is not None and event.y is not None else None
+        self.store.progress(record.id, found=event.found, steps=event.steps,
+                            distance_m=event.distance_m, message=event.message, position=position)
+        self._count("events_applied")
+        if event.status in FINAL:
+            self.store.finish(record.id, event.status)
+            self._changed(record.id)
+            self._start_next(robot_id)
+        else:
+            self._changed(record.id)
 
-    # -- periodic ------------------------------------------------------------------------------
+    # -- periodic (owner thread) ---------------------------------------------------------------
     def republish(self) -> None:
         """Re-send each robot's current TaskSpec (and a recently cancelled one)."""
         now = time.monotonic()
-        with self._lock:
-            for robot, publisher in self._publishers.items():
-                if robot in self._cancelled:
-                    spec, until = self._cancelled[robot]
-                    if now <= until:
-                        publisher.put(spec.model_copy(update={"stamp": time.time()}))
-                    else:
-                        del self._cancelled[robot]
-                active = self.store.active(robot)
-                if active is not None:
-                    publisher.put(_spec(active))
+        for robot, publisher in self._publishers.items():
+            if robot in self._cancelled:
+                spec, until = self._cancelled[robot]
+                if now <= until:
+                    publisher.put(spec.model_copy(update={"stamp": time.time()}))
+                else:
+                    del self._cancelled[robot]
+            active = self.store.active(robot)
+            if active is not None:
+                publisher.put(_spec(active))
 
+    # -- counters (any thread, the event loop included: the lock is held for no I/O) -----------
     def count_rejected_request(self, status_code: int) -> None:
-        with self._lock:
-            self._counters[f"http_{status_code}"] += 1
+        self._count(f"http_{status_code}")
+
+    def _count(self, name: str) -> None:
+        with self._counters_lock:
+            self._counters[name] += 1
 
     def counters(self) -> dict[str, int]:
         """Event bookkeeping, malformed payloads the bus dropped on ``task/events``, and refused
         HTTP requests by status (``http_422``: 1, ...)."""
-        with self._lock:
+        with self._counters_lock:
             out = {name: self._counters[name] for name in
                    ("events_applied", "events_unknown_task", "events_finished_task", "events_not_active")}
             out.update(sorted((k, n) for k, n in self._counters.items() if k.startswith("http_")))
         bus_counters = self.bus.counters.snapshot()
-        out["events_malformed"] = sum(bus_counters[k].malformed for k in bus_counters
-                                      if k in {keys.task_events(r) for r in self.config.robots})
+        event_keys = {TASK_EVENTS.key(r) for r in self.config.robots}
+        out["events_malformed"] = sum(c.malformed for k, c in bus_counters.items() if k in event_keys)
         return out
 
-    # -- internals (caller holds the lock) -----------------------------------------------------
+    # -- internals (owner thread) --------------------------------------------------------------
+    def _guarded(self, fn: Callable[[], None], what: str) -> Callable[[object], None]:
+        """``fn`` as an inbox handler whose failure is logged and counted by the bus."""
+        def run(_: object) -> None:
+            try:
+                fn()
+            except Exception:
+                self.bus.record_failure(what)
+        return run
+
     def _start_next(self, robot_id: str) -> None:
         record = self.store.next_queued(robot_id)
         if record is not None:
