@@ -109,15 +109,16 @@ class BusCore:
     transport: :class:`Bus` (Zenoh) and :class:`shared.fake_bus.FakeBus`.
     """
 
-    def __init__(self, robot_id: str, service: str, instance: str,
-                 info: Callable[[], dict[str, Any]] | None = None, inbox: Inbox | None = None) -> None:
+    def __init__(self, robot_id: str, service: str, instance: str, inbox: Inbox | None = None) -> None:
         _check_identity(robot_id, service, instance)
         self.robot_id, self.service, self.instance = robot_id, service, instance
         self.counters = Counters()
         self.log = logging.getLogger(f"ovamos.{service}.{instance}")
         self.started = time.time()
         self.inbox = inbox or Inbox()
-        self._info = info or dict
+        #: what ``ovamos status`` shows of the service: a snapshot its own thread refreshes
+        #: (:func:`shared.service.run_loop`), so answering a stats query reads no live state
+        self.info: dict[str, Any] = {}
         self._declared: list[Any] = []  # keep references: a dropped declaration is undeclared
         self._closed = False
 
@@ -249,7 +250,7 @@ class BusCore:
     def stats(self) -> ServiceStats:
         return ServiceStats(robot_id=self.robot_id, service=self.service, instance=self.instance,
                             pid=os.getpid(), started=self.started,
-                            counters=self.counters.snapshot(), info=self._info())
+                            counters=self.counters.snapshot(), info=self.info)
 
     def close(self) -> None:
         """Undeclare everything and drop what is queued (idempotent)."""
@@ -276,22 +277,25 @@ class Bus(BusCore):
     (:func:`shared.service.run_service` runs them between a service's ticks).
     """
 
-    def __init__(self, session: zenoh.Session, robot_id: str, service: str, instance: str,
-                 info: Callable[[], dict[str, Any]] | None = None, *,
+    def __init__(self, session: zenoh.Session, robot_id: str, service: str, instance: str, *,
                  dispatch: Literal["thread", "caller"] = "thread") -> None:
-        super().__init__(robot_id, service, instance, info)
+        super().__init__(robot_id, service, instance)
         self.session = session
         if dispatch == "thread":
             self.inbox.run_forever(f"bus:{service}/{instance}")
-        self.queryable(keys.stats(robot_id, service, instance), self.stats)
+        # Answered on Zenoh's thread, the one exception to enqueue-only: it reads only the
+        # thread-safe counters and the info snapshot, so a service busy for seconds (a model on
+        # a CPU) still shows up in `ovamos status` and the gateway's /health.
+        stats_key = keys.stats(robot_id, service, instance)
+        self._declared.append(self.session.declare_queryable(
+            stats_key, lambda query: query.reply(stats_key, self.stats().to_bytes())))
         self._token = session.liveliness().declare_token(keys.alive(robot_id, service, instance))
 
     @classmethod
-    def open(cls, cfg: zenoh.Config, robot_id: str, service: str, instance: str = "0",
-             info: Callable[[], dict[str, Any]] | None = None, *,
+    def open(cls, cfg: zenoh.Config, robot_id: str, service: str, instance: str = "0", *,
              dispatch: Literal["thread", "caller"] = "thread") -> Bus:
         _check_identity(robot_id, service, instance)  # first: opening may wait for a router
-        return cls(open_session(cfg), robot_id, service, instance, info, dispatch=dispatch)
+        return cls(open_session(cfg), robot_id, service, instance, dispatch=dispatch)
 
     def _publish(self, key: str) -> tuple[Callable[[bytes | bytearray], None], Callable[[], None]]:
         pub = self.session.declare_publisher(key)

@@ -41,9 +41,8 @@ class FakeNetwork:
         self._subs: list[tuple[str, Callable[[str, Callable[[], bytes]], None]]] = []
         self._queryables: list[tuple[str, Callable[[Reply, Callable[[], None]], None]]] = []
 
-    def bus(self, robot_id: str, service: str, instance: str = "0",
-            info: Callable[[], dict[str, Any]] | None = None) -> FakeBus:
-        bus = FakeBus(self, robot_id, service, instance, info)
+    def bus(self, robot_id: str, service: str, instance: str = "0") -> FakeBus:
+        bus = FakeBus(self, robot_id, service, instance)
         self.buses.append(bus)
         return bus
 
@@ -72,9 +71,8 @@ class FakeNetwork:
 class FakeBus(BusCore):
     """A bus on a :class:`FakeNetwork`; events run only when the test pumps the network."""
 
-    def __init__(self, network: FakeNetwork, robot_id: str, service: str, instance: str,
-                 info: Callable[[], dict[str, Any]] | None = None) -> None:
-        super().__init__(robot_id, service, instance, info)
+    def __init__(self, network: FakeNetwork, robot_id: str, service: str, instance: str) -> None:
+        super().__init__(robot_id, service, instance)
         self.network = network
 
     def _publish(self, key: str) -> tuple[Callable[[bytes | bytearray], None], Callable[[], None]]:

@@ -115,8 +115,7 @@ def run_service(cls: type[Service], zenoh_config: zenoh.Config, config: ServiceC
     clean up yet (a Python handler would not run during Zenoh's blocking open).
     """
     svc: Service | None = None
-    bus = Bus.open(zenoh_config, robot_id, cls.name, instance, info=lambda: svc.info() if svc else {},
-                   dispatch="caller")
+    bus = Bus.open(zenoh_config, robot_id, cls.name, instance, dispatch="caller")
     install_signal_handlers(stop)
     try:
         svc = cls(bus, config)
@@ -130,18 +129,32 @@ def run_service(cls: type[Service], zenoh_config: zenoh.Config, config: ServiceC
         log.info("%s/%s stopped", cls.name, instance)
 
 
+INFO_EVERY_S = 0.5
+
+
 def run_loop(svc: Service, stop: threading.Event) -> None:
-    """The service's event loop: its bus's events as they come, its tick every 1/tick_hz s."""
-    next_tick = time.monotonic()
+    """The service's event loop: its bus's events as they come, its tick every 1/tick_hz s, and
+    its :meth:`Service.info` copied to the bus every ``INFO_EVERY_S`` (for stats queries)."""
+    now = time.monotonic()
+    next_tick, next_info = now, now
     while not stop.is_set():
-        if svc.tick_hz is None:
-            svc.bus.inbox.run_until(time.monotonic() + 3600.0, stop)
+        now = time.monotonic()
+        if now >= next_info:
+            _refresh_info(svc)
+            next_info = now + INFO_EVERY_S
+        due = next_info if svc.tick_hz is None else min(next_tick, next_info)
+        svc.bus.inbox.run_until(due, stop)
+        if stop.is_set() or svc.tick_hz is None or time.monotonic() < next_tick:
             continue
-        svc.bus.inbox.run_until(next_tick, stop)
-        if stop.is_set():
-            return
         _tick(svc)
         next_tick = max(next_tick + 1.0 / svc.tick_hz, time.monotonic())
+
+
+def _refresh_info(svc: Service) -> None:
+    try:
+        svc.bus.info = svc.info()
+    except Exception:
+        svc.bus.record_failure("info")
 
 
 def _tick(svc: Service) -> None:

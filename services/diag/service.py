@@ -72,15 +72,15 @@ class MonitorService(Service):
         self.wire({"robot_all": self._on_payload})
 
     def _on_payload(self, key: str, payload: bytes) -> None:
-        now = time.time()
         latency = None
         if key == self._rgbd:
             frame = self.bus.decode(key, RgbdFrame, payload)
-            latency = None if frame is None else now - frame.stamp
-        self.traffic.observe(key, len(payload), now, latency)
+            # capture stamp vs this host's wall clock: meaningful when both hosts' clocks agree
+            latency = None if frame is None else time.time() - frame.stamp
+        self.traffic.observe(key, len(payload), time.monotonic(), latency)
 
     def _report(self) -> list[dict[str, Any]]:
-        return [dataclasses.asdict(r) for r in self.traffic.report(time.time())]
+        return [dataclasses.asdict(r) for r in self.traffic.report(time.monotonic())]
 
     def tick(self) -> None:
         for row in self._report():

@@ -1,0 +1,58 @@
+"""The service inbox: order kept, only the newest of a keep-latest channel, bounded, one taker."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+from shared.inbox import Inbox
+
+
+def test_ordinary_events_run_in_order_and_keep_latest_channels_keep_only_the_newest() -> None:
+    inbox, ran, dropped = Inbox(), [], []
+    inbox.put(ran.append, "task 1")
+    for i in range(5):
+        inbox.put(ran.append, f"frame {i}", channel="rgbd", keep=1, on_drop=lambda: dropped.append(1))
+    inbox.put(ran.append, "task 2")
+    assert inbox.pending() == 3
+    assert inbox.run_pending() == 3
+    assert ran == ["task 1", "frame 4", "task 2"] and len(dropped) == 4
+
+
+def test_a_keep_n_channel_keeps_its_newest_n_and_waits_its_turn_between_them() -> None:
+    inbox, ran = Inbox(), []
+    for i in range(4):
+        inbox.put(ran.append, f"f{i}", channel="rgbd", keep=2)
+    inbox.put(ran.append, "odom", channel="odom", keep=1)
+    inbox.run_pending()
+    assert ran == ["f2", "odom", "f3"]
+
+
+def test_the_ordinary_queue_is_bounded_and_counts_what_it_drops() -> None:
+    inbox, ran, dropped = Inbox(limit=3), [], []
+    for i in range(5):
+        inbox.put(ran.append, i, on_drop=lambda: dropped.append(1))
+    inbox.run_pending()
+    assert ran == [2, 3, 4] and len(dropped) == 2
+
+
+def test_events_put_from_other_threads_run_on_the_taking_thread_only() -> None:
+    inbox, threads, stop = Inbox(), set(), threading.Event()
+    putters = [threading.Thread(target=lambda: [inbox.put(lambda _: threads.add(threading.get_ident()),
+                                                          None) for _ in range(200)]) for _ in range(4)]
+    for t in putters:
+        t.start()
+    for t in putters:
+        t.join()
+    ran = inbox.run_until(time.monotonic() + 1.0, stop)
+    assert ran == 800 and threads == {threading.get_ident()}
+
+
+def test_run_until_returns_at_the_deadline_or_when_closed() -> None:
+    inbox = Inbox()
+    start = time.monotonic()
+    assert inbox.run_until(start + 0.05) == 0 and time.monotonic() >= start + 0.05
+    threading.Timer(0.05, inbox.close).start()
+    assert inbox.run_until(time.monotonic() + 30) == 0 and inbox.closed
+    inbox.put(print, "after close")  # refused silently: nothing runs after close
+    assert inbox.pending() == 0
