@@ -27,7 +27,7 @@ from services.mapping.config import MappingConfig
 from services.mapping.state import MapState
 from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
 from services.planner.decide import Policy
-from services.planner.task import Task, TaskState
+from services.planner.task import SearchTask
 from services.sim.episodes import EpisodeSpec
 from services.sim.evaluator import GroundTruth, spl
 from services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
@@ -35,7 +35,7 @@ from services.sim.prior import ObjectPrior
 from services.sim.render import SceneRenderer
 from services.sim.robot import MotionConfig, SimRobot
 from services.sim.world import Scene
-from shared.messages import PerceptionResult
+from shared.messages import PerceptionResult, TaskStatus
 
 MAP_MARGIN_M = 2.0
 
@@ -112,7 +112,7 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
     perception = SimPerception(FrameLabels.of(scene), prior, config.perception)
     state = MapState(scene_mapping(scene, config.mapping))
     robot = SimRobot(spec.start, truth.is_free, config.motion)
-    task = Task(spec.episode_id, list(spec.targets), max_steps=spec.max_steps)
+    task = SearchTask(spec.episode_id, list(spec.targets), max_steps=spec.max_steps)
     agent = SearchAgent(task, config.agent)
     stops: list[StopRecord] = []
     trajectory = [(robot.pose.x, robot.pose.y, robot.pose.yaw)]
@@ -120,7 +120,7 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
     funnel = FunnelRecorder(scene, spec.targets)
     try:
         seq = 0
-        while task.state is TaskState.SEARCHING:
+        while task.state is TaskStatus.SEARCHING:
             pose = robot.pose
             frame = renderer.render(pose.x, pose.y, pose.yaw, seq=seq, stamp=float(seq))
             # The services map the robot's first view before the task reaches perception (no

@@ -20,7 +20,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from services.planner.decide import DecisionConfig, PathLengths, decide
+from services.planner.decide import ActionDistances, DecisionConfig, decide
 from services.planner.pomdp import SearchPOMDP, root_particles
 from services.planner.pouct import POUCT
 from shared.messages import MapSnapshot
@@ -58,7 +58,7 @@ def _search_pomdp(k: int, config: DecisionConfig) -> tuple[SearchPOMDP, list[tup
     grid = GridGeometry(RES, snap.origin[0], snap.origin[1], GRID, GRID)
     cands = find_candidates(snap.values[0], grid, config.candidates)
     points = np.vstack([np.array([robot]), cands.points, snap.frontiers[:1]])
-    dist = PathLengths(snap, config, include=points).matrix(points)
+    dist = ActionDistances(snap, config, include=points).matrix(points)
     model = SearchPOMDP(np.where(np.isfinite(dist), dist, 1e6), list(range(1, len(cands.points) + 1)),
                         len(points) - 1, config.pomdp)
     return model, root_particles(model.candidates, cands.belief, config.pomdp.particles, 0)

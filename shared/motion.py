@@ -13,7 +13,7 @@ from pydantic import BaseModel, ConfigDict
 
 
 class Action(str, Enum):
-    """The paper's discrete commands (sizes live in the executor's config)."""
+    """The paper's discrete commands (sizes: :class:`shared.robot.Primitives`)."""
 
     MOVE_FORWARD = "MOVE_FORWARD"
     TURN_LEFT = "TURN_LEFT"
@@ -32,3 +32,19 @@ class Pose(BaseModel):
 
 def wrap_angle(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+class ActionIds:
+    """A base's side of the command contract: action ids grow within a session and each is
+    executed at most once. The planner re-sends a command until the base reports it active
+    or completed (a put can be lost), so a copy of an id already taken is a duplicate."""
+
+    def __init__(self) -> None:
+        self.highest = 0
+
+    def take(self, action_id: int) -> bool:
+        """True for a new id (now taken); False for a duplicate (an id not above the highest)."""
+        if action_id <= self.highest:
+            return False
+        self.highest = action_id
+        return True

@@ -100,3 +100,12 @@ def test_a_blocked_move_reports_blocked_and_stops() -> None:
         assert base.driver.state().mode is DriverMode.READY
     finally:
         base.stop()
+
+
+def test_the_driver_advertises_its_primitive_sizes() -> None:
+    from services.base_driver.config import DriverConfig
+    from services.base_driver.driver import BaseDriver
+    from shared.robot import PRIMITIVES, Primitives
+
+    assert BaseDriver(DriverConfig()).state().primitives == PRIMITIVES
+    assert BaseDriver(DriverConfig(forward_m=0.3)).state().primitives == Primitives(forward_m=0.3)

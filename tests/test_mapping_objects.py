@@ -248,18 +248,6 @@ def test_one_frame_with_several_detections() -> None:
     assert [(i.label, i.hits) for i in used] == [("cup", 1), ("bowl", 1)]
 
 
-def test_remove_label_forgets_a_found_target() -> None:
-    obj_map = ObjectMap()
-    see(obj_map, "cup", 1.0, 1.0)
-    see(obj_map, "cup", 3.0, 1.0)
-    see(obj_map, "bed", 1.0, 1.0)
-    assert obj_map.remove_label("cup") == 2
-    assert [i.label for i in obj_map.instances()] == ["bed"]
-    assert obj_map.remove_label("cup") == 0
-    see(obj_map, "cup", 1.0, 1.0)  # seen again later: a fresh instance
-    assert [(i.label, i.hits) for i in obj_map.instances()] == [("bed", 1), ("cup", 1)]
-
-
 def test_confirmed_lists_most_seen_first() -> None:
     obj_map = ObjectMap(confirm_hits=2)
     for x, n in ((1.0, 2), (3.0, 4), (5.0, 1)):
@@ -324,6 +312,24 @@ def test_views_without_detections_keep_a_rare_false_positive_unconfirmed() -> No
     for _ in range(2):
         (inst,) = see(obj_map, "cup", 1.5, 0.0)
     assert inst.hits == 4 and inst.confirmed   # a real object keeps being detected
+
+
+def test_defaults_are_the_mapping_services_and_a_ratio_of_zero_switches_views_off() -> None:
+    from services.mapping.config import MappingConfig
+
+    c, obj_map = MappingConfig(), ObjectMap()
+    assert (obj_map.merge_distance_m, obj_map.confirm_hits, obj_map.decision_threshold,
+            obj_map.min_hit_ratio, obj_map.view_range_m) == (
+        c.object_merge_distance_m, c.object_confirm_hits, c.decision_threshold,
+        c.object_min_hit_ratio, c.object_view_range_m)
+    assert obj_map.min_hit_ratio > 0  # production's rule: the one unit tests exercise
+    counted = ObjectMap(min_hit_ratio=0.0)
+    for m in (obj_map, counted):
+        see(m, "cup", 1.5, 0.0)
+        for seq in range(8):
+            m.observe(patch_frame(1.5, 0.0, seq=seq), ["cup"])
+        see(m, "cup", 1.5, 0.0)
+    assert not obj_map.instances()[0].confirmed and counted.instances()[0].confirmed
 
 
 def test_only_unoccluded_in_range_views_of_the_searched_labels_count() -> None:

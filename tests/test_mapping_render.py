@@ -132,7 +132,7 @@ def test_one_layer_by_name_or_the_normalised_sum_of_all() -> None:
     total = value_image(snapshot())
     assert total[HOT] == pytest.approx(1 / 1.2) and total[WARM] == pytest.approx(1.0)
     both = render_map(snapshot(), crop=False, px_per_cell=PPC)
-    np.testing.assert_array_equal(pixel(both, HOT), colour(1 / 1.2))
+    np.testing.assert_array_equal(pixel(both, HOT), colour(float(total[HOT])))
     assert heat(pixel(both, WARM)) > heat(pixel(both, HOT))
 
 
@@ -208,3 +208,18 @@ def test_write_png_into_a_missing_directory_fails_clearly(tmp_path) -> None:
         write_png(tmp_path / "nope" / "map.png", render_map(snapshot()))
     with pytest.raises(ValueError, match="cannot encode"):
         write_png(tmp_path / "map.png", np.zeros((0, 0, 3), np.uint8))
+
+
+def test_the_picture_shows_the_decayed_map_the_planner_decides_on() -> None:
+    from services.planner.decide import DecisionConfig, decision_values, explored_window
+
+    counts = np.zeros((ROWS, COLS), np.uint16)
+    counts[HOT] = 12    # looked at twice tau times: nearly faded
+    counts[WARM] = 3
+    snap = snapshot(counts=counts)
+    rows, cols, _ = explored_window(snap)
+    planner = decision_values(snap, ["cup", "bed"], DecisionConfig(), (rows, cols))
+    shown = value_image(snap)
+    np.testing.assert_allclose(shown[rows, cols], planner / planner.max(), rtol=1e-6)
+    assert shown[HOT] < 0.1 < shown[WARM] == pytest.approx(1.0)  # raw values: HOT 1/1.2 of WARM
+    assert (shown[:rows.start] == 0).all() and (shown[rows.stop:] == 0).all()

@@ -8,14 +8,14 @@ import pytest
 from services.mapping.layers import aggregate, decay
 from services.planner.agent import AgentConfig, Reason, SearchAgent
 from services.planner.decide import GoalKind
-from services.planner.task import Task
+from services.planner.task import SearchTask
 from shared.messages import ObjectInstance
 from shared.motion import Action, Pose
 from tests.planner_maps import snapshot
 
 
 def agent(**config: object) -> SearchAgent:
-    return SearchAgent(Task("t", ["cup"]), AgentConfig(initial_turns=0, **config))  # type: ignore[arg-type]
+    return SearchAgent(SearchTask("t", ["cup"]), AgentConfig(initial_turns=0, **config))  # type: ignore[arg-type]
 
 
 def test_a_candidate_is_kept_until_reached_even_when_a_better_one_appears() -> None:

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from services.planner.candidates import CandidateConfig, best_frontier, find_candidates
-from services.planner.task import Task, TaskError, TaskState
+from services.planner.task import SearchTask, SearchTaskError
 from shared.grid import GridGeometry
+from shared.messages import FoundObject, TaskStatus
 
 GRID = GridGeometry(0.05, 0.0, 0.0, 100, 100)  # 5 x 5 m
 
@@ -57,35 +58,37 @@ def test_best_frontier_is_the_one_with_most_value_nearby() -> None:
 
 
 def test_task_life_cycle() -> None:
-    task = Task("t1", ["cup", "bed"], max_steps=3)
-    with pytest.raises(TaskError):
+    task = SearchTask("t1", ["cup", "bed"], max_steps=3)
+    assert task.state is TaskStatus.QUEUED
+    with pytest.raises(SearchTaskError):
         task.record_step(0.25)
     task.start()
     task.record_step(0.25)
     task.mark_found("cup", 1.0, 2.0)
-    assert task.remaining == ["bed"] and task.state is TaskState.SEARCHING
+    assert task.remaining == ["bed"] and task.state is TaskStatus.SEARCHING
     task.add_targets(["sofa", "bed"])
     assert task.targets == ["cup", "bed", "sofa"]
     task.remove_targets(["sofa"])
-    task.mark_found("bed", 0.0, 0.0)
-    assert task.state is TaskState.DONE and task.found["cup"].step == 1
-    with pytest.raises(TaskError):
+    task.record_step(0.25, ("bed", 0.5, 0.0))  # the STOP that declared it
+    assert task.state is TaskStatus.DONE and task.found["cup"].step == 1
+    assert task.found["bed"] == FoundObject(label="bed", x=0.5, y=0.0, step=2)  # as reported
+    with pytest.raises(SearchTaskError):
         task.cancel()
 
 
 def test_task_fails_at_the_step_limit_and_can_be_cancelled() -> None:
-    task = Task("t2", ["cup"], max_steps=2)
+    task = SearchTask("t2", ["cup"], max_steps=2)
     task.start()
     task.record_step(0.25)
     task.record_step(0.25)
-    assert task.state is TaskState.FAILED and task.distance == pytest.approx(0.5)
-    other = Task("t3", ["cup"])
+    assert task.state is TaskStatus.FAILED and task.distance == pytest.approx(0.5)
+    other = SearchTask("t3", ["cup"])
     other.start()
     other.cancel()
-    assert other.state is TaskState.CANCELLED
-    with pytest.raises(TaskError):
-        Task("t4", [])
-    with pytest.raises(TaskError, match="not a remaining target"):
-        t = Task("t5", ["cup"])
+    assert other.state is TaskStatus.CANCELLED
+    with pytest.raises(SearchTaskError):
+        SearchTask("t4", [])
+    with pytest.raises(SearchTaskError, match="not a remaining target"):
+        t = SearchTask("t5", ["cup"])
         t.start()
         t.mark_found("bed", 0, 0)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.planner.decide import DecisionConfig, GoalKind, PathLengths, Policy, decide
+from services.planner.decide import ActionDistances, DecisionConfig, GoalKind, Policy, decide
 from shared.messages import ObjectInstance
 from tests.planner_maps import snapshot
 
@@ -52,7 +52,7 @@ def test_nothing_to_go_to_is_none_and_only_a_frontier_is_the_frontier() -> None:
 def test_path_lengths_go_around_walls() -> None:
     wall = (slice(0, 180), slice(100, 102))  # x = 5.0 .. 5.1, from y = 0 to 9 m
     snap = snapshot({}, [], obstacles=[wall])
-    d = PathLengths(snap, DecisionConfig()).matrix(np.array([[4.0, 1.0], [6.0, 1.0]]))
+    d = ActionDistances(snap, DecisionConfig()).matrix(np.array([[4.0, 1.0], [6.0, 1.0]]))
     assert d[0, 0] == 0 and d[0, 1] == pytest.approx(d[1, 0])
     assert d[0, 1] > 2 * 8.0  # up and over the wall's end at y = 9 m, and back down
     assert np.isfinite(d).all()

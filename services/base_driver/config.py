@@ -1,7 +1,7 @@
 """Every setting of the base driver (unknown keys are errors, as for every service).
 
-Defaults are a TurtleBot3 Waffle-like base: 0.26 m/s and 1.82 rad/s top speeds,
-wheel radius 0.033 m, track 0.287 m. ``can`` is python-can's standard bus
+Defaults are a TurtleBot3 Waffle-like base: 0.26 m/s and 1.82 rad/s top speeds, the
+wheel geometry and primitive sizes of :mod:`shared.robot`. ``can`` is python-can's standard bus
 configuration, passed to ``can.Bus(**can)`` unchanged, so a real robot uses e.g.
 ``interface = "socketcan", channel = "can0", bitrate = 250000``.
 """
@@ -11,16 +11,14 @@ from __future__ import annotations
 import math
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
+from shared.config import StrictModel
 from shared.motion import Pose
+from shared.robot import PRIMITIVES, ROBOT, Primitives
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class CanConfig(_Strict):
+class CanConfig(StrictModel):
     """python-can bus settings (``can.Bus(interface=..., channel=..., bitrate=...)``)."""
 
     interface: str = Field(default="virtual", description="socketcan, pcan, slcan, virtual, ...")
@@ -34,20 +32,20 @@ class CanConfig(_Strict):
         return kwargs
 
 
-class AxisConfig(_Strict):
+class AxisConfig(StrictModel):
     """One wheel's ODrive axis. ``direction`` -1 for a motor mounted mirrored."""
 
     node_id: int = Field(ge=0, le=63)
     direction: Literal[1, -1] = 1
 
 
-class DriverConfig(_Strict):
+class DriverConfig(StrictModel):
     can: CanConfig = Field(default_factory=CanConfig)
     left: AxisConfig = Field(default_factory=lambda: AxisConfig(node_id=0))
     right: AxisConfig = Field(default_factory=lambda: AxisConfig(node_id=1))
     # geometry
-    wheel_radius_m: float = Field(default=0.033, gt=0)
-    track_width_m: float = Field(default=0.287, gt=0)
+    wheel_radius_m: float = Field(default=ROBOT.wheel_radius_m, gt=0)
+    track_width_m: float = Field(default=ROBOT.track_width_m, gt=0)
     initial_pose: Pose = Field(default_factory=lambda: Pose(x=0.0, y=0.0, yaw=0.0),
                                description="odometry starts here (the simulator: the start pose)")
     # limits
@@ -63,9 +61,9 @@ class DriverConfig(_Strict):
     enable_timeout_s: float = Field(default=2.0, gt=0, description="closed loop must be reached in this")
     recover_every_s: float = Field(default=1.0, gt=0, description="retry after a fault this often")
     auto_recover: bool = Field(default=True, description="re-enable once a fault's cause is gone")
-    # primitives (the paper's sizes) and their closed loop
-    forward_m: float = Field(default=0.25, gt=0)
-    turn_deg: float = Field(default=30.0, gt=0, le=180)
+    # primitives (shared.robot's sizes; advertised in driver/state) and their closed loop
+    forward_m: float = Field(default=PRIMITIVES.forward_m, gt=0)
+    turn_deg: float = Field(default=PRIMITIVES.turn_deg, gt=0, le=180)
     linear_tolerance_m: float = Field(default=0.002, gt=0)
     angular_tolerance_rad: float = Field(default=0.003, gt=0)
     approach_gain: float = Field(default=4.0, gt=0, description="1/s; speed = gain * remaining near the goal")
@@ -80,6 +78,11 @@ class DriverConfig(_Strict):
         if self.left.node_id == self.right.node_id:
             raise ValueError("left and right axes need different node ids")
         return self
+
+    @property
+    def primitives(self) -> Primitives:
+        """The primitive sizes this driver executes (what it advertises)."""
+        return Primitives(forward_m=self.forward_m, turn_deg=self.turn_deg)
 
     @property
     def max_wheel_rev_s(self) -> float:

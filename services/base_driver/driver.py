@@ -41,11 +41,11 @@ from services.base_driver.kinematics import Geometry, WheelOdometry, toward
 from services.base_driver.primitives import PrimitiveTracker
 from services.base_driver.protocol import (AxisState, CanSimple, Cmd, ControlMode, Frame, InputMode,
                                            ProtocolError, error_names)
-from shared.messages import DriverMode, DriverState, Odometry, PlanCommand
+from shared.messages import DriverMode, DriverState, Odometry, Outcome, PlanCommand
+from shared.motion import ActionIds
 
 log = logging.getLogger("ovamos.base_driver")
 
-Outcome = Literal["done", "blocked", "aborted", "rejected"]
 BusFactory = Callable[[], can.BusABC]
 _SEND_TIMEOUT_S = 0.05
 
@@ -133,7 +133,8 @@ class BaseDriver:
         self._last_tick: float | None = None
         self._age_checks_from = -math.inf
         self._active: _Active | None = None
-        self._highest_id = 0
+        self._action_ids = ActionIds()
+        self._primitives = config.primitives  # advertised in every state
         self._last_command_at = -math.inf
         self._completed = _Completed()
         self._odom = WheelOdometry(self.geometry, config.initial_pose)
@@ -276,10 +277,9 @@ class BaseDriver:
         """Take one command; an action id is executed at most once (re-sent copies are ignored)."""
         with self._lock:
             now = self.clock()
-            if command.action_id <= self._highest_id:
+            if not self._action_ids.take(command.action_id):
                 self.counters["duplicates"] += 1
                 return "duplicate"
-            self._highest_id = command.action_id
             if self._estop is not None or self._phase == "fault":
                 self.counters["rejected"] += 1
                 self._complete_id(command.action_id, "rejected")
@@ -518,7 +518,7 @@ class BaseDriver:
                                estop_latched=self._estop is not None,
                                active_action=self._active.command.action_id if self._active else None,
                                last_completed=done.action_id, last_outcome=done.outcome,
-                               completed_stamp=done.stamp)
+                               primitives=self._primitives)
 
     def odometry(self) -> Odometry:
         with self._lock:
@@ -527,7 +527,7 @@ class BaseDriver:
             linear, angular = self.geometry.body(left.vel, right.vel)
             self._odom_seq += 1
             return Odometry(seq=self._odom_seq, stamp=time.time(), x=pose.x, y=pose.y, yaw=pose.yaw,
-                            linear=linear, angular=angular)
+                            linear=linear, angular=angular, after_action=self._completed.action_id)
 
     def wheel_speeds(self) -> tuple[float, float]:
         """The latest encoder velocity estimates (rev/s, wheel forward positive)."""

@@ -15,7 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from services.gateway.config import MAX_STEPS_LIMIT, GatewayConfig
 from services.gateway.store import TaskRecord
-from shared.messages import FoundObject, TaskStatus
+from shared.messages import FINAL, FoundObject, TaskStatus
 
 MAX_TARGETS = 16
 MAX_TARGET_CHARS = 64
@@ -100,9 +100,6 @@ class TaskView(BaseModel):
     @property
     def final(self) -> bool:
         return self.status in FINAL
-
-
-FINAL = (TaskStatus.DONE, TaskStatus.FAILED, TaskStatus.CANCELLED)
 
 
 class TaskAccepted(BaseModel):

@@ -6,12 +6,11 @@ per-layer fusion confidences, so a restarted mapping service resumes exactly.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 from services.mapping.config import MappingConfig
 from services.mapping.state import MapState
+from shared.atomic import write_atomic
 from shared.messages import DecodeError, MapSnapshot
 
 
@@ -20,20 +19,10 @@ class CheckpointError(ValueError):
 
 
 def save_checkpoint(state: MapState, path: str | Path, stamp: float) -> None:
-    """Write to a temporary file in the same folder, then rename: a crash never leaves half a file."""
+    """Write atomically (:func:`shared.atomic.write_atomic`): a crash never leaves half a file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    payload = state.snapshot(stamp).to_bytes()
-    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(payload)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomic(path, state.snapshot(stamp).to_bytes())
 
 
 def load_checkpoint(path: str | Path, config: MappingConfig) -> MapState:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from shared.service import ServiceConfig
+from shared.config import ServiceConfig
+from shared.robot import ROBOT
 
 
 class MappingConfig(ServiceConfig):
@@ -20,7 +21,7 @@ class MappingConfig(ServiceConfig):
                                     description="readings with a lower FOV confidence are ignored")
     decision_threshold: float = Field(default=0.35, ge=0, le=1,
                                       description="detection score from which a detection counts")
-    robot_radius: float = Field(default=0.18, ge=0, description="frontiers keep this far from obstacles")
+    robot_radius: float = Field(default=ROBOT.radius_m, ge=0, description="frontiers keep this far from obstacles")
     frontier_min_cells: int = Field(default=5, ge=1, description="smaller frontier segments are dropped")
     object_merge_distance_m: float = Field(default=0.5, gt=0)
     object_confirm_hits: int = Field(default=2, ge=1)

@@ -1,14 +1,27 @@
 """The value-map maths of the paper, as pure functions on arrays.
 
-Kept apart from the map state so the planner (which reads snapshots) and the
-mapping service apply exactly the same decay and aggregation.
+The map state fuses each frame's reading into its layers (:func:`fov_confidence`,
+:func:`fuse`); snapshots carry those raw layers and the update counts. What the
+planner decides on is :func:`value_map` (the layers normalised, decayed by the
+counts and summed), and the map picture (:mod:`services.mapping.render`) shows
+that same function's result, so a person looks at the map the planner saw.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 
 import numpy as np
+
+from shared.messages import MapSnapshot
+
+DECAY_TAU = 6.0
+"""Paper: the update count at which a value halves (tau)."""
+DECAY_KAPPA = 2.0
+"""Paper: how sharply a value fades around ``tau`` (kappa)."""
+
+Window = tuple[slice, slice]
+WHOLE: Window = (slice(None), slice(None))
 
 
 def fov_confidence(theta: np.ndarray, hfov: float) -> np.ndarray:
@@ -54,3 +67,22 @@ def aggregate(layers: Iterable[np.ndarray], fade: Callable[[np.ndarray], np.ndar
             norm = fade(norm)
         total = norm if total is None else total + norm
     return total
+
+
+def value_map(snapshot: MapSnapshot, targets: Collection[str], tau: float = DECAY_TAU,
+              kappa: float = DECAY_KAPPA, *, decayed: bool = True, window: Window = WHOLE
+              ) -> np.ndarray | None:
+    """The value map the planner decides on, over ``window`` of the snapshot's grid.
+
+    The layers of ``targets`` (in the snapshot's layer order), zero outside explored
+    cells, aggregated by :func:`aggregate` with the count decay (``decayed=False``: without,
+    the no-decay ablations). None when no layer is a target. The peaks are those of
+    the explored cells, so a window that holds every explored cell gives the same
+    values as the whole grid.
+    """
+    counts, explored = snapshot.counts[window], snapshot.explored[window]
+    layers = [snapshot.values[i][window] * explored for i, name in enumerate(snapshot.layers)
+              if name in targets]
+    if not decayed:
+        return aggregate(layers)
+    return aggregate(layers, lambda layer: decay(layer, counts, tau, kappa))

@@ -41,10 +41,13 @@ from typing import Self
 
 import numpy as np
 
+from services.mapping.config import MappingConfig
 from shared.detections import Detection
 from shared.messages import ObjectInstance, RgbdFrame
 
 __all__ = ["ObjectMap", "mask_points", "detection_position"]
+
+_DEFAULTS = MappingConfig()  # the defaults live in the mapping config, and only there
 
 
 def mask_points(mask: np.ndarray, frame: RgbdFrame, max_points: int = 2000) -> np.ndarray:
@@ -107,12 +110,16 @@ class ObjectMap:
     instance of its label is the same object. ``confirm_hits`` and
     ``decision_threshold``: when an instance counts as found; the threshold also
     filters detections (lower scores are ignored). ``max_points``: mask pixels
-    projected per detection (evenly subsampled).
+    projected per detection (evenly subsampled). ``min_hit_ratio`` and
+    ``view_range_m``: the negative evidence (see the module doc). Every default is the
+    mapping service's (:class:`~services.mapping.config.MappingConfig`).
     """
 
-    def __init__(self, merge_distance_m: float = 0.5, confirm_hits: int = 2,
-                 decision_threshold: float = 0.35, *, max_points: int = 2000,
-                 min_hit_ratio: float = 0.0, view_range_m: float = 3.0,
+    def __init__(self, merge_distance_m: float = _DEFAULTS.object_merge_distance_m,
+                 confirm_hits: int = _DEFAULTS.object_confirm_hits,
+                 decision_threshold: float = _DEFAULTS.decision_threshold, *, max_points: int = 2000,
+                 min_hit_ratio: float = _DEFAULTS.object_min_hit_ratio,
+                 view_range_m: float = _DEFAULTS.object_view_range_m,
                  occlusion_margin_m: float = 0.3) -> None:
         if not merge_distance_m > 0:
             raise ValueError(f"merge_distance_m must be > 0, got {merge_distance_m}")
@@ -194,12 +201,6 @@ class ObjectMap:
                 best, best_d = track, d
         return best
 
-    def remove_label(self, label: str) -> int:
-        """Forget every instance of ``label`` (a found target); returns how many there were."""
-        before = len(self._tracks)
-        self._tracks = [t for t in self._tracks if t.label != label]
-        return before - len(self._tracks)
-
     # -- reading -----------------------------------------------------------------------------
 
     def _instance(self, track: _Track) -> ObjectInstance:
@@ -218,18 +219,16 @@ class ObjectMap:
         found = [i for i in self.instances() if i.label == label and i.confirmed]
         return sorted(found, key=lambda i: (-i.hits, -i.score))  # stable: oldest first on ties
 
-    def labels(self) -> list[str]:
-        """Labels with at least one instance, sorted."""
-        return sorted({t.label for t in self._tracks})
-
     def __len__(self) -> int:
         return len(self._tracks)
 
     # -- checkpoints -------------------------------------------------------------------------
 
     @classmethod
-    def from_instances(cls, instances: Sequence[ObjectInstance], merge_distance_m: float = 0.5,
-                       confirm_hits: int = 2, decision_threshold: float = 0.35, *,
+    def from_instances(cls, instances: Sequence[ObjectInstance],
+                       merge_distance_m: float = _DEFAULTS.object_merge_distance_m,
+                       confirm_hits: int = _DEFAULTS.object_confirm_hits,
+                       decision_threshold: float = _DEFAULTS.decision_threshold, *,
                        max_points: int = 2000, **evidence: float) -> Self:
         """A map holding ``instances`` (e.g. a snapshot's ``objects``), in their order.
 

@@ -2,8 +2,8 @@
 
 One BGR image of a :class:`~shared.messages.MapSnapshot` seen from above (image
 up = world +y, as in :mod:`services.sim.draw`): unexplored cells dark grey,
-explored free cells light, obstacles black, the value map as a heat map over
-explored free cells, frontier waypoints, object instances with their labels,
+explored free cells light, obstacles black, the value map the planner decides on
+(decayed, :func:`value_image`) as a heat map over explored free cells, frontier waypoints, object instances with their labels,
 and optionally the robot and its path. By default the picture is cropped to
 what has been explored (plus a margin): the service's grid is sized for the
 largest home, and early in a search almost all of it is unknown.
@@ -13,14 +13,16 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from services.mapping.layers import DECAY_KAPPA, DECAY_TAU, value_map
+from shared.atomic import write_atomic
 from shared.messages import MapSnapshot
+from shared.robot import ROBOT as ROBOT_GEOMETRY
 
 __all__ = ["render_map", "value_image", "write_png"]
 
@@ -33,30 +35,26 @@ PATH = (200, 60, 20)
 CONFIRMED = (40, 170, 40)     # filled square: the planner may stop here
 UNCONFIRMED = (0, 140, 255)   # hollow circle: seen, not yet trusted
 COLORMAP = cv2.COLORMAP_TURBO  # blue (low) -> red (high), as the sim draws depth
-ROBOT_RADIUS_M = 0.18
 HEADING_LENGTH_M = 0.35
 
 
-def value_image(snapshot: MapSnapshot, layer: str | None = None) -> np.ndarray:
+def value_image(snapshot: MapSnapshot, layer: str | None = None, *, tau: float = DECAY_TAU,
+                kappa: float = DECAY_KAPPA) -> np.ndarray:
     """The value map shown by :func:`render_map`: H x W float in [0, 1].
 
-    One layer by name, divided by its maximum; or, with ``layer=None``, every
-    layer divided by its own maximum, summed, and the sum divided by its
-    maximum (the aggregation the planner uses, rescaled for colour). Raw fused
-    values: the snapshot does not apply the count decay. An all-zero layer
-    gives zeros. Unknown layer names raise ``ValueError`` naming the known ones.
+    The map the planner decides on (:func:`services.mapping.layers.value_map`: each
+    layer over the explored cells divided by its peak, decayed by the update counts with
+    ``tau`` and ``kappa``, summed), of every layer (``layer=None``) or of one by name,
+    divided by its maximum for colour. An all-zero map gives zeros. Unknown layer names
+    raise ``ValueError`` naming the known ones.
     """
-    values = np.asarray(snapshot.values, dtype=np.float64)
-    if layer is not None:
-        if layer not in snapshot.layers:
-            known = ", ".join(repr(n) for n in snapshot.layers) or "none"
-            raise ValueError(f"unknown value layer {layer!r} (layers: {known})")
-        values = values[snapshot.layers.index(layer)][None]
-    if values.shape[0] == 0:
+    if layer is not None and layer not in snapshot.layers:
+        known = ", ".join(repr(n) for n in snapshot.layers) or "none"
+        raise ValueError(f"unknown value layer {layer!r} (layers: {known})")
+    total = value_map(snapshot, snapshot.layers if layer is None else (layer,), tau, kappa)
+    if total is None:
         return np.zeros(snapshot.obstacle.shape)
-    values = np.nan_to_num(np.clip(values, 0.0, None), nan=0.0, posinf=0.0)
-    peak = values.max(axis=(1, 2), keepdims=True)
-    total = np.divide(values, peak, out=np.zeros_like(values), where=peak > 0).sum(axis=0)
+    total = np.clip(np.nan_to_num(total.astype(np.float64), nan=0.0, posinf=0.0), 0.0, None)
     top = total.max()
     return total / top if top > 0 else total
 
@@ -88,11 +86,13 @@ def _text(image: np.ndarray, label: str, at: tuple[int, int], scale: float = 0.3
 def render_map(snapshot: MapSnapshot, *, layer: str | None = None,
                robot: tuple[float, float, float] | None = None,
                path: Sequence[tuple[float, float]] = (), crop: bool = True,
-               px_per_cell: int = 2, margin_cells: int = 10) -> np.ndarray:
+               px_per_cell: int = 2, margin_cells: int = 10, tau: float = DECAY_TAU,
+               kappa: float = DECAY_KAPPA) -> np.ndarray:
     """A BGR uint8 picture of ``snapshot`` from above (see the module docstring).
 
-    ``layer`` picks the value layer to show (``None``: the normalised sum of all
-    layers, :func:`value_image`); ``robot`` is (x, y, yaw) in world metres and
+    ``layer`` picks the value layer to show (``None``: all of them; either way the
+    decayed map the planner decides on, :func:`value_image`, with the decay's ``tau`` and
+    ``kappa``); ``robot`` is (x, y, yaw) in world metres and
     radians; ``path`` world (x, y) points drawn as a polyline. ``crop`` keeps the
     bounding box of explored cells, the robot, the path, objects and frontiers,
     grown by ``margin_cells``; the whole grid when there is nothing to show.
@@ -101,7 +101,7 @@ def render_map(snapshot: MapSnapshot, *, layer: str | None = None,
     """
     if px_per_cell < 1:
         raise ValueError(f"px_per_cell must be >= 1, got {px_per_cell}")
-    heat = value_image(snapshot, layer)  # validates the layer name first
+    heat = value_image(snapshot, layer, tau=tau, kappa=kappa)  # validates the layer name first
     res, (x0, y0) = snapshot.resolution, snapshot.origin
     rows, cols = snapshot.obstacle.shape
     objects = np.array([(o.x, o.y) for o in snapshot.objects], float).reshape(-1, 2)
@@ -155,7 +155,7 @@ def render_map(snapshot: MapSnapshot, *, layer: str | None = None,
         centre = px(x, y)
         tip = px(x + max(HEADING_LENGTH_M, 8 / k) * math.cos(yaw),
                  y + max(HEADING_LENGTH_M, 8 / k) * math.sin(yaw))
-        radius = max(3, int(round(ROBOT_RADIUS_M * k)))
+        radius = max(3, int(round(ROBOT_GEOMETRY.radius_m * k)))
         cv2.circle(image, centre, radius + 1, (255, 255, 255), 1, cv2.LINE_AA)  # stands out on blue
         cv2.circle(image, centre, radius, ROBOT, -1, cv2.LINE_AA)
         cv2.line(image, centre, tip, (0, 0, 0), 2, cv2.LINE_AA)
@@ -163,7 +163,8 @@ def render_map(snapshot: MapSnapshot, *, layer: str | None = None,
 
 
 def write_png(path: str | os.PathLike[str], image: np.ndarray) -> Path:
-    """Write ``image`` as a PNG at ``path`` atomically (temp file + rename); returns the path.
+    """Write ``image`` as a PNG at ``path`` atomically (:func:`shared.atomic.write_atomic`);
+    returns the path.
 
     A viewer that reloads the file while a search runs never sees half a
     picture. Raises ``ValueError`` when OpenCV cannot encode the image and
@@ -177,13 +178,5 @@ def write_png(path: str | os.PathLike[str], image: np.ndarray) -> Path:
                          f"{exc.err or exc}") from None
     if not ok:
         raise ValueError(f"cannot encode a {image.dtype} {image.shape} image as PNG")
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data.tobytes())
-        os.chmod(tmp, 0o644)  # mkstemp makes it private; a picture is for anyone to look at
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return target
+    # readable by all (a temporary file is private): a picture is for anyone to look at
+    return write_atomic(target, data.tobytes(), mode=0o644)

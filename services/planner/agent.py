@@ -28,11 +28,13 @@ from enum import Enum
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.planner.decide import Decision, DecisionConfig, GoalKind, Policy, away, decide, searched
+from services.planner.decide import (Decision, DecisionConfig, GoalKind, Policy, away, decide,
+                                     targets_to_search)
 from services.planner.navigation import NavigationConfig, NavMap, Navigator, Unreachable
-from services.planner.task import Found, Task, TaskState
-from shared.messages import MapSnapshot
+from services.planner.task import SearchTask
+from shared.messages import MapSnapshot, TaskStatus
 from shared.motion import Action, Pose
+from shared.robot import PRIMITIVES, Primitives
 
 
 class AgentConfig(BaseModel):
@@ -41,7 +43,8 @@ class AgentConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     decision: DecisionConfig = Field(default_factory=DecisionConfig)
     navigation: NavigationConfig = Field(default_factory=NavigationConfig)
-    initial_turns: int = Field(default=12, ge=0, description="look around first (12 x 30 deg = 360)")
+    initial_turns: int = Field(default=round(360 / PRIMITIVES.turn_deg), ge=0,
+                               description="look around first (12 x 30 deg = 360)")
     redecide_every: int = Field(
         default=4, ge=1,
         description="commands towards a frontier or object goal before deciding again (4 = 1 m)")
@@ -56,12 +59,18 @@ class AgentConfig(BaseModel):
         description="navigation commands that leave the robot within 0.1 m before the goal is "
                     "given up (a controller oscillating between two headings)")
     bump_depth_m: float = Field(
-        default=0.25, gt=0,
-        description="a blocked MOVE_FORWARD marks an obstacle this far ahead: what the depth "
-                    "camera cannot see (closer than its range, below its view) the bumper can")
+        default=PRIMITIVES.forward_m, gt=0,
+        description="a blocked MOVE_FORWARD marks an obstacle this far ahead (the step it could not "
+                    "make): what the depth camera cannot see (closer than its range, below its "
+                    "view) the bumper can")
     memory_steps: int = Field(
         default=100, ge=1,
         description="bumps and goals found unreachable are forgotten after this many commands")
+
+    @property
+    def primitives(self) -> Primitives:
+        """The primitive sizes this planner plans with (its navigator's)."""
+        return Primitives(forward_m=self.navigation.forward_m, turn_deg=self.navigation.turn_deg)
 
 
 class Reason(str, Enum):
@@ -83,11 +92,12 @@ class Step:
     goal: Decision | None = None
 
 
-class Recent:
-    """Places remembered for ``memory`` steps. A bump or a goal that could not be reached is
-    evidence about the map as it was: a narrow doorway the robot bumped into on both sides, and
-    every goal behind it, stay closed for ever otherwise, and a robot whose map lost part of what
-    it had seen (a restart from an older checkpoint) bumps a lot."""
+class ExpiringPlaces:
+    """Places remembered for ``memory`` steps (commands), then forgotten: a time-to-live memory.
+    A bump or a goal that could not be reached is evidence about the map as it was: a narrow
+    doorway the robot bumped into on both sides, and every goal behind it, stay closed for ever
+    otherwise, and a robot whose map lost part of what it had seen (a restart from an older
+    checkpoint) bumps a lot."""
 
     def __init__(self, memory: int) -> None:
         self.memory = memory
@@ -108,13 +118,13 @@ class Recent:
 class SearchAgent:
     """Drives one task; holds the goal, the navigator and the goals found unreachable."""
 
-    def __init__(self, task: Task, config: AgentConfig | None = None) -> None:
+    def __init__(self, task: SearchTask, config: AgentConfig | None = None) -> None:
         self.task = task
         self.config = config or AgentConfig()
         self.navigator = Navigator(self.config.navigation)
         self.goal: Decision | None = None
         self.decisions = 0
-        self.unreachable = Recent(self.config.memory_steps)
+        self.unreachable = ExpiringPlaces(self.config.memory_steps)
         self.visited: list[tuple[float, float]] = []   # candidates reached
         self._scan_left = self.config.initial_turns
         self._toward_goal = 0
@@ -122,17 +132,17 @@ class SearchAgent:
         self._idle = 0
         self._random_walk = self.config.decision.policy is Policy.RANDOM
         self._recent: list[tuple[float, float]] = []
-        self.bumps = Recent(self.config.memory_steps)
-        if task.state is TaskState.IDLE:
+        self.bumps = ExpiringPlaces(self.config.memory_steps)
+        if task.state is TaskStatus.QUEUED:
             task.start()
 
     # -- the loop ------------------------------------------------------------------------------
     def next_step(self, snapshot: MapSnapshot, pose: Pose) -> Step:
-        if self.task.state is not TaskState.SEARCHING:
+        if self.task.state is not TaskStatus.SEARCHING:
             return Step(None, Reason.OVER)
         if self._scan_left > 0:
             return Step(Action.TURN_LEFT, Reason.SCAN)
-        remaining = searched(self.task.remaining, self.config.decision.policy)
+        remaining = targets_to_search(self.task.remaining, self.config.decision.policy)
         if self.goal is None or self._goal_expired() or (
                 self.goal.kind is not GoalKind.OBJECT and self._object_seen(snapshot, remaining)):
             self._decide(snapshot, pose, remaining)
@@ -167,11 +177,11 @@ class SearchAgent:
                  ) -> None:
         """Book-keeping after ``step`` was executed (``pose``: where it was executed from): one
         step spent, a STOP declares its target, a bump marks an obstacle."""
-        if step.action is None or self.task.state is not TaskState.SEARCHING:
+        if step.action is None or self.task.state is not TaskStatus.SEARCHING:
             return
         found = None
         if step.reason is Reason.FOUND and step.goal is not None and step.goal.label is not None:
-            found = Found(step.goal.label, step.goal.x, step.goal.y, self.task.steps + 1)
+            found = (step.goal.label, step.goal.x, step.goal.y)
             self.goal = None
         if step.reason is Reason.SCAN:
             self._scan_left -= 1

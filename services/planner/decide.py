@@ -18,13 +18,14 @@ from enum import Enum
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.mapping.layers import aggregate, decay
+from services.mapping.layers import DECAY_KAPPA, DECAY_TAU, WHOLE, Window, value_map
 from services.planner.candidates import CandidateConfig, Candidates, best_frontier, find_candidates
 from services.planner.pomdp import POMDPConfig, SearchPOMDP, root_particles
 from services.planner.pouct import POUCT
 from shared.geodesic import FreeSpaceGraph
 from shared.grid import GridGeometry, inflate
 from shared.messages import MapSnapshot
+from shared.robot import ROBOT
 
 
 class Policy(str, Enum):
@@ -32,7 +33,7 @@ class Policy(str, Enum):
     GREEDY = "ovamos-greedy"      # no POMDP: the highest value among candidates and frontier
     NO_DECAY = "ovamos-nodecay"   # POMDP on the value map without decay
     FINDER = "finder"             # all targets' layers, always the best frontier
-    VLFM = "vlfm"                 # one target at a time (see `searched`), always the best frontier
+    VLFM = "vlfm"                 # one target at a time (see `targets_to_search`), always the best frontier
     RANDOM = "random"             # a random walk (same stop logic for found objects): no goals
 
 
@@ -45,9 +46,9 @@ class DecisionConfig(BaseModel):
     policy: Policy = Policy.OVAMOS
     candidates: CandidateConfig = Field(default_factory=CandidateConfig)
     pomdp: POMDPConfig = Field(default_factory=POMDPConfig)
-    decay_tau: float = Field(default=6.0, description="update count at which a value halves")
-    decay_kappa: float = Field(default=2.0, gt=0, description="how sharply it fades around tau")
-    robot_radius: float = Field(default=0.18, ge=0)
+    decay_tau: float = Field(default=DECAY_TAU, description="update count at which a value halves")
+    decay_kappa: float = Field(default=DECAY_KAPPA, gt=0, description="how sharply it fades around tau")
+    robot_radius: float = Field(default=ROBOT.radius_m, ge=0, description="path lengths keep this far from obstacles")
     distance_coarsening: int = Field(default=4, ge=1, description="path lengths on cells this many times larger")
     window_margin_m: float = Field(default=1.0, ge=0, description="path search beyond the explored area")
     snap_radius_m: float = Field(default=0.5, ge=0, description="action points in obstacles move this far at most")
@@ -83,28 +84,26 @@ def explored_window(snapshot: MapSnapshot) -> tuple[slice, slice, GridGeometry]:
     return slice(r0, r1), slice(c0, c1), grid
 
 
-def searched(remaining: Sequence[str], policy: Policy) -> list[str]:
-    """The targets ``policy`` looks for now. VLFM is a single-object method, so it runs once per
+def targets_to_search(remaining: Sequence[str], policy: Policy) -> list[str]:
+    """The targets ``policy`` looks for now, of the ``remaining`` ones. VLFM is a single-object method, so it runs once per
     target in the task's order: it reads that target's value layer and goes only to that
     target's objects (it keeps its map, so an object seen earlier is still known)."""
     return list(remaining[:1]) if policy is Policy.VLFM else list(remaining)
 
 
-def value_map(snapshot: MapSnapshot, remaining: Sequence[str], config: DecisionConfig,
-              window: tuple[slice, slice] = (slice(None), slice(None))) -> np.ndarray | None:
-    """Aggregated value of the remaining targets' layers (decayed unless the ablation says
-    not), over ``window`` of the grid."""
-    counts, explored = snapshot.counts[window], snapshot.explored[window]
-    layers = [snapshot.values[i][window] * explored for i, name in enumerate(snapshot.layers) if name in remaining]
-    if config.policy in NO_DECAY:
-        return aggregate(layers)
-    return aggregate(layers, lambda layer: decay(layer, counts, config.decay_tau, config.decay_kappa))
+def decision_values(snapshot: MapSnapshot, remaining: Sequence[str], config: DecisionConfig,
+                    window: Window = WHOLE) -> np.ndarray | None:
+    """The value map ``config.policy`` decides on: :func:`services.mapping.layers.value_map`
+    of the remaining targets, decayed unless the policy is a no-decay one."""
+    return value_map(snapshot, remaining, config.decay_tau, config.decay_kappa,
+                     decayed=config.policy not in NO_DECAY, window=window)
 
 
-class PathLengths:
-    """Path lengths between a handful of points on one map (robot-radius-inflated obstacles,
-    unexplored space optimistic), on a coarsened window around the explored area so a
-    decision step stays cheap."""
+class ActionDistances:
+    """The distances of a decision step's POMDP: path lengths between its action points (the
+    robot, candidates, the frontier) on one map (robot-radius-inflated obstacles, unexplored
+    space optimistic), on a coarsened window around the explored area so a decision step
+    stays cheap."""
 
     def __init__(self, snapshot: MapSnapshot, config: DecisionConfig,
                  include: np.ndarray | None = None) -> None:
@@ -175,7 +174,7 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     """
     avoid = _points(avoid)
     radius = config.avoid_radius_m
-    remaining = searched(remaining, config.policy)
+    remaining = targets_to_search(remaining, config.policy)
     for obj in snapshot.objects:
         if obj.confirmed and obj.label in remaining and away(np.array([[obj.x, obj.y]]), avoid,
                                                               radius)[0]:
@@ -185,7 +184,7 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     if config.policy is Policy.RANDOM:
         return None  # the agent walks at random between confirmed objects
     rows, cols, grid = explored_window(snapshot)
-    values = value_map(snapshot, remaining, config, (rows, cols))
+    values = decision_values(snapshot, remaining, config, (rows, cols))
     if values is None:
         values = np.zeros(grid.shape, np.float32)
     cands = find_candidates(values, grid, config.candidates)
@@ -220,7 +219,7 @@ def _pouct(cands: Candidates, frontier: np.ndarray | None, robot_xy: tuple[float
            snapshot: MapSnapshot, config: DecisionConfig) -> Decision:
     points = np.vstack([np.asarray(robot_xy, float)[None], cands.points,
                         *([frontier[None]] if frontier is not None else [])])
-    distances = PathLengths(snapshot, config, include=points).matrix(points)
+    distances = ActionDistances(snapshot, config, include=points).matrix(points)
     n = len(cands.points)
     reachable = [i for i in range(1, n + 1) if np.isfinite(distances[0, i])]
     frontier_index = n + 1 if frontier is not None and np.isfinite(distances[0, n + 1]) else None

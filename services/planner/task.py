@@ -1,105 +1,91 @@
-"""A search task's life: idle -> searching -> done | failed (step limit) | cancelled.
+"""A search task as the planner runs it: queued -> searching -> done | failed | cancelled.
 
 The planner owns one task per robot. Targets may be added or removed while
 searching (a user changes their mind); finding the last remaining target ends
-the task, and so does running out of steps.
+the task, and so does running out of steps. The states and the found objects
+are the ones the planner reports (:class:`shared.messages.TaskStatus`,
+:class:`shared.messages.FoundObject`): one vocabulary from planner to user.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
+
+from shared.messages import FoundObject, TaskStatus
 
 
-class TaskState(str, Enum):
-    IDLE = "idle"
-    SEARCHING = "searching"
-    DONE = "done"
-    FAILED = "failed"
-    CANCELLED = "cancelled"
-
-
-FINAL = (TaskState.DONE, TaskState.FAILED, TaskState.CANCELLED)
-
-
-class TaskError(RuntimeError):
-    """An operation the task's current state does not allow."""
-
-
-@dataclass(frozen=True)
-class Found:
-    label: str
-    x: float
-    y: float
-    step: int
+class SearchTaskError(RuntimeError):
+    """An operation the task's current status does not allow."""
 
 
 @dataclass
-class Task:
+class SearchTask:
+    """The planner's record of one task: its targets, progress, and what was found where."""
+
     task_id: str
     targets: list[str]
     max_steps: int = 500
-    state: TaskState = TaskState.IDLE
+    state: TaskStatus = TaskStatus.QUEUED  # not started yet
     steps: int = 0
     distance: float = 0.0
-    found: dict[str, Found] = field(default_factory=dict)
+    found: dict[str, FoundObject] = field(default_factory=dict)
     reason: str = ""  # why the task failed
 
     def __post_init__(self) -> None:
         if not self.targets or len(set(self.targets)) != len(self.targets):
-            raise TaskError("a task needs at least one target and no duplicates")
+            raise SearchTaskError("a task needs at least one target and no duplicates")
 
     @property
     def remaining(self) -> list[str]:
         return [t for t in self.targets if t not in self.found]
 
-    def _require(self, *states: TaskState) -> None:
+    def _require(self, *states: TaskStatus) -> None:
         if self.state not in states:
-            raise TaskError(f"task {self.task_id} is {self.state.value}; "
-                            f"this needs {' or '.join(s.value for s in states)}")
+            raise SearchTaskError(f"task {self.task_id} is {self.state.value}; "
+                                  f"this needs {' or '.join(s.value for s in states)}")
 
     def start(self) -> None:
-        self._require(TaskState.IDLE)
-        self.state = TaskState.SEARCHING
+        self._require(TaskStatus.QUEUED)
+        self.state = TaskStatus.SEARCHING
 
-    def record_step(self, distance: float, found: Found | None = None) -> None:
-        """One executed command (a STOP that declared ``found`` included); the task fails
-        when the step limit is reached with targets left."""
-        self._require(TaskState.SEARCHING)
+    def record_step(self, distance: float, found: tuple[str, float, float] | None = None) -> None:
+        """One executed command (a STOP that declared ``found``, (label, x, y), included);
+        the task fails when the step limit is reached with targets left."""
+        self._require(TaskStatus.SEARCHING)
         self.steps += 1
         self.distance += distance
         if found is not None:
-            self.mark_found(found.label, found.x, found.y)
-        if self.state is TaskState.SEARCHING and self.steps >= self.max_steps:
+            self.mark_found(*found)
+        if self.state is TaskStatus.SEARCHING and self.steps >= self.max_steps:
             self.fail(f"step limit {self.max_steps} reached")
 
     def mark_found(self, label: str, x: float, y: float) -> None:
-        self._require(TaskState.SEARCHING)
+        self._require(TaskStatus.SEARCHING)
         if label not in self.remaining:
-            raise TaskError(f"{label!r} is not a remaining target of task {self.task_id}")
-        self.found[label] = Found(label, x, y, self.steps)
+            raise SearchTaskError(f"{label!r} is not a remaining target of task {self.task_id}")
+        self.found[label] = FoundObject(label=label, x=x, y=y, step=self.steps)
         if not self.remaining:
-            self.state = TaskState.DONE
+            self.state = TaskStatus.DONE
 
     def fail(self, reason: str) -> None:
-        self._require(TaskState.SEARCHING)
-        self.state = TaskState.FAILED
+        self._require(TaskStatus.SEARCHING)
+        self.state = TaskStatus.FAILED
         self.reason = reason
 
     def add_targets(self, labels: list[str]) -> None:
-        self._require(TaskState.IDLE, TaskState.SEARCHING)
+        self._require(TaskStatus.QUEUED, TaskStatus.SEARCHING)
         self.targets += [t for t in dict.fromkeys(labels) if t not in self.targets]
 
     def remove_targets(self, labels: list[str]) -> None:
         """Drop targets; removing every remaining one finishes the task (nothing left to find)."""
-        self._require(TaskState.IDLE, TaskState.SEARCHING)
+        self._require(TaskStatus.QUEUED, TaskStatus.SEARCHING)
         keep = [t for t in self.targets if t not in labels or t in self.found]
         if not keep:
-            raise TaskError("a task cannot lose all of its targets; cancel it instead")
+            raise SearchTaskError("a task cannot lose all of its targets; cancel it instead")
         self.targets = keep
-        if self.state is TaskState.SEARCHING and not self.remaining:
-            self.state = TaskState.DONE
+        if self.state is TaskStatus.SEARCHING and not self.remaining:
+            self.state = TaskStatus.DONE
 
     def cancel(self) -> None:
-        self._require(TaskState.IDLE, TaskState.SEARCHING)
-        self.state = TaskState.CANCELLED
+        self._require(TaskStatus.QUEUED, TaskStatus.SEARCHING)
+        self.state = TaskStatus.CANCELLED

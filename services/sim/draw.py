@@ -17,6 +17,7 @@ from shared.motion import Pose
 from services.sim.world import Scene
 from shared.camera import DEPTH_RANGE_M
 from shared.messages import RgbdFrame
+from shared.robot import ROBOT
 
 ROOM_COLOURS = {  # BGR, light so labels stay readable
     "kitchen": (200, 230, 250), "living_room": (210, 240, 210), "bedroom": (240, 220, 215),
@@ -81,7 +82,7 @@ def draw_scene(scene: Scene, *, px_per_m: float = 60.0, robot: Pose | None = Non
         centre = np.round(canvas.px(np.array([robot.x, robot.y]))).astype(int)
         tip = np.round(canvas.px(np.array([robot.x + 0.35 * math.cos(robot.yaw),
                                            robot.y + 0.35 * math.sin(robot.yaw)]))).astype(int)
-        cv2.circle(canvas.image, tuple(centre), int(0.18 * px_per_m), (200, 60, 20), -1, cv2.LINE_AA)
+        cv2.circle(canvas.image, tuple(centre), int(ROBOT.radius_m * px_per_m), (200, 60, 20), -1, cv2.LINE_AA)
         cv2.line(canvas.image, tuple(centre), tuple(tip), (0, 0, 0), 2, cv2.LINE_AA)
     return canvas.image
 

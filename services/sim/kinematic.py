@@ -12,12 +12,9 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter, deque
-from typing import Literal
-
 from services.sim.robot import SimRobot
-from shared.messages import DriverMode, DriverState, Odometry, PlanCommand
-
-Outcome = Literal["done", "blocked", "aborted", "rejected"]
+from shared.messages import DriverMode, DriverState, Odometry, Outcome, PlanCommand
+from shared.motion import ActionIds
 
 
 class KinematicBase:
@@ -28,17 +25,17 @@ class KinematicBase:
         self.counters: Counter[str] = Counter()
         self._lock = threading.Lock()
         self._pending: deque[PlanCommand] = deque()
-        self._highest = 0
+        self._action_ids = ActionIds()
+        self._primitives = robot.config.primitives  # advertised in every state
         self._estop: str | None = None
         self._completed: tuple[int, Outcome | None, float] = (0, None, 0.0)
         self._odom_seq = 0
 
     def submit(self, command: PlanCommand) -> str:
         with self._lock:
-            if command.action_id <= self._highest:
+            if not self._action_ids.take(command.action_id):
                 self.counters["duplicates"] += 1
                 return "duplicate"
-            self._highest = command.action_id
             if self._estop is not None or command.action is None:
                 self.counters["rejected"] += 1
                 self._completed = (command.action_id, "rejected", time.time())
@@ -75,18 +72,20 @@ class KinematicBase:
         with self._lock:
             mode = (DriverMode.ESTOP if self._estop else DriverMode.MOVING if self._pending
                     else DriverMode.READY)
-            action_id, outcome, stamp = self._completed
+            action_id, outcome, _ = self._completed
             return DriverState(stamp=time.time(), mode=mode, faults=(self._estop,) if self._estop else (),
                                estop_latched=self._estop is not None,
                                active_action=self._pending[0].action_id if self._pending else None,
-                               last_completed=action_id, last_outcome=outcome, completed_stamp=stamp)
+                               last_completed=action_id, last_outcome=outcome,
+                               primitives=self._primitives)
 
     def odometry(self) -> Odometry:
         """The exact pose: an ideal base has perfect odometry."""
         with self._lock:
             p = self.robot.pose
             self._odom_seq += 1
-            return Odometry(seq=self._odom_seq, stamp=time.time(), x=p.x, y=p.y, yaw=p.yaw)
+            return Odometry(seq=self._odom_seq, stamp=time.time(), x=p.x, y=p.y, yaw=p.yaw,
+                            after_action=self._completed[0])
 
     def info(self) -> dict[str, object]:
         with self._lock:

@@ -9,9 +9,10 @@ import numpy as np
 
 from services.sim.world import WALL_THICKNESS, Scene, SceneObject
 from shared.grid import GridGeometry
+from shared.robot import ROBOT
 
 RESOLUTION = 0.05
-ROBOT_RADIUS = 0.18  # a TurtleBot3 Waffle's footprint is about 0.28 x 0.31 m
+ROBOT_RADIUS = ROBOT.radius_m  # the robot's footprint as a disc (shared.robot)
 MARGIN = 0.5  # the grid extends this far past the house so the outside is represented
 FLOOR_OBJECT_MAX_Z = 0.05  # objects whose bottom is lower than this block the robot
 

@@ -15,17 +15,22 @@ from collections.abc import Callable
 from pydantic import BaseModel, ConfigDict, Field
 
 from shared.motion import Action, Pose, wrap_angle
+from shared.robot import PRIMITIVES, ROBOT, Primitives
 
 
 class MotionConfig(BaseModel):
-    """Primitive sizes (the paper's) and the base's wheel geometry (TurtleBot3 Waffle-like)."""
+    """Primitive sizes and the base's wheel geometry (defaults: :mod:`shared.robot`)."""
 
     model_config = ConfigDict(extra="forbid")
-    forward_m: float = Field(default=0.25, gt=0)
-    turn_deg: float = Field(default=30.0, gt=0, le=180)
-    wheel_radius_m: float = Field(default=0.033, gt=0)
-    track_width_m: float = Field(default=0.287, gt=0)
+    forward_m: float = Field(default=PRIMITIVES.forward_m, gt=0)
+    turn_deg: float = Field(default=PRIMITIVES.turn_deg, gt=0, le=180)
+    wheel_radius_m: float = Field(default=ROBOT.wheel_radius_m, gt=0)
+    track_width_m: float = Field(default=ROBOT.track_width_m, gt=0)
     collision_step_m: float = Field(default=0.02, gt=0, description="spacing of collision checks")
+
+    @property
+    def primitives(self) -> Primitives:
+        return Primitives(forward_m=self.forward_m, turn_deg=self.turn_deg)
 
 
 @dataclass

@@ -48,9 +48,6 @@ class Room(_Model):
     def area(self) -> float:
         return (self.x1 - self.x0) * (self.y1 - self.y0)
 
-    def contains(self, x: float, y: float) -> bool:
-        return self.x0 <= x <= self.x1 and self.y0 <= y <= self.y1
-
 
 class Wall(_Model):
     """A straight wall segment along its centre line, ``WALL_THICKNESS`` thick."""
@@ -108,9 +105,6 @@ class Scene(_Model):
     @property
     def area(self) -> float:
         return self.width * self.depth
-
-    def room_at(self, x: float, y: float) -> Room | None:
-        return next((r for r in self.rooms if r.contains(x, y)), None)
 
     def classes(self) -> list[str]:
         return sorted({o.cls for o in self.objects})
