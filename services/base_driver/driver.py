@@ -80,7 +80,6 @@ class _Active:
 class _Completed:
     action_id: int = 0
     outcome: Outcome | None = None
-    stamp: float = 0.0
 
 
 @dataclass
@@ -305,7 +304,7 @@ class BaseDriver:
         self._active = None
 
     def _complete_id(self, action_id: int, outcome: Outcome) -> None:
-        self._completed = _Completed(action_id, outcome, time.time())
+        self._completed = _Completed(action_id, outcome)
 
     # -- e-stop -----------------------------------------------------------------------------------
     def engage_estop(self, source: str, reason: str = "") -> None:

@@ -28,7 +28,7 @@ class KinematicBase:
         self._action_ids = ActionIds()
         self._primitives = robot.config.primitives  # advertised in every state
         self._estop: str | None = None
-        self._completed: tuple[int, Outcome | None, float] = (0, None, 0.0)
+        self._completed: tuple[int, Outcome | None] = (0, None)  # last command that ended, how
         self._odom_seq = 0
 
     def submit(self, command: PlanCommand) -> str:
@@ -38,7 +38,7 @@ class KinematicBase:
                 return "duplicate"
             if self._estop is not None or command.action is None:
                 self.counters["rejected"] += 1
-                self._completed = (command.action_id, "rejected", time.time())
+                self._completed = (command.action_id, "rejected")
                 return "rejected"
             self._pending.append(command)
             return "accepted"
@@ -53,7 +53,7 @@ class KinematicBase:
                 command = self._pending.popleft()
                 assert command.action is not None
                 outcome: Outcome = "done" if self.robot.apply(command.action) else "blocked"
-                self._completed = (command.action_id, outcome, time.time())
+                self._completed = (command.action_id, outcome)
                 self.counters[outcome] += 1
                 ran = True
 
@@ -61,7 +61,7 @@ class KinematicBase:
         with self._lock:
             self._estop = f"e-stop by {source}" + (f": {reason}" if reason else "")
             for command in self._pending:
-                self._completed = (command.action_id, "aborted", time.time())
+                self._completed = (command.action_id, "aborted")
             self._pending.clear()
 
     def clear_estop(self, source: str) -> None:
@@ -72,7 +72,7 @@ class KinematicBase:
         with self._lock:
             mode = (DriverMode.ESTOP if self._estop else DriverMode.MOVING if self._pending
                     else DriverMode.READY)
-            action_id, outcome, _ = self._completed
+            action_id, outcome = self._completed
             return DriverState(stamp=time.time(), mode=mode, faults=(self._estop,) if self._estop else (),
                                estop_latched=self._estop is not None,
                                active_action=self._pending[0].action_id if self._pending else None,
