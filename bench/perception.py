@@ -89,7 +89,7 @@ def _bench_hf(frames: list[RgbdFrame], targets: list[str], runs: int,
     from services.perception.config import HfBackendConfig
     from services.perception.hf.backend import HfBackend
     from services.perception.hf.loading import Placement
-    from services.perception.hf.random_models import loaded
+    from bench.random_models import loaded
 
     out: dict[str, Any] = {}
     for device, fp16 in _hf_devices():

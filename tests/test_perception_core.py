@@ -1,4 +1,4 @@
-"""Perception pieces that need neither Zenoh nor torch: replicas, queue, checks, sim backend, config."""
+"""Perception pieces that need neither Zenoh nor torch: replicas, checks, sim backend, config, errors."""
 
 from __future__ import annotations
 
@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from services.perception.backend import BackendError, FrameRejected, load_backend
+from services.perception.backend import load_backend
 from services.perception.config import FrameLimits, HfBackendConfig, PerceptionServiceConfig, SimBackendConfig
-from services.perception.frames import BoundedQueue, frame_problem
+from services.perception.errors import BackendError, FrameRejected
+from services.perception.frames import frame_problem
 from services.perception.hf.backend import HfBackend
 from services.perception.hf.loading import ModelFilesError
 from services.perception.hf.models import caption, pixel_boxes
@@ -39,17 +40,6 @@ def test_replicas_split_every_seq_between_the_live_members_exactly_once() -> Non
     assert [s for s in range(6) if views["a"].owns(s)] == [0, 2, 4]
     alone = ReplicaSet("x")
     assert all(alone.owns(s) for s in range(5))
-
-
-def test_the_queue_drops_the_oldest_frame_when_full() -> None:
-    dropped: list[int] = []
-    queue: BoundedQueue[int] = BoundedQueue(2, dropped.append)
-    for item in range(5):
-        queue.put(item)
-    assert dropped == [0, 1, 2]
-    assert [queue.get(), queue.get()] == [3, 4]
-    queue.close()
-    assert queue.get() is None
 
 
 def test_frames_outside_the_limits_are_named(frame) -> None:

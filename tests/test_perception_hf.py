@@ -19,7 +19,7 @@ from services.perception.config import PerceptionServiceConfig  # noqa: E402
 from services.perception.hf.backend import HfBackend  # noqa: E402
 from services.perception.hf.loading import Placement  # noqa: E402
 from services.perception.hf.models import GroundingDetector, ItmScorer  # noqa: E402
-from services.perception.hf.random_models import save_model_dirs  # noqa: E402
+from bench.random_models import save_model_dirs  # noqa: E402
 from shared.messages import TaskSpec  # noqa: E402
 from tests.perception_helpers import render_frames  # noqa: E402
 

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import collections
 import threading
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from shared import keys
 from shared.bus import Bus
 from shared.codec import pack
 from shared.messages import PerceptionResult, RgbdFrame, TaskSpec
+from shared.service import INFO_EVERY_S
 from shared.status import live_services
 from shared.zconfig import build_config
 from tests.polling import wait_for
@@ -99,17 +101,33 @@ def test_a_frame_gets_a_result_with_its_seq_for_the_current_targets(inproc_route
         service.close()
 
 
+def settled(read: Callable[[], object]) -> object:
+    """``read()`` once it gave the same value twice a refresh of the services' info apart (the
+    info in their stats is a snapshot, refreshed every INFO_EVERY_S while they are idle)."""
+    last: list[object] = [read()]
+
+    def same() -> bool:
+        time.sleep(INFO_EVERY_S + 0.1)
+        now = read()
+        if now == last[0]:
+            return True
+        last[0] = now
+        return False
+    wait_for(same, what="the services' info settled")
+    return last[0]
+
+
 def test_two_replicas_process_every_frame_of_a_burst_exactly_once(inproc_router, sim_config, sender,
                                                                    client, frames) -> None:
     # room for the whole burst: this test is about the split, not about dropping stale frames
     config = sim_config.model_copy(update={"queue_frames": 64})
     replicas = [RunningPerception(inproc_router, config, name) for name in ("a", "b")]
     try:
-        wait_for(lambda: all((s := stats(client, n)) and s.info["replicas"] == ["a", "b"]
+        wait_for(lambda: all((s := stats(client, n)) and s.info.get("replicas") == ["a", "b"]
                              for n in ("a", "b")), what="both replicas see each other")
         sender.until_result(frames[0], "replica a answers")        # seq 0: a
         sender.until_result(frames[1], "replica b answers")        # seq 1: b
-        before = {n: stats(client, n).info["processed"] for n in ("a", "b")}
+        before = settled(lambda: {n: stats(client, n).info["processed"] for n in ("a", "b")})
         burst = range(2, 42)
         for seq in burst:
             sender.frames.put(frames[seq % len(frames)].model_copy(update={"seq": seq}))
@@ -163,9 +181,10 @@ def test_unusable_frames_are_rejected_and_counted_and_the_service_goes_on(inproc
         after = sender.until_result(good.model_copy(update={"seq": 52}), "a result after the bad frames",
                                     task)
         assert after.seq == 52 and after.targets == ("fridge",)
+        # the counters are live, the info a snapshot the service refreshes between events
         s = wait_for(lambda: (s := stats(client, "0")) and s.counters[keys.rgbd(ROBOT)].malformed == 3
-                     and s, what="three frames counted as malformed")
-        assert s.info["rejected"] == 2 and "instance ids" in s.info["last_rejection"]
+                     and s.info["rejected"] == 2 and s, what="three frames counted as malformed")
+        assert "instance ids" in s.info["last_rejection"]
         assert not sender.results(50) and not sender.results(51)
     finally:
         service.close()

@@ -3,5 +3,6 @@
 ``backend`` is the interface every backend implements; ``sim_backend`` runs the
 simulator's perception (tests, demo), ``hf`` the real models (BLIP / BLIP-2
 ITM, GroundingDINO, SAM) through transformers, imported lazily so that the base
-install needs no torch. ``service`` wires a backend to Zenoh, with replicas.
+install needs no torch; ``errors`` holds what backends raise. ``service`` wires a backend to
+the bus, with replicas.
 """

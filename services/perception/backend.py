@@ -3,7 +3,8 @@
 The service only ever calls :meth:`PerceptionBackend.score` and
 :meth:`PerceptionBackend.detect`, so the simulator's backend and the real
 models are interchangeable by config, and benchmarks time exactly what the
-service runs.
+service runs. A backend raises :class:`~.errors.FrameRejected` for a frame it
+cannot use and :class:`~.errors.BackendError` when it cannot start.
 """
 
 from __future__ import annotations
@@ -14,16 +15,6 @@ from typing import Protocol, runtime_checkable
 from services.perception.config import PerceptionServiceConfig
 from shared.detections import Detection
 from shared.messages import RgbdFrame
-from shared.config import ServiceConfigError
-
-
-class FrameRejected(ValueError):
-    """This frame cannot be processed by this backend (the input's fault, not the backend's)."""
-
-
-class BackendError(ServiceConfigError):
-    """A backend that cannot start with its config (model directories missing or incomplete,
-    torch absent, a scene that cannot be loaded): ``ovamos run`` prints it as a config error."""
 
 
 @runtime_checkable

@@ -20,12 +20,13 @@ The ``ready`` token, not the bus's ``alive`` one, defines membership: ``alive``
 is declared when the session opens, before the models load (seconds to a
 minute for real weights), and counting a loading replica would lose its share
 of the frames all that time. A stopping replica withdraws its ``ready`` token
-before it finishes its last frame.
+first, before its session closes.
+
+A :class:`ReplicaSet` is plain state: the service changes and reads it on its
+one thread (membership changes arrive as inbox events like messages).
 """
 
 from __future__ import annotations
-
-import threading
 
 
 class ReplicaSet:
@@ -33,22 +34,18 @@ class ReplicaSet:
 
     def __init__(self, me: str) -> None:
         self.me = me
-        self._lock = threading.Lock()
         self._members = {me}
 
     def join(self, instance: str) -> None:
-        with self._lock:
-            self._members.add(instance)
+        self._members.add(instance)
 
     def leave(self, instance: str) -> None:
         """Forget ``instance``; this replica never forgets itself (its token may be re-declared)."""
         if instance != self.me:
-            with self._lock:
-                self._members.discard(instance)
+            self._members.discard(instance)
 
     def members(self) -> list[str]:
-        with self._lock:
-            return sorted(self._members)
+        return sorted(self._members)
 
     def owns(self, seq: int) -> bool:
         members = self.members()

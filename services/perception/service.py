@@ -1,32 +1,47 @@
 """The perception service: frames in, one result per frame (same seq) out, across replicas.
 
-Wiring: ``sensors/rgbd`` frames are decoded on Zenoh's thread, checked for
-ownership (:mod:`.replicas`) and handed to one worker thread through a
-bounded queue (latest-only by default); the worker runs the backend and
-publishes ``perception/result``. ``task/current`` sets the target list, less the
-targets ``task/events`` reports found (the in-process episode runner does the same).
+Wiring (:data:`shared.topology.TOPOLOGY`, ``perception``): ``sensors/rgbd``
+frames, ``task/current`` and ``task/events`` in, ``perception/result`` out.
+Everything runs on the service's one thread (:func:`shared.service.run_service`):
+Zenoh's callbacks only enqueue on the bus's inbox, the handlers below and the
+model calls run one at a time, and :meth:`PerceptionService.info` is read by
+that thread too (the loop copies it for stats queries), so the state needs no lock.
 
-Without a task (or once it is cancelled) there are no targets: each frame
-still gets a result, with no scores and no detections and without running a
-model. The map then fuses the frame at once instead of waiting out its match
+Frames: while the model works on one frame, only the newest ``queue_frames``
+frames wait in the inbox (default 1: a newer frame replaces the waiting one,
+counted as ``dropped`` on the frame key), so a slow model never works on stale
+frames or lets memory grow. Task messages are never dropped and keep their
+order. Each frame taken is checked for ownership (:mod:`.replicas`); an owned
+one runs the backend and gets exactly one ``perception/result`` with its seq.
+The newest-only rule applies before the ownership check, so with n replicas a
+replica whose newest waiting frame belongs to another skips it and takes the
+next (at most n - 1 frame intervals later for consecutive seqs).
+
+Targets: ``task/current`` sets the target list, less the targets
+``task/events`` reports found for that task (the in-process episode runner does
+the same). Without a task (or once it is cancelled) there are no targets: each
+frame still gets a result, with no scores and no detections and without running
+a model. The map then fuses the frame at once instead of waiting out its match
 timeout, and drops its value layers when a task ends.
 
 A frame no backend can use (wrong size, or a camera frame sent to the sim
 backend) is rejected: counted as ``malformed`` on the frame key (as the bus
 counts undecodable ones), logged (sampled) and answered with no result.
+
+Replicas: membership is the set of ``ready`` liveliness tokens (watched through
+the inbox like messages); this replica declares its own once the backend is
+loaded and its inputs are wired, and withdraws it first when it stops.
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from typing import Any
 
-import zenoh
-
-from services.perception.backend import FrameRejected, PerceptionBackend, load_backend
+from services.perception.backend import PerceptionBackend, load_backend
 from services.perception.config import PerceptionServiceConfig
-from services.perception.frames import BoundedQueue, frame_problem
+from services.perception.errors import FrameRejected
+from services.perception.frames import frame_problem
 from services.perception.replicas import ReplicaSet
 from shared import keys
 from shared.bus import Bus
@@ -39,6 +54,7 @@ class PerceptionService(Service):
     name = "perception"
     Config = PerceptionServiceConfig
     config: PerceptionServiceConfig
+    bus: Bus  # it needs watch_liveliness and declare_token (a fake bus must have them too)
 
     def __init__(self, bus: Bus, config: PerceptionServiceConfig,
                  backend: PerceptionBackend | None = None) -> None:
@@ -46,76 +62,56 @@ class PerceptionService(Service):
         self.backend = backend or load_backend(config)
         self.replicas = ReplicaSet(bus.instance)
         self._frame_key = keys.rgbd(bus.robot_id)
-        self._lock = threading.Lock()
-        self._targets: tuple[str, ...] = ()
         self._spec_targets: tuple[str, ...] = ()
+        self._targets: tuple[str, ...] = ()
         self._task_id: str | None = None
         self._found: frozenset[str] = frozenset()
         self._processed = self._rejected = 0
         self._last_seq: int | None = None
         self._last_ms: float | None = None
         self._last_rejection = ""
-        self._queue: BoundedQueue[RgbdFrame] = BoundedQueue(
-            config.queue_frames, lambda _frame: bus.counters.bump(self._frame_key, "dropped"))
-        self._worker = threading.Thread(target=self._work, name="perception-worker", daemon=True)
-        self._members_sub: Any = None
-        self._ready_token: Any = None
+        self._ready: Any = None
 
     def start(self) -> None:
         robot = self.bus.robot_id
-        self.results = self.bus.publisher(keys.perception_result(robot), PerceptionResult)
-        self._members_sub = self.bus.session.liveliness().declare_subscriber(
-            keys.ready(robot, self.name), self._on_member, history=True)
-        self.bus.subscribe(keys.task_current(robot), TaskSpec, self._on_task)
-        self.bus.subscribe(keys.task_events(robot), TaskEvent, self._on_event)
-        self.bus.subscribe(self._frame_key, RgbdFrame, self._on_frame)
-        self._worker.start()
+        self.wire({"task_current": self._on_task, "task_events": self._on_event, "rgbd": self._on_frame},
+                  keep={"rgbd": self.config.queue_frames})
+        self.bus.watch_liveliness(keys.ready(robot, self.name), self._on_member)
         # Last: the backend is loaded (in __init__) and frames are taken, so the others may now
         # hand this replica its share.
-        self._ready_token = self.bus.session.liveliness().declare_token(
-            keys.ready(robot, self.name, self.bus.instance))
+        self._ready = self.bus.declare_token(keys.ready(robot, self.name, self.bus.instance))
 
-    # -- inputs (Zenoh threads) ----------------------------------------------------------------
-    def _on_member(self, sample: zenoh.Sample) -> None:
-        try:
-            instance = keys.parse_service_key(str(sample.key_expr)).instance
-            if sample.kind == zenoh.SampleKind.PUT:
-                self.replicas.join(instance)
-            else:
-                self.replicas.leave(instance)
-            self.log.info("perception replicas now %s", self.replicas.members())
-        except Exception:  # a callback's exception would vanish inside Zenoh
-            self.bus.record_failure("replicas")
+    # -- inputs --------------------------------------------------------------------------------
+    def _on_member(self, key: str, alive: bool) -> None:
+        instance = keys.parse_service_key(key).instance
+        if alive:
+            self.replicas.join(instance)
+        else:
+            self.replicas.leave(instance)
+        self.log.info("perception replicas now %s", self.replicas.members())
 
     def _on_task(self, task: TaskSpec) -> None:
-        with self._lock:
-            if task.task_id != self._task_id:
-                self._task_id, self._found = task.task_id, frozenset()
-            self._spec_targets = () if task.cancelled else task.targets
-            self._targets = tuple(t for t in self._spec_targets if t not in self._found)
+        if task.task_id != self._task_id:
+            self._task_id, self._found = task.task_id, frozenset()
+        self._spec_targets = () if task.cancelled else task.targets
+        self._retarget()
 
     def _on_event(self, event: TaskEvent) -> None:
         """A found target is not looked for any more (its map layer goes with it)."""
-        with self._lock:
-            if event.task_id == self._task_id:
-                self._found = frozenset(f.label for f in event.found)
-                self._targets = tuple(t for t in self._spec_targets if t not in self._found)
+        if event.task_id == self._task_id:
+            self._found = frozenset(f.label for f in event.found)
+            self._retarget()
+
+    def _retarget(self) -> None:
+        self._targets = tuple(t for t in self._spec_targets if t not in self._found)
 
     def _on_frame(self, frame: RgbdFrame) -> None:
         if self.replicas.owns(frame.seq):
-            self._queue.put(frame)
+            self._process(frame)
 
-    # -- the worker ----------------------------------------------------------------------------
-    def _work(self) -> None:
-        while (frame := self._queue.get()) is not None:
-            try:
-                self._process(frame)
-            except Exception:
-                self.bus.record_failure(self._frame_key)
-
+    # -- the model -----------------------------------------------------------------------------
     def _process(self, frame: RgbdFrame) -> None:
-        with self._lock:
-            targets = self._targets
+        targets = self._targets
         start = time.perf_counter()
         try:
             problem = frame_problem(frame, self.config.frames)
@@ -126,38 +122,35 @@ class PerceptionService(Service):
         except FrameRejected as exc:
             self._reject(frame, str(exc))
             return
-        self.results.put(PerceptionResult.build(frame.seq, frame.stamp, scores, detections,
-                                                frame.depth.shape))
-        with self._lock:
-            self._processed += 1
-            self._last_seq = frame.seq
-            self._last_ms = (time.perf_counter() - start) * 1e3
+        self.out["perception_result"].put(PerceptionResult.build(frame.seq, frame.stamp, scores, detections,
+                                                                 frame.depth.shape))
+        self._processed += 1
+        self._last_seq = frame.seq
+        self._last_ms = (time.perf_counter() - start) * 1e3
 
     def _reject(self, frame: RgbdFrame, reason: str) -> None:
         self.bus.counters.bump(self._frame_key, "malformed")
-        with self._lock:
-            self._rejected += 1
-            self._last_rejection = reason
-            n = self._rejected
-        if sampled(n):
+        self._rejected += 1
+        self._last_rejection = reason
+        if sampled(self._rejected):
             self.log.warning("rejected frame %d: %s", frame.seq, reason,
-                             extra=fields(key=self._frame_key, count=n))
+                             extra=fields(key=self._frame_key, count=self._rejected))
 
     # -- status and shutdown -------------------------------------------------------------------
     def info(self) -> dict[str, Any]:
         members = self.replicas.members()
-        with self._lock:
-            return {"backend": self.backend.name, "targets": list(self._targets),
-                    "replicas": members, "replica_index": members.index(self.bus.instance),
-                    "processed": self._processed, "rejected": self._rejected,
-                    "last_rejection": self._last_rejection, "last_seq": self._last_seq,
-                    "last_ms": None if self._last_ms is None else round(self._last_ms, 1)}
+        return {"backend": self.backend.name, "targets": list(self._targets),
+                "replicas": members, "replica_index": members.index(self.bus.instance),
+                "processed": self._processed, "rejected": self._rejected,
+                "last_rejection": self._last_rejection, "last_seq": self._last_seq,
+                "last_ms": None if self._last_ms is None else round(self._last_ms, 1)}
 
     def stop(self) -> None:
-        if self._ready_token is not None:
-            self._ready_token.undeclare()  # first: the others take over this replica's share
-        self._queue.close()
-        if self._worker.is_alive():
-            self._worker.join(timeout=30)  # a model call in progress finishes first
-        if self._members_sub is not None:
-            self._members_sub.undeclare()
+        """Withdraw the ``ready`` token first: the others take over this replica's share at once
+        (the loop has ended, so no frame is in progress; the bus closes the rest)."""
+        if self._ready is not None:
+            token, self._ready = self._ready, None
+            token.undeclare()
+            # The bus undeclares every declaration again when it closes, and a Zenoh token
+            # undeclared twice raises (which would leave the session open): once is enough.
+            token.undeclare = lambda: None

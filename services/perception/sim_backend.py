@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from services.perception.backend import BackendError, FrameRejected
+from services.perception.errors import BackendError, FrameRejected
 from services.perception.config import SimBackendConfig
 from services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
 from services.sim.prior import ObjectPrior

@@ -1,5 +1,8 @@
 """Random-weight models of the real architectures, for tests and benchmarks (no download).
 
+Not part of the service: the perception benchmark (:mod:`bench.perception`) and the hf
+tests use them.
+
 ``tiny`` models come from small configs (seconds to build and run) and exercise
 the whole pipeline; ``full`` ones use the default configs, which are the
 architectures the service runs (BLIP-base ITM at 384 px, GroundingDINO with a
@@ -115,7 +118,8 @@ def build(role: Literal["itm", "detector", "segmenter"], size: Size, *, itm: Itm
 
 def loaded(size: Size, placement: Placement, *, itm: ItmKind = "blip", seed: int = 0
            ) -> tuple[Loaded, Loaded, Loaded]:
-    """The three roles in memory, placed like :func:`~.loading.load_model` places real ones."""
+    """The three roles in memory, placed as
+    :func:`services.perception.hf.loading.load_model` places real ones."""
     out = []
     for role, kind in (("itm", itm), ("detector", "grounding-dino"), ("segmenter", "sam")):
         model, processor = build(role, size, itm=itm, seed=seed)  # type: ignore[arg-type]
