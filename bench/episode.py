@@ -22,7 +22,7 @@ from collections.abc import Callable
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from bench.funnel import FunnelRecorder, TargetFunnel
+from bench.funnel import FunnelRecorder, StopRecord, TargetFunnel
 from services.mapping.config import MappingConfig
 from services.mapping.state import MapState
 from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
@@ -51,15 +51,6 @@ class EpisodeConfig(BaseModel):
     mapping: MappingConfig = Field(default_factory=MappingConfig)
     perception: SimPerceptionConfig = Field(default_factory=SimPerceptionConfig)
     motion: MotionConfig = Field(default_factory=MotionConfig)
-
-
-class StopRecord(BaseModel):
-    step: int
-    label: str
-    x: float
-    y: float
-    success: bool
-    distance_m: float  # geodesic distance to the nearest true instance
 
 
 class EpisodeResult(BaseModel):

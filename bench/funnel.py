@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from enum import Enum
-from typing import TYPE_CHECKING
 
 import numpy as np
 from pydantic import BaseModel
@@ -23,9 +22,6 @@ from services.sim.occupancy import distance_to_box
 from services.sim.world import Scene
 from shared.detections import Detection
 from shared.messages import ObjectInstance, RgbdFrame
-
-if TYPE_CHECKING:
-    from bench.episode import StopRecord
 
 #: A confirmed map object this close (horizontal, m) to a true instance's footprint is that
 #: instance: about the object map's merge distance, well under the gap between two pieces of
@@ -41,6 +37,17 @@ class Miss(str, Enum):
     NOT_DETECTED = "never detected"
     NOT_CONFIRMED = "never confirmed"
     NOT_REACHED = "not reached"
+
+
+class StopRecord(BaseModel):
+    """One STOP of an episode, scored by the ground truth: the funnel's last stage."""
+
+    step: int
+    label: str
+    x: float
+    y: float
+    success: bool
+    distance_m: float  # geodesic distance to the nearest true instance
 
 
 class TargetFunnel(BaseModel):

@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.episode import StopRecord
-from bench.funnel import FunnelRecorder, Miss, TargetFunnel
-from bench.search import Job, run_job
+from bench.funnel import FunnelRecorder, Miss, StopRecord, TargetFunnel
+from bench.jobs import Job, run_job
 from shared.detections import Detection
 from shared.messages import Intrinsics, ObjectInstance, RgbdFrame
 from tests.sim_scenes import two_rooms

@@ -1,5 +1,5 @@
-"""Search benchmark (bench/search.py): determinism across runs and worker counts, the table and
-JSON shapes, the files written, and the replay picture.
+"""Search benchmark (bench/search.py and its jobs, stats, tables and draw modules): determinism
+across runs and worker counts, the table and JSON shapes, the files written, and the replay picture.
 
 Episodes are cut to a few steps (the quick-run ``max_steps`` override) so the whole module runs in
 well under a minute on two cores; what is checked does not depend on the episodes' length.
@@ -16,12 +16,15 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from bench.episode import EpisodeResult, StopRecord
-from bench.funnel import TargetFunnel
-from bench.search import (CHART_FILE, EPISODES_FILE, SUMMARY_FILE, TIMINGS_FILE, EpisodeFailed, Job,
-                          SearchError, SearchRun, draw_chart, iter_results, jsonl_line, legend_lines, main, miss_reasons,
-                          paired_differences, parse_episode_id, parse_policies, policy_scores, print_table, read_results,
-                          replay, run_search, summary, write_outputs)
+from bench.draw import draw_chart, legend_lines
+from bench.episode import EpisodeResult
+from bench.funnel import StopRecord, TargetFunnel
+from bench.jobs import EpisodeFailed, Job, iter_results
+from bench.search import (CHART_FILE, EPISODES_FILE, SUMMARY_FILE, TIMINGS_FILE, SearchError, SearchRun, jsonl_line,
+                          main, parse_episode_id, parse_policies, read_results, replay, run_search, summary,
+                          write_outputs)
+from bench.stats import miss_reasons, paired_differences, policy_scores
+from bench.tables import print_table
 
 SEED, EPISODES, STEPS = 0, 2, 15
 POLICIES = ("random", "ovamos")

@@ -1,4 +1,5 @@
-"""Navigation: grid path lengths, windows, segment traversal and the discrete-command controller.
+"""Navigation: grid path lengths (shared/gridpaths.py), windows, segment traversal and the
+discrete-command controller (services/planner/navigator.py).
 
 The controller is checked by executing its commands with the simulated robot's exact
 kinematics (0.25 m steps, 30 deg turns) and testing every forward segment densely against the
@@ -16,12 +17,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from services.planner.navigation import (NavigationConfig, NavMap, Navigator, Unreachable,
-                                         auto_window, distance_field, path_lengths,
-                                         segment_cells, traversable)
+from services.planner.navigator import NavigationConfig, NavMap, Navigator, Unreachable, segment_cells
 from services.sim.robot import SimRobot
 from shared.motion import Action, Pose
 from shared.grid import GridGeometry, inflate
+from shared.gridpaths import FreeSpaceGraph, auto_window, distance_field, path_lengths, traversable
 from shared.messages import MapSnapshot
 
 RES = 0.05
@@ -163,6 +163,23 @@ def test_distance_field_from_two_sources_takes_the_nearer() -> None:
     free = np.ones((1, 7), dtype=bool)
     d = distance_field(free, [(0, 0), (0, 6)], resolution=1.0)
     np.testing.assert_allclose(d[0], [0, 1, 2, 3, 2, 1, 0])
+
+
+def test_free_space_graph_queries_agree_with_distance_field() -> None:
+    """The graph the decision step and the ground truth query is the navigator's graph."""
+    rng = np.random.default_rng(3)
+    free = rng.random((30, 40)) < 0.7
+    a, b = (tuple(int(v) for v in np.argwhere(free)[i]) for i in (0, -1))
+    blocked = tuple(int(v) for v in np.argwhere(~free)[0])
+    graph = FreeSpaceGraph(free, 0.05)
+    fields = graph.from_cells([a, blocked, (-1, 5), b])
+    np.testing.assert_array_equal(fields[0], distance_field(free, [a], 0.05))
+    np.testing.assert_array_equal(fields[3], distance_field(free, [b], 0.05))
+    assert np.isinf(fields[1]).all() and np.isinf(fields[2]).all()  # blocked or outside: nothing
+    both = graph.field([a, b, blocked], np.zeros(3))  # the blocked seed is ignored
+    np.testing.assert_allclose(both, distance_field(free, [a, b], 0.05), atol=1e-8)
+    shifted = graph.field([a, b], np.array([0.0, 1.0]))
+    np.testing.assert_allclose(shifted, np.minimum(fields[0], fields[3] + 1.0), atol=1e-8)
 
 
 def random_free(draw: st.DrawFn, shape: tuple[int, int]) -> np.ndarray:
@@ -438,20 +455,6 @@ def test_accepts_a_map_snapshot() -> None:
     action = nav.next_command(snapshot, Pose(x=0.0, y=-1.5, yaw=math.pi / 2), (3.0, -1.5))
     assert action in (Action.TURN_LEFT, Action.TURN_RIGHT, Action.MOVE_FORWARD)
     assert nav.path[-1] == pytest.approx((3.0, -1.5))
-
-
-def test_navigator_path_lengths_snap_points_in_obstacles() -> None:
-    obs = wall_map()
-    m = nav_map(obs)
-    pose = Pose(x=1.0, y=0.5)
-    free_points = [(1.0, 1.0), (4.0, 0.5)]
-    got = Navigator().path_lengths(m, pose, free_points + [(2.525, 1.0), (30.0, 0.0)])
-    trav = traversable(obs, obs, RES, RADIUS)
-    cells = [m.grid.to_cell(x, y) for x, y in free_points]
-    np.testing.assert_allclose(got[:2], path_lengths(trav, m.grid.to_cell(1.0, 0.5), cells, RES))
-    assert got[1] > 2 * math.hypot(1.5, 2.0 - 0.5)  # over the wall's end, not through it
-    assert math.isfinite(got[2])  # on the wall: measured to the nearest reachable cell beside it
-    assert math.isinf(got[3])
 
 
 # ---------------------------------------------------------------------------------------------

@@ -30,7 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.planner.decide import (Decision, DecisionConfig, GoalKind, Policy, away, decide,
                                      targets_to_search)
-from services.planner.navigation import NavigationConfig, NavMap, Navigator, Unreachable
+from services.planner.navigator import NavigationConfig, NavMap, Navigator, Unreachable
 from services.planner.task import SearchTask
 from shared.messages import MapSnapshot, TaskStatus
 from shared.motion import Action, Pose

@@ -22,7 +22,7 @@ from services.mapping.layers import DECAY_KAPPA, DECAY_TAU, WHOLE, Window, value
 from services.planner.candidates import CandidateConfig, Candidates, best_frontier, find_candidates
 from services.planner.pomdp import POMDPConfig, SearchPOMDP, root_particles
 from services.planner.pouct import POUCT
-from shared.geodesic import FreeSpaceGraph
+from shared.gridpaths import FreeSpaceGraph
 from shared.grid import GridGeometry, inflate
 from shared.messages import MapSnapshot
 from shared.robot import ROBOT

@@ -24,8 +24,8 @@ import numpy as np
 from services.sim.occupancy import (RESOLUTION, ROBOT_RADIUS, closest_point_on_box, distance_to_box,
                                     grid_for, rasterize, rasterize_walls)
 from services.sim.world import Scene, SceneObject
-from shared.geodesic import FreeSpaceGraph
 from shared.grid import inflate
+from shared.gridpaths import FreeSpaceGraph
 
 SUCCESS_DISTANCE = 1.0
 SUPPORT_REACH_CELLS = 4  # beyond the robot radius: how far from its support an object is "reached"
@@ -66,7 +66,7 @@ class GroundTruth:
         near = self.free & (distance_to_box(support, xs, ys) <= reach)
         cx, cy = xs[near], ys[near]
         visible = self._wall_free(cx, cy, *closest_point_on_box(support, cx, cy))
-        seeds = self._graph.index[near][visible]
+        seeds = np.argwhere(near)[visible]
         return self._graph.field(seeds, distance_to_box(obj, cx[visible], cy[visible]))
 
     def _wall_free(self, x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray

@@ -1,19 +1,12 @@
 """Navigation controller: a shortest path on the inflated map, followed with discrete primitives.
 
 Paper: "path on the inflated obstacle map -> discrete commands MOVE_FORWARD 0.25 m,
-TURN_LEFT 30 deg, TURN_RIGHT 30 deg, STOP". Two users:
+TURN_LEFT 30 deg, TURN_RIGHT 30 deg, STOP". The executor asks, once per primitive, what the
+robot should do next to reach the chosen goal (:meth:`Navigator.next_command`).
 
-* the decision step asks for path lengths from the robot to every action point at once
-  (:func:`path_lengths`, :meth:`Navigator.path_lengths`): one Dijkstra from the robot;
-* the executor asks, once per primitive, what the robot should do next to reach the chosen
-  goal (:meth:`Navigator.next_command`).
-
-Grids follow :class:`shared.grid.GridGeometry`: row index grows with y, column with x.
+The grid searches are :mod:`shared.gridpaths` (8-connected without corner cutting).
 Obstacles are grown by the robot radius with :func:`shared.grid.inflate`, the function the
 mapping service uses for its frontiers, so a frontier waypoint is a traversable cell here.
-Paths are 8-connected without corner cutting (a diagonal step needs both cells beside it free):
-that is exactly 4-connectivity for reachability, which lets a cheap connected-components
-labelling answer "can the robot get there at all" before any Dijkstra runs.
 
 Nothing here talks to Zenoh; the planner service wraps it.
 """
@@ -24,28 +17,17 @@ import heapq
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TypeAlias
 
 import cv2
 import numpy as np
-from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import dijkstra
 
-from shared.motion import Action, Pose
-from shared.grid import GridGeometry, inflate
+from shared.grid import GridGeometry
+from shared.gridpaths import Window, auto_window, gather, shortest_paths, traversable
 from shared.messages import MapSnapshot
+from shared.motion import Action, Pose, wrap_angle
 
-__all__ = ["Window", "Unreachable", "NavigationConfig", "NavMap", "traversable", "auto_window",
-           "distance_field", "path_lengths", "segment_cells", "Navigator"]
-
-Window: TypeAlias = tuple[int, int, int, int]
-"""(row0, row1, col0, col1), half-open, of the part of a grid a search runs on."""
-
-_SQRT2 = math.sqrt(2.0)
-_DIRS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
-_WINDOW_MARGIN = 2  # free ring around the blocked box: enough for exact lengths (auto_window)
+__all__ = ["Unreachable", "NavigationConfig", "NavMap", "segment_cells", "Navigator"]
 
 
 class Unreachable(RuntimeError):
@@ -136,180 +118,8 @@ class NavMap:
 
 
 # ---------------------------------------------------------------------------------------------
-# Grid searches
+# Segments on the grid
 # ---------------------------------------------------------------------------------------------
-
-
-def traversable(obstacle: np.ndarray, explored: np.ndarray, resolution: float, robot_radius: float,
-                unknown_is_free: bool = True) -> np.ndarray:
-    """Cells where the robot's centre may be: outside the inflated obstacles (and explored,
-    unless ``unknown_is_free``).
-
-    Same result as ``~inflate(obstacle, ...)`` over the whole grid, but only the obstacles'
-    bounding box (plus the radius) is dilated: early in a search a 1000 x 1000 map has
-    obstacles in a few metres only.
-    """
-    free = np.ones(obstacle.shape, dtype=bool)
-    rows = np.flatnonzero(obstacle.any(axis=1))
-    if rows.size:
-        cols = np.flatnonzero(obstacle.any(axis=0))
-        r = int(math.ceil(robot_radius / resolution))
-        r0, r1 = max(rows[0] - r, 0), min(rows[-1] + r + 1, obstacle.shape[0])
-        c0, c1 = max(cols[0] - r, 0), min(cols[-1] + r + 1, obstacle.shape[1])
-        free[r0:r1, c0:c1] = ~inflate(obstacle[r0:r1, c0:c1], robot_radius, resolution)
-    if not unknown_is_free:
-        free &= explored
-    return free
-
-
-def _cells_array(cells: ArrayLike) -> np.ndarray:
-    return np.asarray(cells, dtype=np.int64).reshape(-1, 2)
-
-
-def _box(rows_any: np.ndarray, cols_any: np.ndarray, cells: np.ndarray) -> Window | None:
-    """Bounding box of the True rows/cols and the given cells, or None when all are empty."""
-    rows, cols = np.flatnonzero(rows_any), np.flatnonzero(cols_any)
-    if cells.size:
-        rows = np.concatenate([rows, cells[:, 0]])
-        cols = np.concatenate([cols, cells[:, 1]])
-    if rows.size == 0:
-        return None
-    return int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
-
-
-def auto_window(free: np.ndarray, cells: ArrayLike = ()) -> Window:
-    """The smallest of two windows inside which path lengths are exactly the whole grid's.
-
-    * the box of all free cells (and ``cells``): nothing outside it can be on a path;
-    * the box of all blocked cells (and ``cells``) grown by two cells: outside it everything
-      is free, and any path that leaves it can be clamped onto its border ring (clamping each
-      coordinate shortens every 8-connected step and lands on free cells), so it is never needed.
-
-    With ``unknown_is_free`` the second one is small (obstacles are where the robot looked);
-    without, the first one is (traversable cells are explored ones). Cells outside the grid in
-    ``cells`` are ignored. An empty window, (0, 0, 0, 0), means nothing can be reached.
-    Cells outside the window are not searched at all: put every cell whose length you need
-    (start, targets) in ``cells``.
-    """
-    h, w = free.shape
-    cells = _cells_array(cells)
-    cells = cells[(cells[:, 0] >= 0) & (cells[:, 0] < h) & (cells[:, 1] >= 0) & (cells[:, 1] < w)]
-    options = []
-    if (box := _box(free.any(axis=1), free.any(axis=0), cells)) is not None:
-        options.append(box)
-    if (box := _box(~free.all(axis=1), ~free.all(axis=0), cells)) is not None:
-        m = _WINDOW_MARGIN
-        options.append((max(box[0] - m, 0), min(box[1] + m, h), max(box[2] - m, 0),
-                        min(box[3] + m, w)))
-    if not options:
-        return 0, 0, 0, 0
-    return min(options, key=lambda b: (b[1] - b[0]) * (b[3] - b[2]))
-
-
-def _grid_graph(free: np.ndarray, resolution: float) -> csr_matrix:
-    """8-connected, no-corner-cutting graph of a grid padded by one blocked cell.
-
-    Every node gets all 8 neighbour slots (infinite weight where the move is not allowed), so
-    the CSR arrays are plain arithmetic instead of a sort: building 1M nodes takes ~0.1 s
-    against ~1.6 s through a COO matrix. Node of padded cell (r, c): r * (W + 2) + c.
-    """
-    h, w = free.shape
-    hp, wp = h + 2, w + 2
-    padded = np.zeros((hp, wp), dtype=bool)
-    padded[1:-1, 1:-1] = free
-    allowed = np.zeros((hp, wp, 8), dtype=bool)
-    for k, (dr, dc) in enumerate(_DIRS):
-        ok = allowed[1:-1, 1:-1, k]
-        np.logical_and(free, padded[1 + dr:h + 1 + dr, 1 + dc:w + 1 + dc], out=ok)
-        if dr and dc:  # no corner cutting: both cells beside the diagonal must be free
-            ok &= padded[1 + dr:h + 1 + dr, 1:w + 1]
-            ok &= padded[1:h + 1, 1 + dc:w + 1 + dc]
-    steps = np.array([resolution * (_SQRT2 if dr and dc else 1.0) for dr, dc in _DIRS])
-    weights = np.where(allowed, steps, np.inf)
-    n = hp * wp
-    offsets = np.array([dr * wp + dc for dr, dc in _DIRS], dtype=np.int32)
-    indices = (np.arange(n, dtype=np.int32)[:, None] + offsets).ravel()
-    np.clip(indices, 0, n - 1, out=indices)  # border slots (weight inf) must still be valid ids
-    indptr = np.arange(0, 8 * n + 1, 8, dtype=np.int32)
-    return csr_matrix((weights.ravel(), indices, indptr), shape=(n, n))
-
-
-def _solve(free: np.ndarray, sources: np.ndarray, resolution: float, predecessors: bool = False
-           ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Distances (metres) from the nearest source over one window, sources counting as free.
-
-    With ``predecessors``, also each cell's flat index (row * W + col of the window) of the
-    next cell towards its source, -1 for sources and unreached cells.
-    """
-    h, w = free.shape
-    if sources.size == 0 or free.size == 0:
-        none = np.full((h, w), -1, dtype=np.int64) if predecessors else None
-        return np.full((h, w), np.inf), none
-    free = free.copy()
-    free[sources[:, 0], sources[:, 1]] = True  # the robot's cell may be inflated: it must get out
-    graph = _grid_graph(free, resolution)
-    nodes = (sources[:, 0] + 1) * (w + 2) + sources[:, 1] + 1
-    if not predecessors:
-        dist = dijkstra(graph, directed=True, indices=nodes, min_only=True)
-        return dist.reshape(h + 2, w + 2)[1:-1, 1:-1], None
-    dist, pred, _ = dijkstra(graph, directed=True, indices=nodes, min_only=True,
-                             return_predecessors=True)
-    p = pred.reshape(h + 2, w + 2)[1:-1, 1:-1].astype(np.int64)
-    flat = (p // (w + 2) - 1) * w + (p % (w + 2) - 1)
-    return dist.reshape(h + 2, w + 2)[1:-1, 1:-1], np.where(p >= 0, flat, -1)
-
-
-def distance_field(free: np.ndarray, sources: ArrayLike, resolution: float = 1.0,
-                   window: Window | None = None) -> np.ndarray:
-    """Shortest path length (metres) from every cell to the nearest source cell.
-
-    ``free`` is the traversable grid; sources count as free; unreachable cells are inf.
-    ``window`` limits the search, inf outside it; the default is the whole grid, since a
-    field is read anywhere. ``window=auto_window(free, cells)`` is much faster on a big,
-    mostly unknown map and exact for every cell inside it (``cells`` included), but cells
-    outside it read inf even when reachable: pass every cell you will read, or use
-    :func:`path_lengths`, which does that.
-    """
-    sources = _cells_array(sources)
-    h, w = free.shape
-    inside = (sources[:, 0] >= 0) & (sources[:, 0] < h) & (sources[:, 1] >= 0) & (sources[:, 1] < w)
-    sources = sources[inside]
-    r0, r1, c0, c1 = (0, h, 0, w) if window is None else window
-    out = np.full(free.shape, np.inf)
-    local = sources - (r0, c0)
-    local = local[(local[:, 0] >= 0) & (local[:, 0] < r1 - r0) & (local[:, 1] >= 0)
-                  & (local[:, 1] < c1 - c0)]
-    out[r0:r1, c0:c1] = _solve(free[r0:r1, c0:c1], local, resolution)[0]
-    return out
-
-
-def path_lengths(free: np.ndarray, start_cell: tuple[int, int], target_cells: ArrayLike,
-                 resolution: float = 1.0, window: Window | None = None) -> np.ndarray:
-    """Shortest path lengths (metres) from one start cell to many targets, one Dijkstra.
-
-    The start counts as free (the robot stands there even if the map inflated it); targets on
-    blocked cells, outside the grid or out of reach get inf. ``window``: as in
-    :func:`distance_field`. For a planner that wants goals in obstacles snapped to reachable
-    cells, use :meth:`Navigator.path_lengths`.
-    """
-    targets = _cells_array(target_cells)
-    h, w = free.shape
-    start = np.array([start_cell], dtype=np.int64)
-    if not (0 <= start[0, 0] < h and 0 <= start[0, 1] < w):
-        return np.full(len(targets), np.inf)
-    r0, r1, c0, c1 = auto_window(free, np.vstack([start, targets])) if window is None else window
-    dist = _solve(free[r0:r1, c0:c1], start - (r0, c0), resolution)[0]
-    return _gather(dist, targets - (r0, c0))
-
-
-def _gather(values: np.ndarray, cells: np.ndarray, fill: float = np.inf) -> np.ndarray:
-    """values[cells], ``fill`` for cells outside the array (any leading shape of ``cells``)."""
-    h, w = values.shape
-    r, c = cells[..., 0], cells[..., 1]
-    ok = (r >= 0) & (r < h) & (c >= 0) & (c < w)
-    out = np.full(r.shape, fill, dtype=values.dtype)
-    out[ok] = values[r[ok], c[ok]]
-    return out
 
 
 def segment_cells(grid: GridGeometry, p0: tuple[float, float], p1: tuple[float, float]
@@ -345,10 +155,6 @@ def _segment_free(trav: np.ndarray, grid: GridGeometry, p0: tuple[float, float],
     if rows.min() < 0 or cols.min() < 0 or rows.max() >= grid.rows or cols.max() >= grid.cols:
         return False
     return bool(trav[rows, cols].all())
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def _snap_offsets(radius_cells: int) -> np.ndarray:
@@ -477,7 +283,7 @@ class Navigator:
             pos, i = tuple(points[j]), j + 1
         return np.array(out)
 
-    # -- the two calls ---------------------------------------------------------------------------
+    # -- the call --------------------------------------------------------------------------------
 
     def next_command(self, nav_map: NavMap | MapSnapshot, pose: Pose | Sequence[float],
                      goal: Sequence[float], snap_radius_m: float | None = None) -> Action:
@@ -524,33 +330,6 @@ class Navigator:
             return action
         self._watch_progress(plan.cost(cell))
         return self._follow_path(x, y, yaw, chain, trav, m.grid)
-
-    def path_lengths(self, nav_map: NavMap | MapSnapshot, pose: Pose | Sequence[float],
-                     points: ArrayLike) -> np.ndarray:
-        """Path length (metres) from the robot to each point (N x 2 world xy), one Dijkstra.
-
-        A point on a blocked cell is measured to the nearest reachable cell within
-        ``snap_radius_m``, as :meth:`next_command` would drive there; inf when there is none.
-        """
-        cfg, m = self.config, NavMap.of(nav_map)
-        x, y = (pose.x, pose.y) if isinstance(pose, Pose) else (float(pose[0]), float(pose[1]))
-        points = np.asarray(points, dtype=float).reshape(-1, 2)
-        cell = m.grid.to_cell(x, y)
-        if not m.grid.contains(*cell) or len(points) == 0:
-            return np.full(len(points), np.inf)
-        trav = self._traversable(m, cell)
-        rows, cols = m.grid.to_cell(points[:, 0], points[:, 1])
-        cells = np.stack([np.atleast_1d(rows), np.atleast_1d(cols)], axis=1)
-        offsets = _snap_offsets(round(cfg.snap_radius_m / m.grid.resolution))
-        extent = self._clamped_extent(cells, offsets, m.grid)
-        window = auto_window(trav, np.vstack([[cell], extent]))
-        r0, _, c0, _ = window
-        dist = _solve(trav[window[0]:window[1], window[2]:window[3]],
-                      np.array([[cell[0] - r0, cell[1] - c0]]), m.grid.resolution)[0]
-        candidates = _gather(dist, cells[:, None, :] + offsets[None] - (r0, c0))  # N x K
-        finite = np.isfinite(candidates)
-        first = finite.argmax(axis=1)
-        return np.where(finite.any(axis=1), candidates[np.arange(len(cells)), first], np.inf)
 
     # -- map and plan ----------------------------------------------------------------------------
 
@@ -615,7 +394,7 @@ class Navigator:
         # 8-connected without corner cutting = 4-connected: labels say what the robot can reach.
         labels = cv2.connectedComponents(sub.astype(np.uint8), connectivity=4)[1]
         own = labels[cell[0] - r0, cell[1] - c0]
-        reachable = _gather(labels, candidates - (r0, c0), fill=-1) == own
+        reachable = gather(labels, candidates - (r0, c0), fill=-1) == own
         if not reachable.any():
             blocked = not trav[tuple(goal_cell[0])] if inside[0] else True
             why = ("is in or next to an obstacle" if blocked else "is walled off from the robot")
@@ -625,7 +404,7 @@ class Navigator:
         target_cell = (int(candidates[i, 0]), int(candidates[i, 1]))
         target = goal if i == 0 else grid.to_world(*target_cell)
         local = np.array([[target_cell[0] - r0, target_cell[1] - c0]])
-        dist, pred = _solve(sub, local, grid.resolution, predecessors=True)
+        dist, pred = shortest_paths(sub, local, grid.resolution, predecessors=True)
         return _Plan(goal, target, target_cell, grid, window, dist, pred)
 
     # -- following -------------------------------------------------------------------------------
@@ -651,7 +430,7 @@ class Navigator:
         if not self._detour:
             return None
         step = self._detour[0]
-        if abs(step.x - x) > 1e-6 or abs(step.y - y) > 1e-6 or abs(_wrap(step.yaw - yaw)) > 1e-6:
+        if abs(step.x - x) > 1e-6 or abs(step.y - y) > 1e-6 or abs(wrap_angle(step.yaw - yaw)) > 1e-6:
             self._detour = []
             return None
         if step.action is Action.MOVE_FORWARD and not _segment_free(
@@ -692,7 +471,7 @@ class Navigator:
             points = np.array([plan.target])
         stop = min(len(points), int(cfg.lookahead_m / grid.resolution) + 1)
         wx, wy = points[self._visible((x, y), points, 0, stop, trav, grid)]
-        error = _wrap(math.atan2(wy - y, wx - x) - yaw)
+        error = wrap_angle(math.atan2(wy - y, wx - x) - yaw)
         if abs(error) > math.radians(cfg.turn_deg / 2 + cfg.heading_slack_deg) + 1e-9:
             return Action.TURN_LEFT if error > 0 else Action.TURN_RIGHT
         if _segment_free(trav, grid, (x, y), self._step_end(x, y, yaw)):
@@ -773,6 +552,6 @@ class Navigator:
         while node != start:
             prev, action = parent[node]
             px, py, k = states[prev]
-            steps.append(_Step(px, py, _wrap(yaw + k * turn), action))
+            steps.append(_Step(px, py, wrap_angle(yaw + k * turn), action))
             node = prev
         return steps[::-1]

@@ -1,0 +1,54 @@
+"""The search benchmark's tables as a terminal shows them: the paper's Tables I and II, ours beside
+the paper's, the paired differences and the missed targets."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from bench.funnel import Miss
+from bench.policies import LABELS, PAPER
+
+TABLE_I = ("random", "vlfm", "finder", "ovamos")
+TABLE_II = ("ovamos-greedy", "ovamos-nodecay", "ovamos")
+
+
+def print_table(console: Console, result: dict[str, Any]) -> None:
+    """Table I (baselines vs. the method) and Table II (ablations), ours beside the paper's."""
+    scores = result["policies"]
+    limit = "" if result.get("max_steps") is None else f", max {result['max_steps']} steps (quick run)"
+    for title, rows in (("Table I: comparison with baselines", TABLE_I),
+                        ("Table II: ablations", TABLE_II)):
+        present = [p for p in rows if p in scores]
+        if not present:
+            continue
+        table = Table("method", "episodes", "SR", "MSPL", "targets found", "wrong STOPs", "paper SR",
+                      "paper MSPL", title=f"{title} (seed {result['seed']}{limit})")
+        for policy in present:
+            s, (paper_sr, paper_mspl) = scores[policy], PAPER[policy]
+            label = "OVAMOS (full)" if rows is TABLE_II and policy == "ovamos" else LABELS[policy]
+            table.add_row(label, str(s["episodes"]), f"{s['sr']:.1f}%", f"{s['mspl']:.3f}",
+                          f"{s['targets_found']:.1f}%", str(s.get("wrong_stops", "")),
+                          f"{paper_sr:.1f}%", f"{paper_mspl:.3f}")
+        console.print(table)
+    paired = result.get("vs_ovamos", {})
+    if paired:
+        table = Table("method", "episodes", "OVAMOS SR minus it", "95% CI", "OVAMOS MSPL minus it", "95% CI",
+                      title="OVAMOS against each policy on the same episodes (bootstrap)")
+        for policy, d in paired.items():
+            table.add_row(LABELS.get(policy, policy), str(d["episodes"]), f"{d['sr_diff']:+.1f}",
+                          f"[{d['sr_ci'][0]:+.1f}, {d['sr_ci'][1]:+.1f}]", f"{d['mspl_diff']:+.3f}",
+                          f"[{d['mspl_ci'][0]:+.3f}, {d['mspl_ci'][1]:+.3f}]")
+        console.print(table)
+    missed = {p: m for p, m in result.get("missed", {}).items() if m["targets"]}
+    if missed:
+        table = Table("method", "targets", *(m.value for m in Miss),
+                      title="Targets missed, by the first stage they never reached")
+        for policy, m in missed.items():
+            table.add_row(LABELS.get(policy, policy), str(m["targets"]), *(str(m[k.value]) for k in Miss))
+        console.print(table)
+    total = sum(s["episodes"] for s in scores.values())
+    console.print(f"{total} episodes in {result['seconds']:.0f} s on {result['workers']} worker(s): "
+                  f"{result['episodes_per_min']:.1f} episodes/min")
