@@ -113,7 +113,8 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
         seq = 0
         while task.state is TaskStatus.SEARCHING:
             pose = robot.pose
-            frame = renderer.render(pose.x, pose.y, pose.yaw, seq=seq, stamp=float(seq))
+            # lock-step as in the services: frame seq follows command seq (seq commands done)
+            frame = renderer.render(pose.x, pose.y, pose.yaw, seq=seq, stamp=float(seq), after_action=seq)
             # The services map the robot's first view before the task reaches perception (no
             # targets, no values); the same here, so the distributed demo replays this episode.
             remaining = task.remaining if seq > 0 else []
@@ -122,6 +123,7 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
             state.apply(frame, PerceptionResult.build(seq, frame.stamp, perception.score(frame, remaining),
                                                       detections, frame.depth.shape))
             snapshot = state.snapshot(frame.stamp, with_confidence=False)
+            assert snapshot.has_seen_after(seq), "the map must have fused the frame after the last command"
             funnel.map(task.steps, snapshot.objects)
             step = agent.next_step(snapshot, pose)
             if step.action is None:

@@ -88,10 +88,16 @@ class Publisher(Generic[M]):
 
 
 class Subscription:
-    """A declared subscriber; ``undeclare()`` stops delivery."""
+    """A declaration (subscriber, queryable, liveliness token or watcher); ``undeclare()`` ends it,
+    once: the bus undeclares everything again when it closes, and Zenoh refuses a second time."""
 
     def __init__(self, undeclare: Callable[[], None]) -> None:
-        self.undeclare = undeclare
+        self._undeclare: Callable[[], None] | None = undeclare
+
+    def undeclare(self) -> None:
+        undeclare, self._undeclare = self._undeclare, None
+        if undeclare is not None:
+            undeclare()
 
 
 def _check_identity(robot_id: str, service: str, instance: str) -> None:
@@ -139,6 +145,15 @@ class BusCore:
 
     def _ask(self, key: str, timeout_s: float, on_reply: Callable[[bytes], None],
              on_done: Callable[[], None]) -> None:
+        raise NotImplementedError
+
+    def _token(self, key: str) -> Callable[[], None]:
+        """Declare a liveliness token; return the undeclare function."""
+        raise NotImplementedError
+
+    def _watch_tokens(self, key_expr: str, on_change: Callable[[str, bool], None]) -> Callable[[], None]:
+        """Call ``on_change(key, alive)`` for the tokens under ``key_expr``, those already declared
+        first; return the undeclare function."""
         raise NotImplementedError
 
     # -- declarations ---------------------------------------------------------------------
@@ -220,6 +235,20 @@ class BusCore:
         self._ask(key, timeout_s, lambda payload: self.inbox.put(guarded_reply, payload),
                   lambda: self.inbox.put(guarded_done, None))
 
+    def watch_liveliness(self, key_expr: str, handler: Callable[[str, bool], None]) -> None:
+        """``handler(key, alive)`` for every liveliness token under ``key_expr``, those already
+        declared first (on the inbox's taker)."""
+        def on_change(key: str, alive: bool) -> None:
+            self.inbox.put(self._guard(lambda _: handler(key, alive), key_expr), None)
+
+        self._declared.append(Subscription(self._watch_tokens(key_expr, on_change)))
+
+    def declare_token(self, key: str) -> Subscription:
+        """A liveliness token; ``undeclare()`` withdraws it (before the bus closes, if need be)."""
+        handle = Subscription(self._token(key))
+        self._declared.append(handle)
+        return handle
+
     # -- errors ---------------------------------------------------------------------------
     def _guard(self, fn: Callable[[Any], None], key: str) -> Callable[[Any], None]:
         """Wrap a callback so an exception is logged and counted, never lost in Zenoh."""
@@ -289,7 +318,7 @@ class Bus(BusCore):
         stats_key = keys.stats(robot_id, service, instance)
         self._declared.append(self.session.declare_queryable(
             stats_key, lambda query: query.reply(stats_key, self.stats().to_bytes())))
-        self._token = session.liveliness().declare_token(keys.alive(robot_id, service, instance))
+        self._alive = session.liveliness().declare_token(keys.alive(robot_id, service, instance))
 
     @classmethod
     def open(cls, cfg: zenoh.Config, robot_id: str, service: str, instance: str = "0", *,
@@ -334,27 +363,19 @@ class Bus(BusCore):
                     return msg
         return None
 
-    def watch_liveliness(self, key_expr: str, handler: Callable[[str, bool], None]) -> None:
-        """``handler(key, alive)`` for every liveliness token under ``key_expr``, those already
-        declared first (on the inbox's taker)."""
+    def _token(self, key: str) -> Callable[[], None]:
+        return self.session.liveliness().declare_token(key).undeclare
+
+    def _watch_tokens(self, key_expr: str, on_change: Callable[[str, bool], None]) -> Callable[[], None]:
         def on_sample(sample: zenoh.Sample) -> None:
-            key, alive = str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT
-            self.inbox.put(self._guard(lambda _: handler(key, alive), key_expr), None)
+            on_change(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
 
-        sub = self.session.liveliness().declare_subscriber(key_expr, on_sample, history=True)
-        self._declared.append(Subscription(sub.undeclare))
-
-    def declare_token(self, key: str) -> Subscription:
-        """A liveliness token; ``undeclare()`` withdraws it (before the bus closes, if need be)."""
-        token = self.session.liveliness().declare_token(key)
-        handle = Subscription(token.undeclare)
-        self._declared.append(handle)
-        return handle
+        return self.session.liveliness().declare_subscriber(key_expr, on_sample, history=True).undeclare
 
     def close(self) -> None:
         """Undeclare everything and close the session (idempotent)."""
         if self._closed:
             return
-        self._token.undeclare()
+        self._alive.undeclare()
         super().close()
         self.session.close()

@@ -2,8 +2,8 @@
 
 NOT Zenoh and not a mock of it: a :class:`FakeNetwork` routes the bytes a
 :class:`FakeBus` publishes to every subscription whose key expression
-matches (``*`` one chunk, ``**`` any number), and queries to queryables,
-through the same :class:`~shared.bus.BusCore` as the real bus. So messages are
+matches (``*`` one chunk, ``**`` any number), queries to queryables and
+liveliness tokens to their watchers (with history, as Zenoh's), through the same :class:`~shared.bus.BusCore` as the real bus. So messages are
 encoded, validated and counted exactly as in production, handlers run from
 each bus's inbox, and a test decides when they run (:meth:`FakeNetwork.pump`),
 which makes the adapter's logic testable step by step without a router. The
@@ -38,6 +38,8 @@ class FakeNetwork:
 
     def __init__(self) -> None:
         self.buses: list[FakeBus] = []
+        self.tokens: list[str] = []
+        self._watchers: list[tuple[str, Callable[[str, bool], None]]] = []
         self._subs: list[tuple[str, Callable[[str, Callable[[], bytes]], None]]] = []
         self._queryables: list[tuple[str, Callable[[Reply, Callable[[], None]], None]]] = []
 
@@ -55,6 +57,11 @@ class FakeNetwork:
                 return ran
             ran += step
         raise RuntimeError(f"still busy after {max_events} events: a message loop between services?")
+
+    def _announce(self, key: str, alive: bool) -> None:
+        for expr, on_change in list(self._watchers):
+            if key_matches(expr, key):
+                on_change(key, alive)
 
     def _deliver(self, key: str, payload: bytes) -> None:
         for expr, on_payload in list(self._subs):
@@ -108,3 +115,21 @@ class FakeBus(BusCore):
 
         for on_query in targets:
             on_query(lambda payload: on_reply(bytes(payload)), finish)
+
+    def _token(self, key: str) -> Callable[[], None]:
+        self.network.tokens.append(key)
+        self.network._announce(key, True)
+
+        def undeclare() -> None:
+            if key in self.network.tokens:
+                self.network.tokens.remove(key)
+                self.network._announce(key, False)
+        return undeclare
+
+    def _watch_tokens(self, key_expr: str, on_change: Callable[[str, bool], None]) -> Callable[[], None]:
+        for key in self.network.tokens:  # history, as Zenoh's liveliness subscriber gives
+            if key_matches(key_expr, key):
+                on_change(key, True)
+        entry = (key_expr, on_change)
+        self.network._watchers.append(entry)
+        return self.network._remove(self.network._watchers, entry)

@@ -7,11 +7,12 @@ ever touched by one thread and needs no locks, and nothing blocking (a model
 call, a SQLite commit, a 40 ms planner decision) ever runs on Zenoh's
 threads, where it would stall every other subscription of the session.
 
-Memory stays bounded. An ordinary channel keeps every event in order up to
-``limit`` in all (beyond it the oldest ordinary event is dropped and
-counted); a ``keep=n`` channel (frames, maps) keeps only its newest ``n``:
-an older one is replaced, and counted, when a new one arrives before it was
-taken.
+Events run in the order they arrived. Memory stays bounded. An ordinary
+channel keeps every event up to ``limit`` in all (beyond it the oldest
+ordinary event is dropped and counted); a ``keep=n`` channel (frames, maps)
+keeps only its newest ``n``: an older one is dropped, and counted, when a
+new one arrives before it was taken, and the survivors keep their own places
+in the order (a frame never overtakes a task event that came before it).
 """
 
 from __future__ import annotations
@@ -29,12 +30,17 @@ OnDrop = Callable[[], Any]
 
 
 class _Latest:
-    """The newest ``keep`` events of one channel."""
+    """The newest ``keep`` events of one channel, and how many places in the order it holds.
+
+    Every arrival takes a place at the end of the order; a dropped event leaves
+    its place behind, and a place is skipped when the channel has fewer events
+    than places after it, so each survivor runs at (the place of) its arrival.
+    """
 
     def __init__(self, keep: int) -> None:
         self.items: deque[tuple[Handler, Any, OnDrop | None]] = deque()
         self.keep = keep
-        self.scheduled = False
+        self.places = 0
 
 
 class Inbox:
@@ -64,9 +70,15 @@ class Inbox:
                 if len(latest.items) >= latest.keep:
                     dropped = latest.items.popleft()[2]
                 latest.items.append((handler, arg, on_drop))
-                if not latest.scheduled:
-                    latest.scheduled = True
+                if latest.places > 4 * latest.keep + 64:  # a stalled taker: forget the empty places
+                    self._order = deque(e for e in self._order if e is not latest)
+                    latest.places = 0
+                    for _ in latest.items:
+                        self._order.append(latest)
+                        latest.places += 1
+                else:
                     self._order.append(latest)
+                    latest.places += 1
             else:
                 if self._ordinary >= self._limit:
                     dropped = self._drop_oldest_ordinary()
@@ -89,14 +101,10 @@ class Inbox:
         while self._order:
             entry = self._order.popleft()
             if isinstance(entry, _Latest):
-                if not entry.items:
-                    entry.scheduled = False
-                    continue
+                entry.places -= 1
+                if entry.places >= len(entry.items):
+                    continue  # the place of a dropped event: its newer ones hold later places
                 handler, arg, _ = entry.items.popleft()
-                if entry.items:
-                    self._order.append(entry)  # its next one waits its turn behind the others
-                else:
-                    entry.scheduled = False
                 return handler, arg
             self._ordinary -= 1
             return entry[0], entry[1]

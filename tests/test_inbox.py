@@ -19,13 +19,26 @@ def test_ordinary_events_run_in_order_and_keep_latest_channels_keep_only_the_new
     assert ran == ["task 1", "frame 4", "task 2"] and len(dropped) == 4
 
 
-def test_a_keep_n_channel_keeps_its_newest_n_and_waits_its_turn_between_them() -> None:
+def test_a_keep_n_channel_keeps_its_newest_n_each_at_the_place_it_arrived() -> None:
     inbox, ran = Inbox(), []
-    for i in range(4):
+    inbox.put(ran.append, "f0", channel="rgbd", keep=2)
+    inbox.put(ran.append, "task")
+    for i in range(1, 4):
         inbox.put(ran.append, f"f{i}", channel="rgbd", keep=2)
-    inbox.put(ran.append, "odom", channel="odom", keep=1)
+        if i == 2:
+            inbox.put(ran.append, "odom", channel="odom", keep=1)
     inbox.run_pending()
-    assert ran == ["f2", "odom", "f3"]
+    assert ran == ["task", "f2", "odom", "f3"]  # no frame overtakes what came before it
+
+
+def test_a_stalled_taker_holds_a_bounded_number_of_places() -> None:
+    inbox, ran = Inbox(), []
+    inbox.put(ran.append, "task")
+    for i in range(10_000):
+        inbox.put(ran.append, i, channel="rgbd", keep=1)
+    assert len(inbox._order) < 100
+    inbox.run_pending()
+    assert ran == ["task", 9999]
 
 
 def test_the_ordinary_queue_is_bounded_and_counts_what_it_drops() -> None:

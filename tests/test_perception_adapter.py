@@ -14,7 +14,8 @@ from services.perception.service import PerceptionService
 from services.perception.sim_backend import SimBackend
 from shared import keys
 from shared.messages import FoundObject, PerceptionResult, RgbdFrame, TaskEvent, TaskSpec, TaskStatus
-from tests.perception_helpers import ROBOT, LivelyNetwork, render_frames
+from shared.fake_bus import FakeNetwork
+from tests.perception_helpers import ROBOT, render_frames
 from tests.sim_scenes import two_rooms
 
 FRAME_KEY = keys.rgbd(ROBOT)
@@ -33,7 +34,7 @@ def backend() -> SimBackend:
 class Robot:
     """The robot's camera and the planner's task messages on the fake network, and the results."""
 
-    def __init__(self, network: LivelyNetwork) -> None:
+    def __init__(self, network: FakeNetwork) -> None:
         bus = network.bus(ROBOT, "test-robot")
         self.frames = bus.publisher(FRAME_KEY, RgbdFrame)
         self.tasks = bus.publisher(keys.task_current(ROBOT), TaskSpec)
@@ -42,7 +43,7 @@ class Robot:
         bus.subscribe(keys.perception_result(ROBOT), PerceptionResult, self.results.append)
 
 
-def start(network: LivelyNetwork, backend: SimBackend, instance: str = "0",
+def start(network: FakeNetwork, backend: SimBackend, instance: str = "0",
           **config: object) -> PerceptionService:
     service = PerceptionService(network.bus(ROBOT, "perception", instance),
                                 PerceptionServiceConfig(**config), backend)
@@ -57,7 +58,7 @@ def event(task: TaskSpec, found: tuple[str, ...]) -> TaskEvent:
 
 
 def test_results_follow_the_task_and_bad_frames_are_counted(frames, backend) -> None:
-    network = LivelyNetwork()
+    network = FakeNetwork()
     service = start(network, backend)
     robot = Robot(network)
     network.pump()
@@ -111,7 +112,7 @@ def test_results_follow_the_task_and_bad_frames_are_counted(frames, backend) -> 
 
 
 def test_a_busy_service_keeps_its_newest_frame_and_every_task_message(frames, backend) -> None:
-    network = LivelyNetwork()
+    network = FakeNetwork()
     service = start(network, backend)
     robot = Robot(network)
     network.pump()
@@ -127,7 +128,7 @@ def test_a_busy_service_keeps_its_newest_frame_and_every_task_message(frames, ba
 
 
 def test_replicas_share_the_frames_and_take_over_when_one_stops(frames, backend) -> None:
-    network = LivelyNetwork()
+    network = FakeNetwork()
     replicas = {name: start(network, backend, name) for name in ("b", "a")}
     robot = Robot(network)
     network.pump()

@@ -44,7 +44,7 @@ from services.perception.errors import FrameRejected
 from services.perception.frames import frame_problem
 from services.perception.replicas import ReplicaSet
 from shared import keys
-from shared.bus import Bus
+from shared.bus import BusCore
 from shared.log import fields, sampled
 from shared.messages import PerceptionResult, RgbdFrame, TaskEvent, TaskSpec
 from shared.service import Service
@@ -54,9 +54,7 @@ class PerceptionService(Service):
     name = "perception"
     Config = PerceptionServiceConfig
     config: PerceptionServiceConfig
-    bus: Bus  # it needs watch_liveliness and declare_token (a fake bus must have them too)
-
-    def __init__(self, bus: Bus, config: PerceptionServiceConfig,
+    def __init__(self, bus: BusCore, config: PerceptionServiceConfig,
                  backend: PerceptionBackend | None = None) -> None:
         super().__init__(bus, config)
         self.backend = backend or load_backend(config)
@@ -151,6 +149,3 @@ class PerceptionService(Service):
         if self._ready is not None:
             token, self._ready = self._ready, None
             token.undeclare()
-            # The bus undeclares every declaration again when it closes, and a Zenoh token
-            # undeclared twice raises (which would leave the session open): once is enough.
-            token.undeclare = lambda: None

@@ -26,6 +26,7 @@ from shared.grid import GridGeometry
 from shared.gridpaths import Window, auto_window, gather, shortest_paths, traversable
 from shared.messages import MapSnapshot
 from shared.motion import Action, Pose, wrap_angle
+from shared.robot import PRIMITIVES, ROBOT
 
 __all__ = ["Unreachable", "NavigationConfig", "NavMap", "segment_cells", "Navigator"]
 
@@ -39,14 +40,12 @@ class NavigationConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     robot_radius: float = Field(
-        default=0.15, ge=0,
-        description="obstacles grow by this much. Below the footprint's 0.18 m on purpose: mapped "
-                    "obstacles are up to a cell thicker than the real ones (depth points land in "
-                    "cells), which with the full radius narrows a 0.9 m doorway until no sequence "
-                    "of 0.25 m / 30 deg primitives fits through; a bump is mapped if it was too "
-                    "optimistic")
-    forward_m: float = Field(default=0.25, gt=0, description="length of MOVE_FORWARD")
-    turn_deg: float = Field(default=30.0, gt=0, le=180, description="angle of TURN_LEFT/RIGHT")
+        default=ROBOT.navigation_radius_m, ge=0,
+        description="obstacles grow by this much (see RobotGeometry.navigation_radius_m: below the "
+                    "footprint on purpose)")
+    forward_m: float = Field(default=PRIMITIVES.forward_m, gt=0, description="length of MOVE_FORWARD")
+    turn_deg: float = Field(default=PRIMITIVES.turn_deg, gt=0, le=180,
+                            description="angle of TURN_LEFT/RIGHT")
     goal_tolerance_m: float = Field(
         default=0.25, gt=0,
         description="STOP this close to the goal; must exceed forward_m / (2 cos(turn/2)) or the "
