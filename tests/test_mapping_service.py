@@ -96,9 +96,14 @@ def test_snapshots_are_published_and_malformed_input_is_counted(service, sender,
     client.put(keys.perception_result(ROBOT), b"garbage")
     wait_for(lambda: pub_f.put(frames[4]) or any(s.seq == 4 for s in got), what="a published snapshot")
     from shared.status import live_services
-    (svc,) = [s for s in live_services(client, ROBOT) if s.service == "mapping"]
-    assert svc.stats.counters[keys.perception_result(ROBOT)].malformed == 1
-    assert svc.stats.info["seq"] == 4
+
+    def mapping_stats():
+        (svc,) = [s for s in live_services(client, ROBOT) if s.service == "mapping"]
+        return svc.stats
+
+    assert mapping_stats().counters[keys.perception_result(ROBOT)].malformed == 1
+    # the info is a snapshot the service's loop refreshes every 0.5 s
+    wait_for(lambda: mapping_stats().info["seq"] == 4, what="the service's info shows frame 4")
 
 
 def test_a_restarted_service_resumes_from_its_checkpoint(inproc_router, tmp_path, sender, client,
