@@ -41,6 +41,11 @@ def rgbd(robot_id: str) -> str:
     return f"{_robot(robot_id)}/sensors/rgbd"
 
 
+def camera_state(robot_id: str) -> str:
+    """The camera service's health: streaming, or why not (JSON)."""
+    return f"{_robot(robot_id)}/camera/state"
+
+
 def odom(robot_id: str) -> str:
     return f"{_robot(robot_id)}/odom"
 

@@ -27,7 +27,7 @@ from shared.motion import Action
 from shared.robot import Primitives
 
 __all__ = ["DecodeError", "JsonMessage", "BinaryMessage", "ArraySpec", "Intrinsics", "RgbdFrame",
-           "MapSnapshot", "ObjectInstance", "PerceptionResult", "CounterSet", "ServiceStats", "Odometry", "PlanCommand", "DriverMode",
+           "MapSnapshot", "ObjectInstance", "PerceptionResult", "CounterSet", "ServiceStats", "CameraState", "Odometry", "PlanCommand", "DriverMode",
            "Outcome", "DriverState", "EStop", "TaskSpec", "TaskStatus", "FINAL", "FoundObject",
            "TaskEvent"]
 
@@ -341,6 +341,22 @@ class ServiceStats(JsonMessage):
     started: float
     counters: dict[str, CounterSet]
     info: dict[str, Any] = {}
+
+
+class CameraState(JsonMessage):
+    """The robot camera's health, published at a few Hz and on every change.
+
+    ``fault`` is empty while frames arrive; otherwise it says why not (no frame
+    for 1 s, device unplugged, depth all zero), and the planner waits with it
+    as its reason instead of deciding on a map that stopped growing.
+    """
+
+    stamp: float
+    backend: str
+    fault: str = ""
+    frames: int = Field(default=0, ge=0, description="frames published since start")
+    skipped: int = Field(default=0, ge=0, description="frames not published: no odometry around them")
+    last_seq: int | None = None
 
 
 class Odometry(JsonMessage):

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from shared import keys
-from shared.messages import (DriverState, EStop, MapSnapshot, Odometry, PerceptionResult, PlanCommand,
-                             RgbdFrame, TaskEvent, TaskSpec)
+from shared.messages import (CameraState, DriverState, EStop, MapSnapshot, Odometry, PerceptionResult,
+                             PlanCommand, RgbdFrame, TaskEvent, TaskSpec)
 
 __all__ = ["Port", "Node", "TOPOLOGY", "graph"]
 
@@ -65,6 +65,8 @@ _DRIVER = Node(inputs=(Port("plan_command", PlanCommand), Port("estop", EStop)),
 TOPOLOGY: dict[str, Node] = {
     "sim": Node(inputs=_DRIVER.inputs, outputs=(*_DRIVER.outputs, Port("rgbd", RgbdFrame))),
     "base_driver": _DRIVER,
+    "camera": Node(inputs=(Port("odom", Odometry), Port("driver_state", DriverState)),
+                   outputs=(Port("rgbd", RgbdFrame), Port("camera_state", CameraState))),
     "perception": Node(inputs=(Port("task_current", TaskSpec), Port("task_events", TaskEvent),
                                Port("rgbd", RgbdFrame, keep=1)),
                        outputs=(Port("perception_result", PerceptionResult),)),
@@ -72,6 +74,7 @@ TOPOLOGY: dict[str, Node] = {
                     outputs=(Port("map_snapshot", MapSnapshot),),
                     answers=(Port("map_snapshot", MapSnapshot),)),
     "planner": Node(inputs=(Port("task_current", TaskSpec), Port("driver_state", DriverState),
+                            Port("camera_state", CameraState),
                             Port("odom", Odometry, keep=1), Port("map_snapshot", MapSnapshot, keep=1)),
                     outputs=(Port("plan_command", PlanCommand), Port("task_events", TaskEvent)),
                     queries=(Port("map_snapshot", MapSnapshot),)),

@@ -228,3 +228,16 @@ def test_a_restarted_planner_waits_for_the_drivers_command_and_continues_after_i
     assert commands(ex.poll(0.1)) == [] and ex.task.steps == 0  # the map has not seen after 7
     ex.on_snapshot(snapshot(4, after=7))
     assert [c.action_id for c in commands(ex.poll(0.2))] == [8]
+
+
+def test_no_decision_while_the_camera_reports_a_fault_and_the_event_says_why(ex: Executive) -> None:
+    from shared.messages import CameraState
+
+    ex.on_driver(driver())
+    ex.on_snapshot(snapshot(0))
+    ex.on_odom(odom())
+    ex.on_camera(CameraState(stamp=0.0, backend="realsense", fault="no frames for 1.2 s"))
+    out = ex.poll(0.0)
+    assert commands(out) == [] and events(out)[-1].message == "camera: no frames for 1.2 s"
+    ex.on_camera(CameraState(stamp=1.0, backend="realsense"))  # frames again
+    assert len(commands(ex.poll(0.1))) == 1

@@ -17,6 +17,8 @@ rules be tested message by message:
 * a command the driver is running that this planner did not send (it was
   restarted) is waited for, and new ids continue after it, so the driver
   never drops a new command as a duplicate of an old one;
+* no new decision while the camera reports a fault (``CameraState.fault``: the map
+  would stop growing), with the camera's reason as the task's;
 * nothing is sent while the driver is in fault or e-stop, or advertises primitive sizes
   (``DriverState.primitives``) other than the planner's;
 * the task's progress goes out as a :class:`TaskEvent` after every step and
@@ -37,7 +39,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
 from services.planner.task import SearchTask, SearchTaskError
-from shared.messages import (FINAL, DriverMode, DriverState, JsonMessage, MapSnapshot, Odometry,
+from shared.messages import (FINAL, CameraState, DriverMode, DriverState, JsonMessage, MapSnapshot, Odometry,
                              PlanCommand, TaskEvent, TaskSpec, TaskStatus)
 from shared.motion import Pose
 
@@ -67,6 +69,7 @@ class Executive:
         self.agent: SearchAgent | None = None
         self.driver: DriverState | None = None
         self.odom: Odometry | None = None
+        self.camera: CameraState | None = None
         self.snapshot: MapSnapshot | None = None
         self.in_flight: _InFlight | None = None
         self.waiting = ""           # why no command is going out, for status and events
@@ -110,6 +113,9 @@ class Executive:
         newest = max(state.last_completed, state.active_action or 0)
         if newest >= self._next_id:  # ids continue after the driver's (a planner restart)
             self._next_id = newest + 1
+
+    def on_camera(self, state: CameraState) -> None:
+        self.camera = state
 
     def on_odom(self, odom: Odometry) -> None:
         self.odom = odom
@@ -193,6 +199,8 @@ class Executive:
 
     def _decide(self, now: float, d: DriverState) -> list[JsonMessage]:
         assert self.agent is not None
+        if self.camera is not None and self.camera.fault:
+            return self._wait(f"camera: {self.camera.fault}")
         snapshot, pose = self.snapshot, self._pose()
         if snapshot is None or pose is None:
             return self._wait("waiting for the map" if snapshot is None else "waiting for odometry")

@@ -42,8 +42,8 @@ class PlannerService(Service):
 
     def start(self) -> None:
         ex = self.executive
-        self.wire({"task_current": ex.on_task, "driver_state": ex.on_driver, "odom": ex.on_odom,
-                   "map_snapshot": ex.on_snapshot})
+        self.wire({"task_current": ex.on_task, "driver_state": ex.on_driver, "camera_state": ex.on_camera,
+                   "odom": ex.on_odom, "map_snapshot": ex.on_snapshot})
 
     def tick(self) -> None:
         wanted = self.executive.map_wanted()
