@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
@@ -462,14 +462,34 @@ def test_accepts_a_map_snapshot() -> None:
 # ---------------------------------------------------------------------------------------------
 
 
+def blocks_to_obstacles(blocks: np.ndarray) -> np.ndarray:
+    """0.75 m (15-cell) blocks; blocks[0] is the row at y = 0."""
+    return np.kron(np.asarray(blocks, dtype=bool), np.ones((15, 15), dtype=bool))
+
+
 @st.composite
 def block_worlds(draw: st.DrawFn) -> tuple[np.ndarray, Pose, tuple[float, float]]:
     """Maps of 0.75 m blocks on a 5 x 5 lattice (passages at least 0.75 m wide, like doors),
     a start on a traversable cell with any heading, any goal."""
     blocks = np.array(draw(st.lists(st.booleans(), min_size=25, max_size=25))).reshape(5, 5)
     blocks &= np.array(draw(st.lists(st.booleans(), min_size=25, max_size=25))).reshape(5, 5)
-    obs = np.kron(blocks, np.ones((15, 15), dtype=bool))
+    obs = blocks_to_obstacles(blocks)
     return obs, *start_and_goal(draw, obs)
+
+
+# Found by Hypothesis: a staircase of blocks walls the goal off from the start's side, so the
+# 8.08 m path goes round the east end of the top block, whose inflation ends at x = 3.15 m. The
+# navigator's cost-to-go field lives on a window that ends two cells past the inflation
+# (x < 3.25 m, the map is 3.75 m wide), and the primitive-lattice search treated every cell
+# outside it as unreachable: at (3.24, 2.83), headings 23.7 + 30k deg, the step at 83.7 deg
+# left the window (x 3.27) and the one at 113.7 deg clipped the inflated corner, so the robot
+# was walled in a 0.1 m strip and gave up ("no sequence of primitives gets closer").
+STAIRCASE_WORLD = (blocks_to_obstacles([[0, 0, 0, 0, 0],
+                                        [1, 0, 0, 0, 0],
+                                        [0, 1, 0, 0, 0],
+                                        [0, 0, 1, 1, 0],
+                                        [0, 0, 0, 0, 0]]),
+                   Pose(x=0.025, y=0.025, yaw=3.03125), (0.0, 2.0))
 
 
 @st.composite
@@ -512,6 +532,7 @@ def reachable_length(obs: np.ndarray, start: Pose, goal: tuple[float, float]) ->
 
 @settings(SETTINGS, max_examples=100)
 @given(block_worlds())
+@example(STAIRCASE_WORLD)
 def test_random_block_worlds_reach_every_reachable_goal_safely(world) -> None:
     obs, start, goal = world
     length = reachable_length(obs, start, goal)
@@ -527,6 +548,19 @@ def test_random_block_worlds_reach_every_reachable_goal_safely(world) -> None:
     end, (tx, ty) = run.poses[-1], nav.target or goal
     assert (math.hypot(end.x - goal[0], end.y - goal[1]) <= TOL
             or math.hypot(end.x - tx, end.y - ty) <= TOL)
+
+
+def test_a_detour_may_leave_the_window_the_path_was_planned_on() -> None:
+    """STAIRCASE_WORLD, deterministically: the robot rounds the top block's corner east of
+    x = 3.25 m, outside the cost-to-go field's window, and still reaches the goal."""
+    obs, start, goal = STAIRCASE_WORLD
+    length = reachable_length(obs, start, goal)
+    assert length == pytest.approx(8.08, abs=0.01)
+    nav = Navigator()
+    run = drive(nav_map(obs), start, goal, max_commands=60 + int(4 * length / 0.25), navigator=nav)
+    assert run.error is None and run.stopped
+    assert max(p.x for p in run.poses) > 3.25
+    assert math.hypot(run.poses[-1].x - goal[0], run.poses[-1].y - goal[1]) <= TOL
 
 
 @settings(SETTINGS, max_examples=100)

@@ -30,6 +30,8 @@ from shared.robot import PRIMITIVES, ROBOT
 
 __all__ = ["Unreachable", "NavigationConfig", "NavMap", "segment_cells", "Navigator"]
 
+_SQRT2 = math.sqrt(2.0)
+
 
 class Unreachable(RuntimeError):
     """The goal cannot be reached; the message says why, so the planner can log it and move on."""
@@ -188,6 +190,28 @@ class _Plan:
         if 0 <= r < self.dist.shape[0] and 0 <= c < self.dist.shape[1]:
             return float(self.dist[r, c])
         return math.inf
+
+    def estimate(self, cell: tuple[int, int]) -> float:
+        """:meth:`cost` inside the window; outside it (but on the grid), the cost of the nearest
+        window cell (the cell clamped into the window) plus the 8-connected length to it.
+
+        The window is only as large as exact path lengths need (:func:`auto_window`: typically
+        the obstacles' box plus a free ring of two cells), but a robot moving in exact 0.25 m /
+        30 deg primitives swings wider than a cell path and may need to pass outside it. There
+        everything was free when the plan was made, so this is an upper bound of the true cost
+        (at least the clamped cell's, since clamping a path never lengthens it): a guide for
+        the lattice search, where :meth:`cost` (inf outside) would wall the robot in.
+        """
+        h, w = self.dist.shape
+        r, c = cell[0] - self.window[0], cell[1] - self.window[2]
+        if 0 <= r < h and 0 <= c < w:
+            return float(self.dist[r, c])
+        if not (self.grid.contains(*cell) and h and w):
+            return math.inf
+        dr = abs(r - min(max(r, 0), h - 1))
+        dc = abs(c - min(max(c, 0), w - 1))
+        near = float(self.dist[min(max(r, 0), h - 1), min(max(c, 0), w - 1)])
+        return near + self.grid.resolution * (abs(dr - dc) + _SQRT2 * min(dr, dc))
 
     def chain(self, cell: tuple[int, int]) -> np.ndarray:
         """Grid cells (K x 2) from ``cell`` to the target, following the predecessors."""
@@ -501,8 +525,8 @@ class Navigator:
         res, tol = grid.resolution, cfg.goal_tolerance_m
         tx, ty = plan.target
 
-        def h(px: float, py: float) -> float:
-            return plan.cost(grid.to_cell(px, py))
+        def h(px: float, py: float) -> float:  # finite outside the plan's window too
+            return plan.estimate(grid.to_cell(px, py))
 
         def key(px: float, py: float, k: int) -> tuple[int, int, int]:
             return math.floor(px / res), math.floor(py / res), k % n_headings
