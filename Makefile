@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip -q --disable-pip-version-check
 
-.PHONY: test demo bench clean egl
+.PHONY: test demo bench clean syslibs egl
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -13,33 +13,39 @@ $(PY):
 # torch first, pinned: its CPU build (a bare "torch" requirement would pull a multi-GB CUDA one).
 $(VENV)/.installed: pyproject.toml Makefile | $(PY)
 	$(PIP) install torch==2.13.0
-	$(PIP) install -e '.[dev,sim,perception]'
+	$(PIP) install -e '.[dev,sim,perception,camera]'
 	touch $@
 
-# The simulator renders headless through EGL (Mesa's software rasteriser when
-# there is no GPU). On a fresh Debian/Ubuntu machine those system libraries are
-# missing: install them, with sudo when not root and sudo exists.
+# System libraries from Debian/Ubuntu packages, installed when missing (with sudo
+# when not root and sudo exists): the simulator renders headless through EGL
+# (Mesa's software rasteriser when there is no GPU), and pyrealsense2 (the camera
+# service's RealSense backend) loads libusb-1.0.
 SUDO := $(shell [ "$$(id -u)" -ne 0 ] && command -v sudo >/dev/null && echo sudo)
-egl:
-	@if ! { ldconfig -p 2>/dev/null || /sbin/ldconfig -p; } | grep -q libEGL.so.1; then \
-	  echo "libEGL.so.1 not found: installing the EGL/Mesa libraries"; \
+syslibs:
+	@libs="$$( { ldconfig -p 2>/dev/null || /sbin/ldconfig -p; } )"; pkgs=""; \
+	echo "$$libs" | grep -q libEGL.so.1 || pkgs="$$pkgs libegl1 libgl1-mesa-dri libgles2"; \
+	echo "$$libs" | grep -q libusb-1.0.so.0 || pkgs="$$pkgs libusb-1.0-0"; \
+	if [ -n "$$pkgs" ]; then \
+	  echo "missing system libraries: installing$$pkgs"; \
 	  $(SUDO) apt-get update && \
-	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
-	    libegl1 libgl1-mesa-dri libgles2; \
+	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends $$pkgs; \
 	fi
 
-test: $(VENV)/.installed egl
+egl: syslibs  # the former name of syslibs
+
+test: $(VENV)/.installed syslibs
 	$(PY) -m pytest -q
 
 demo: $(VENV)/.installed
 	$(VENV)/bin/ovamos demo
 
-bench: $(VENV)/.installed egl
+bench: $(VENV)/.installed syslibs
 	$(VENV)/bin/ovamos bench transport
 	$(VENV)/bin/ovamos bench sim
 	$(VENV)/bin/ovamos bench mapping
 	$(VENV)/bin/ovamos bench planner
 	$(VENV)/bin/ovamos bench perception
+	$(VENV)/bin/ovamos bench camera
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis

@@ -306,6 +306,17 @@ def bench_planner(runs: Annotated[int, typer.Option(help="Instances per size (me
     _report(result, as_json, print_table)
 
 
+@bench_app.command("camera")
+def bench_camera(frames: Annotated[int, typer.Option(help="Frames per run.")] = 150,
+                 runs: Annotated[int, typer.Option(help="Runs (the median is reported).")] = 5,
+                 as_json: AsJson = False
+                 ) -> None:
+    """Frames per second of the RealSense backend at 640x480 (SDK software device), published over Zenoh."""
+    from bench.camera import print_table, run_benchmark
+    result = run_benchmark(frames=frames, runs=runs, progress=None if as_json else err)
+    _report(result, as_json, print_table)
+
+
 SceneSeed = Annotated[int, typer.Option("--seed", help="Scene seed.")]
 SceneFile = Annotated[Optional[Path], typer.Option("--scene", help="Scene JSON (instead of --seed).")]
 
