@@ -21,6 +21,7 @@ SERVICES: dict[str, str] = {
     "perception": "services.perception.service:PerceptionService",
     "sim": "services.sim.service:SimRobotService",
     "base_driver": "services.base_driver.service:BaseDriverService",
+    "camera": "services.camera.service:CameraService",
 }
 
 

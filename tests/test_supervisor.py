@@ -339,7 +339,7 @@ def test_shipped_profiles_are_complete_and_valid() -> None:
     assert [p.stem for p in SHIPPED] == ["all", "laptop", "robot"]
     wanted = {"all": {"gateway", "perception", "mapping", "planner", "sim"},
               "laptop": {"gateway", "perception", "mapping", "planner"},
-              "robot": {"base_driver"}}
+              "robot": {"base_driver", "camera"}}
     for path in SHIPPED:
         profile = load_profile(path)  # also checks that every referenced file exists
         check_service_configs(profile)  # registered services: configs fit their models
@@ -362,7 +362,7 @@ def test_shipped_service_configs_fit_their_services() -> None:
     for path in sorted((REPO / "deploy" / "services").glob("*.toml")):
         load_config(service_class(path.stem.split("-")[0]), path)
         checked.append(path.stem)
-    assert checked == ["base_driver", "gateway-laptop", "gateway", "mapping", "perception-hf",
+    assert checked == ["base_driver", "camera", "gateway-laptop", "gateway", "mapping", "perception-hf",
                        "perception-sim", "planner", "sim"]
 
 

@@ -3,16 +3,19 @@
 The core (:mod:`services.camera.core`) reads :class:`CameraConfig` and nothing
 else, so a camera that is mounted, timed or gated differently is a config file,
 not a code change. The backends' own settings (device serial, resolution, fps,
-recording path) live in their modules and are nested here under the backend's
-name.
+recording path) live in their backends' modules (which import no SDK until a
+backend starts) and are nested here under the backend's name.
 """
 
 from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
+from services.camera.file import FileConfig
+from services.camera.oakd import OakdConfig
+from services.camera.realsense import RealSenseConfig
 from shared.config import ServiceConfig, StrictModel
 
 __all__ = ["Mount", "ClockConfig", "OdometryConfig", "CameraConfig"]
@@ -98,14 +101,11 @@ class CameraConfig(ServiceConfig):
     """The camera service: which backend, where it is mounted, how frames are timed and gated."""
 
     backend: Literal["realsense", "file", "oakd"] = "realsense"
-    # -- backend settings (to be added by the backends' author) -----------------------------
-    # One nested model per backend, named like the backend, e.g.
-    #     realsense: RealSenseConfig = Field(default_factory=RealSenseConfig)
-    #     file: FileConfig | None = None   # its ``path`` has no default: required when backend = "file"
-    #     oakd: OakdConfig = Field(default_factory=OakdConfig)
-    # imported from a module that does not import an SDK (pyrealsense2, depthai): this module is
-    # read by the core and by ``ovamos`` on machines without them.
-    # ---------------------------------------------------------------------------------------
+    realsense: RealSenseConfig = Field(default_factory=RealSenseConfig,
+                                       description="backend realsense: which camera, size, rate, filters")
+    file: FileConfig | None = Field(default=None, description="backend file: the recording to play "
+                                                              "(required with backend = 'file')")
+    oakd: OakdConfig = Field(default_factory=OakdConfig, description="backend oakd (refused: see oakd.py)")
     mount: Mount = Field(default_factory=Mount)
     clock: ClockConfig = Field(default_factory=ClockConfig)
     odometry: OdometryConfig = Field(default_factory=OdometryConfig)
@@ -127,3 +127,9 @@ class CameraConfig(ServiceConfig):
                                    description="no frame for this long is a fault")
     state_hz: float = Field(default=2.0, gt=0,
                             description="camera/state rate; a fault change goes out at once")
+
+    @model_validator(mode="after")
+    def _file_has_a_path(self) -> CameraConfig:
+        if self.backend == "file" and self.file is None:
+            raise ValueError("backend 'file' needs [file] path = \"run.db3\" (a RealSense recording)")
+        return self
