@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip -q --disable-pip-version-check
 
-.PHONY: test demo bench clean syslibs egl
+.PHONY: test demo bench clean syslibs
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -30,8 +30,6 @@ syslibs:
 	  $(SUDO) apt-get update && \
 	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends $$pkgs; \
 	fi
-
-egl: syslibs  # the former name of syslibs
 
 test: $(VENV)/.installed syslibs
 	$(PY) -m pytest -q
