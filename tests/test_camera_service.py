@@ -112,6 +112,7 @@ def test_a_camera_that_stops_is_a_fault_within_1_5_s_and_recovers_without_a_rest
         faults = [(t, s) for t, s in rig.states if s.fault]
         assert faults, "no fault reported"
         assert faults[0][0] - stopped <= 1.5 and "no camera frames" in faults[0][1].fault
+        assert "no camera frames" in rig.service.info()["fault"]  # in `ovamos status` too
         count = len(rig.frames)
         rig.feeding.set()
         rig.run(1.0)

@@ -128,7 +128,8 @@ class CameraService(Service):
             self.bus.record_failure(self._capture_key)
 
     def info(self) -> dict[str, Any]:
-        return {"backend": self.backend.name, "restarts": self.restarts, **self.core.info()}
+        return {"backend": self.backend.name, "fault": self.core.fault(time.monotonic()),
+                "restarts": self.restarts, **self.core.info()}
 
     def stop(self) -> None:
         self._stopping.set()
