@@ -1,0 +1,69 @@
+"""What the base controller needs of a base's hardware, whatever bus it is on (ros2_control's split).
+
+A hardware interface sends body velocity setpoints and reports encoders, health
+and safety sensors; it keeps no policy. Everything that is not about a bus
+(primitives closed-loop on odometry, deadman, e-stop latch, limits and ramps,
+the fault / recover state machine, odometry, ``driver/state``) is the
+controller's, so every base gets it the same way: ODrive CANSimple over
+python-can (a custom CAN base), Kobuki over serial (TurtleBot 2), OpenCR over
+Dynamixel Protocol 2.0 (TurtleBot 3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+__all__ = ["HardwareError", "WheelFeedback", "BaseHardware"]
+
+
+class HardwareError(RuntimeError):
+    """The base cannot be reached or refuses (port missing, unplugged, no answer)."""
+
+
+@dataclass(frozen=True)
+class WheelFeedback:
+    """One feedback message of the base, in SI units, wheel forward positive.
+
+    Positions are cumulative (unwrapped: a 16-bit tick counter's wrap is the
+    interface's to undo). ``stamp`` is this host's ``time.monotonic()`` when the
+    feedback arrived: the controller calls feedback older than its limit stale.
+    """
+
+    stamp: float
+    left_pos_rad: float
+    right_pos_rad: float
+    left_vel_rad_s: float | None = None   # None: the base does not report it (derived from positions)
+    right_vel_rad_s: float | None = None
+    bumpers: tuple[str, ...] = ()         # pressed now: e.g. "left", "centre", "right"
+    wheel_drops: tuple[str, ...] = ()     # wheels off the ground now: "left", "right"
+    cliffs: tuple[str, ...] = ()          # cliff sensors seeing a drop now: "left", "centre", "right"
+    faults: tuple[str, ...] = ()          # errors the device itself reports
+    extra: dict[str, float] = field(default_factory=dict)  # e.g. battery voltage, for status
+
+
+class BaseHardware(Protocol):
+    """A base's bus. Methods are called from the controller's one thread; an interface that
+    reads on a thread of its own hands over the newest feedback under its own lock."""
+
+    name: str
+
+    def open(self) -> None:
+        """Connect (again, after a failure). Raises :class:`HardwareError`."""
+
+    def set_velocity(self, linear_m_s: float, angular_rad_s: float) -> None:
+        """Body velocity setpoint (already limited and ramped by the controller). Raises
+        :class:`HardwareError` when it cannot be sent."""
+
+    def halt(self) -> None:
+        """Stop the wheels at once and let them go (motors off / idle where the base can):
+        e-stop and faults. Never raises; best effort on a dead bus."""
+
+    def feedback(self) -> WheelFeedback | None:
+        """The newest feedback, or None before the first."""
+
+    def counters(self) -> dict[str, int]:
+        """What the interface counted: e.g. malformed packets skipped, resynchronisations."""
+
+    def close(self) -> None:
+        """Release the port or bus (idempotent)."""
