@@ -320,10 +320,23 @@ def test_a_silent_port_fails_open() -> None:
         os.close(slave)
 
 
-def test_reopen_after_the_host_closed(sim: SimKobuki, hw: KobukiHardware) -> None:
-    hw.close()
-    hw.open()
-    fb = hw.feedback()
-    assert fb is not None and math.isclose(fb.left_pos_rad, 0.0)
+def test_reopen_keeps_positions_continuous(sim: SimKobuki, hw: KobukiHardware) -> None:
+    """The base keeps counting while the host is away: a reopen continues the positions (no odometry jump)."""
     hw.set_velocity(0.1, 0.0)
-    poll(lambda: sim.last_command == (100, 0), what="a command after reopening")
+    time.sleep(0.2)
+    hw.close()                                           # the simulated base rolls on at 0.1 m/s meanwhile
+    time.sleep(0.2)
+    hw.open()
+    hw.halt()
+    poll(lambda: sim.last_command == (0, 0), what="the stop")
+    time.sleep(0.1)
+    fb = hw.feedback()
+    assert fb is not None and fb.left_pos_rad * R == pytest.approx(sim.left_travel_m, abs=1e-4)
+    assert sim.left_travel_m == pytest.approx(0.04, abs=0.01)   # travel while away is counted too
+
+
+def test_stale_reason_names_the_lost_port(sim: SimKobuki, hw: KobukiHardware) -> None:
+    assert hw.stale_reason(time.monotonic()) == ""
+    sim.unplug()
+    poll(lambda: hw.stale_reason(time.monotonic()), what="the reason")
+    assert sim.port in hw.stale_reason(time.monotonic())

@@ -108,7 +108,9 @@ class KobukiHardware:
             self._error = None
             self._feedback = None
             self._decoder = PacketDecoder()
-            self._left, self._right = TickUnwrapper(), TickUnwrapper()
+            # The unwrappers are kept: the base's encoder counters keep counting while the host is
+            # away, so positions stay continuous across a reconnect (kobuki_driver's DiffDrive keeps
+            # its last ticks the same way) and the controller's odometry does not jump.
             self._last_ts = None
             self._vel = (None, None)
         self._stop.clear()
@@ -164,7 +166,11 @@ class KobukiHardware:
             except (serial.SerialException, OSError):
                 pass
 
-    # -- what else the service may show ------------------------------------------------
+    # -- what else the controller and the service may show ----------------------------
+
+    def stale_reason(self, now: float) -> str:
+        """Why feedback stopped, when this interface knows (the controller's optional hook)."""
+        return self.error or ""
 
     @property
     def error(self) -> str | None:

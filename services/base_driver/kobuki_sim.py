@@ -58,6 +58,8 @@ class SimKobuki:
         self.physics = physics
         self._start_ticks = start_ticks
         self._timestamp_ms = start_timestamp_ms & 0xFFFF
+        self._clock_ms = float(start_timestamp_ms)  # the firmware's millisecond clock, before the wrap
+        self._last_step = time.monotonic()
         self._battery_dv = int(round(battery_v * 10))
         self._lock = threading.Lock()
         self._decoder = PacketDecoder()
@@ -209,7 +211,7 @@ class SimKobuki:
 
     def _run(self) -> None:
         next_tick = time.monotonic() + self.period_s
-        last = time.monotonic()
+        self._last_step = time.monotonic()
         while not self._stop.is_set():
             master = self._master
             if master is None:
@@ -225,8 +227,7 @@ class SimKobuki:
             now = time.monotonic()
             if now < next_tick:
                 continue
-            self._step(now - last)
-            last = now
+            self._advance(now)
             next_tick += self.period_s
             if next_tick < now:  # starved of CPU: do not burst to catch up
                 next_tick = now + self.period_s
@@ -245,16 +246,23 @@ class SimKobuki:
                     continue  # sound, LEDs, gains, ...: not simulated
                 speed, radius = decode_base_control(sub)
                 wheels = speed_radius_to_wheels(speed, radius, self.wheel_base_m)
+                self._advance(time.monotonic())  # the old speeds up to now, the new ones from now
                 with self._lock:
                     self.last_command = (speed, radius)
                     self.commands_received += 1
                     self._wheel_speeds = wheels
 
-    def _step(self, dt: float) -> None:
+    def _advance(self, now: float) -> None:
+        """Integrate the wheels up to ``now`` (so a command's time of arrival is exact)."""
+        dt = now - self._last_step
+        if dt <= 0:
+            return
+        self._last_step = now
         with self._lock:
             vl, vr = self._wheel_speeds
             dl, dr = vl * dt, vr * dt
-            self._timestamp_ms = (self._timestamp_ms + int(round(dt * 1000))) & 0xFFFF
+            self._clock_ms += dt * 1000.0
+            self._timestamp_ms = int(self._clock_ms) & 0xFFFF
         if self.physics is not None and (dl or dr) and not self.physics(dt, dl, dr):
             return  # blocked: the wheels stall
         with self._lock:
