@@ -6,7 +6,7 @@ import itertools
 import math
 from collections.abc import Callable
 
-from services.base_driver.driver import BaseDriver
+from services.base_driver.controller import BaseDriver
 from services.sim.robot import SimRobot
 from services.sim.wheels import WheeledSimRobot
 from shared.messages import DriverMode, PlanCommand

@@ -29,7 +29,7 @@ def test_enable_sequence_sets_limits_mode_and_closed_loop(base: WheeledSimRobot)
         assert axis.state is AxisState.CLOSED_LOOP_CONTROL and axis.errors == 0
         assert axis.control_mode is ControlMode.VELOCITY_CONTROL and axis.input_mode is InputMode.VEL_RAMP
         assert axis.vel_limit == pytest.approx(cfg.max_wheel_rev_s * 1.1, rel=1e-6)  # Set_Limits
-        assert axis.current_limit == pytest.approx(cfg.current_limit_a)
+        assert axis.current_limit == pytest.approx(cfg.odrive.current_limit_a)
     assert base.driver.state().faults == ()
 
 
@@ -104,7 +104,7 @@ def test_a_blocked_move_reports_blocked_and_stops() -> None:
 
 def test_the_driver_advertises_its_primitive_sizes() -> None:
     from services.base_driver.config import DriverConfig
-    from services.base_driver.driver import BaseDriver
+    from services.base_driver.controller import BaseDriver
     from shared.robot import PRIMITIVES, Primitives
 
     assert BaseDriver(DriverConfig()).state().primitives == PRIMITIVES

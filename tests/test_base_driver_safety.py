@@ -15,8 +15,8 @@ import can
 import numpy as np
 import pytest
 
-from services.base_driver.config import CanConfig, DriverConfig
-from services.base_driver.driver import BaseDriver
+from services.base_driver.config import CanConfig, DriverConfig, ODriveConfig
+from services.base_driver.controller import BaseDriver
 from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
 from services.base_driver.protocol import AxisState, CanSimple, Cmd, ControlMode, InputMode, ODriveError
 from services.sim.wheels import WheeledSimRobot
@@ -89,13 +89,14 @@ def test_a_stall_shorter_than_the_heartbeat_timeout_is_not_a_heartbeat_fault() -
     so the timing is exact.
     """
     t = [0.0]
-    config = DriverConfig(can=CanConfig(interface="virtual", channel="stall-test"))
-    proto = CanSimple([config.left.node_id, config.right.node_id])
+    config = DriverConfig(odrive=ODriveConfig(can=CanConfig(interface="virtual", channel="stall-test")))
+    left, right = config.odrive.left.node_id, config.odrive.right.node_id
+    proto = CanSimple([left, right])
     d = BaseDriver(config, clock=lambda: t[0])
 
     def odrives_talk() -> None:
         received = d.counters["frames_rx"]
-        for node in (config.left.node_id, config.right.node_id):
+        for node in (left, right):
             bus.send(proto.encode(node, Cmd.HEARTBEAT, Axis_Error=0, Procedure_Result=0, Trajectory_Done_Flag=1,
                                   Axis_State=AxisState.CLOSED_LOOP_CONTROL))
             bus.send(proto.encode(node, Cmd.GET_ENCODER_ESTIMATES, Pos_Estimate=0.0, Vel_Estimate=0.0))
@@ -181,7 +182,8 @@ def test_bus_off_is_a_fault_without_spinning_and_recovers_when_the_bus_returns(b
 
 
 def test_a_missing_socketcan_interface_is_a_clear_fault_not_a_crash() -> None:
-    config = DriverConfig(can=CanConfig(interface="socketcan", channel="ovamos-none0"), recover_every_s=0.2)
+    config = DriverConfig(odrive=ODriveConfig(can=CanConfig(interface="socketcan", channel="ovamos-none0")),
+                          recover_every_s=0.2)
     with BaseDriver(config) as d:
         state = d.state()
         assert state.mode is DriverMode.FAULT

@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from services.base_driver.config import CanConfig, DriverConfig
+from services.base_driver.config import CanConfig, DriverConfig, ODriveConfig
 from services.base_driver.service import BaseDriverService, BaseDriverServiceConfig
 from shared import keys
 from shared.bus import Bus
@@ -22,7 +22,7 @@ from tests.service_helpers import ROBOT, Planner, Running, service_stats
 def planner(inproc_router: str) -> Iterator[Planner]:
     channel = f"test-{uuid.uuid4().hex[:8]}"
     config = BaseDriverServiceConfig(simulated_axes=True, state_hz=5,
-                                     driver=DriverConfig(can=CanConfig(channel=channel)))
+                                     driver=DriverConfig(odrive=ODriveConfig(can=CanConfig(channel=channel))))
     running = Running(BaseDriverService, inproc_router, config)
     with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-planner") as bus:
         planner = Planner(bus)

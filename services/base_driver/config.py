@@ -1,9 +1,11 @@
 """Every setting of the base driver (unknown keys are errors, as for every service).
 
-Defaults are a TurtleBot3 Waffle-like base: 0.26 m/s and 1.82 rad/s top speeds, the
-wheel geometry and primitive sizes of :mod:`shared.robot`. ``can`` is python-can's standard bus
-configuration, passed to ``can.Bus(**can)`` unchanged, so a real robot uses e.g.
-``interface = "socketcan", channel = "can0", bitrate = 250000``.
+:class:`DriverConfig` holds the controller's settings (geometry, limits, timing, primitives:
+whatever the base) and names the hardware interface (``hardware``) with its own section
+(``odrive``: the CAN bus and the axes). Defaults are a TurtleBot3 Waffle-like base: 0.26 m/s
+and 1.82 rad/s top speeds, the wheel geometry and primitive sizes of :mod:`shared.robot`.
+``odrive.can`` is python-can's standard bus configuration, passed to ``can.Bus(**can)``
+unchanged, so a real robot uses e.g. ``interface = "socketcan", channel = "can0", bitrate = 250000``.
 """
 
 from __future__ import annotations
@@ -39,10 +41,24 @@ class AxisConfig(StrictModel):
     direction: Literal[1, -1] = 1
 
 
-class DriverConfig(StrictModel):
+class ODriveConfig(StrictModel):
+    """The ``odrive_can`` hardware: two ODrive axes over CANSimple."""
+
     can: CanConfig = Field(default_factory=CanConfig)
     left: AxisConfig = Field(default_factory=lambda: AxisConfig(node_id=0))
     right: AxisConfig = Field(default_factory=lambda: AxisConfig(node_id=1))
+    current_limit_a: float = Field(default=10.0, gt=0, description="sent with Set_Limits")
+
+    @model_validator(mode="after")
+    def _distinct_nodes(self) -> ODriveConfig:
+        if self.left.node_id == self.right.node_id:
+            raise ValueError("left and right axes need different node ids")
+        return self
+
+
+class DriverConfig(StrictModel):
+    hardware: Literal["odrive_can"] = Field(default="odrive_can", description="the base's hardware interface")
+    odrive: ODriveConfig = Field(default_factory=ODriveConfig)
     # geometry
     wheel_radius_m: float = Field(default=ROBOT.wheel_radius_m, gt=0)
     track_width_m: float = Field(default=ROBOT.track_width_m, gt=0)
@@ -53,14 +69,15 @@ class DriverConfig(StrictModel):
     max_angular_rad_s: float = Field(default=1.82, gt=0)
     max_linear_accel_m_s2: float = Field(default=1.0, gt=0)
     max_angular_accel_rad_s2: float = Field(default=4.0, gt=0)
-    current_limit_a: float = Field(default=10.0, gt=0, description="sent with Set_Limits")
     # timing
-    control_hz: float = Field(default=50.0, gt=0, le=500, description="Set_Input_Vel rate")
-    heartbeat_timeout_s: float = Field(default=0.3, gt=0, description="older heartbeat = fault")
+    control_hz: float = Field(default=50.0, gt=0, le=500, description="velocity setpoint rate")
+    feedback_timeout_s: float = Field(default=0.3, gt=0,
+                                      description="older feedback (ODrive: heartbeat, encoder) = fault")
     deadman_s: float = Field(default=0.5, gt=0, description="no command for this long: ramp to zero")
-    enable_timeout_s: float = Field(default=2.0, gt=0, description="closed loop must be reached in this")
+    enable_timeout_s: float = Field(default=2.0, gt=0,
+                                    description="after open(), healthy feedback must come within this")
     recover_every_s: float = Field(default=1.0, gt=0, description="retry after a fault this often")
-    auto_recover: bool = Field(default=True, description="re-enable once a fault's cause is gone")
+    auto_recover: bool = Field(default=True, description="re-open once a fault's cause is gone")
     # primitives (shared.robot's sizes; advertised in driver/state) and their closed loop
     forward_m: float = Field(default=PRIMITIVES.forward_m, gt=0)
     turn_deg: float = Field(default=PRIMITIVES.turn_deg, gt=0, le=180)
@@ -72,12 +89,6 @@ class DriverConfig(StrictModel):
     heading_gain: float = Field(default=2.0, ge=0, description="1/s; holds the heading on a forward move")
     settle_rev_s: float = Field(default=0.01, gt=0, description="wheels slower than this are at rest")
     primitive_timeout_s: float = Field(default=10.0, gt=0, description="abort a primitive after this")
-
-    @model_validator(mode="after")
-    def _distinct_nodes(self) -> DriverConfig:
-        if self.left.node_id == self.right.node_id:
-            raise ValueError("left and right axes need different node ids")
-        return self
 
     @property
     def primitives(self) -> Primitives:

@@ -1,14 +1,15 @@
 """The base driver service: ``plan/command`` and ``driver/estop`` in, ``odom`` and ``driver/state`` out.
 
-A thin adapter over a *base* (the CAN :class:`~services.base_driver.driver.BaseDriver`
-here, the simulated robot in ``services.sim.service``): commands go to it as they
+A thin adapter over a *base* (the :class:`~services.base_driver.controller.BaseController`
+over the hardware interface ``driver.hardware`` names here, the simulated robot in
+``services.sim.service``): commands go to it as they
 arrive (it executes an action id once, so the planner may re-send), and the
 tick publishes odometry at ``odom_hz`` and the driver state at ``state_hz`` and
 whenever it changes (odometry first, so a planner that sees a command completed
 already has the pose it ended at).
 
-``simulated_axes`` runs simulated ODrives on the driver's virtual CAN channel in
-this process: the whole driver, CAN frames included, without hardware.
+``simulated_axes`` runs simulated ODrives on the ``odrive_can`` hardware's virtual CAN
+channel in this process: the whole driver, CAN frames included, without hardware.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from typing import Any, Protocol
 from pydantic import Field, model_validator
 
 from services.base_driver.config import DriverConfig
-from services.base_driver.driver import BaseDriver
+from services.base_driver.controller import BaseController
+from services.base_driver.odrive_can import ODriveCanHardware
 from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
 from shared.bus import BusCore
 from shared.messages import DriverState, EStop, Odometry, PlanCommand
@@ -54,19 +56,22 @@ class BaseDriverServiceConfig(PublishingConfig):
 
     @model_validator(mode="after")
     def _virtual_for_sim(self) -> BaseDriverServiceConfig:
-        if self.simulated_axes and self.driver.can.interface != "virtual":
-            raise ValueError("simulated_axes needs driver.can.interface = 'virtual'")
+        if self.simulated_axes and (self.driver.hardware != "odrive_can"
+                                    or self.driver.odrive.can.interface != "virtual"):
+            raise ValueError("simulated_axes needs driver.hardware = 'odrive_can' and "
+                             "driver.odrive.can.interface = 'virtual'")
         return self
 
 
-class _SimulatedAxesDriver(BaseDriver):
+class _SimulatedAxesDriver(BaseController):
     """The real driver plus simulated ODrives on its virtual channel, started and stopped together."""
 
     def __init__(self, config: DriverConfig, axes: SimAxisConfig) -> None:
-        self.odrives = SimODrives([config.left.node_id, config.right.node_id], config.can.channel, axes)
-        super().__init__(config, bus_factory=self.odrives.open_driver_bus)
+        od = config.odrive
+        self.odrives = SimODrives([od.left.node_id, od.right.node_id], od.can.channel, axes)
+        super().__init__(config, ODriveCanHardware(config, self.odrives.open_driver_bus))
 
-    def start(self) -> BaseDriver:
+    def start(self) -> BaseController:
         self.odrives.start()
         return super().start()
 
@@ -91,7 +96,7 @@ class BaseDriverService(Service):
         assert isinstance(config, BaseDriverServiceConfig)
         if config.simulated_axes:
             return _SimulatedAxesDriver(config.driver, config.sim_axes).start()
-        return BaseDriver(config.driver).start()
+        return BaseController(config.driver).start()
 
     def start(self) -> None:
         self.base = self.make_base()

@@ -1,6 +1,6 @@
 """The simulated robot moved by its wheels: SimRobot + simulated ODrive axes + the real base driver.
 
-The driver core runs unchanged (CANSimple frames on a python-can virtual bus,
+The base controller and its ``odrive_can`` hardware interface run unchanged (CANSimple frames on a python-can virtual bus,
 which only works within one process); the simulated axes' wheel motion drives
 :meth:`SimRobot.drive`, so the true pose follows what the motors did, and the
 driver's odometry comes from the encoder estimates, as on the robot. A blocked
@@ -13,7 +13,8 @@ import math
 import threading
 
 from services.base_driver.config import CanConfig, DriverConfig
-from services.base_driver.driver import BaseDriver
+from services.base_driver.controller import BaseDriver
+from services.base_driver.odrive_can import ODriveCanHardware
 from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
 from services.sim.robot import SimRobot
 from shared.motion import Pose
@@ -28,15 +29,16 @@ class WheeledSimRobot:
         self.robot = robot
         self._lock = threading.Lock()
         base = driver or DriverConfig()
-        self._directions = {base.left.node_id: base.left.direction, base.right.node_id: base.right.direction}
-        self._left, self._right = base.left.node_id, base.right.node_id
+        od = base.odrive
+        self._directions = {od.left.node_id: od.left.direction, od.right.node_id: od.right.direction}
+        self._left, self._right = od.left.node_id, od.right.node_id
         self.odrives = SimODrives(self._directions, config=axes, physics=self._physics)
         m = robot.config
         self.config = base.model_copy(update={
-            "can": CanConfig(interface="virtual", channel=self.odrives.channel),
+            "odrive": od.model_copy(update={"can": CanConfig(interface="virtual", channel=self.odrives.channel)}),
             "wheel_radius_m": m.wheel_radius_m, "track_width_m": m.track_width_m,
             "forward_m": m.forward_m, "turn_deg": m.turn_deg, "initial_pose": robot.pose})
-        self.driver = BaseDriver(self.config, bus_factory=self.odrives.open_driver_bus)
+        self.driver = BaseDriver(self.config, ODriveCanHardware(self.config, self.odrives.open_driver_bus))
 
     def start(self) -> WheeledSimRobot:
         self.odrives.start()
