@@ -52,3 +52,68 @@ def wheels_at_rest(driver: BaseDriver, eps: float = 1e-3) -> bool:
 
 def heading_deg(a: Pose, b: Pose) -> float:
     return math.degrees(math.remainder(b.yaw - a.yaw, 2 * math.pi))
+
+
+class FakeHardware:
+    """An ideal base behind the BaseHardware protocol, on an injected clock: the wheels follow
+    the last setpoint exactly; tests set its sensors and failures directly."""
+
+    name = "fake"
+
+    def __init__(self, clock: Callable[[], float], track_width_m: float = 0.287,
+                 wheel_radius_m: float = 0.033) -> None:
+        self.clock, self.track, self.radius = clock, track_width_m, wheel_radius_m
+        self.left = self.right = 0.0            # wheel positions, rad
+        self.v = self.w = 0.0
+        self.last = self.stamp = clock()
+        self.setpoints: list[tuple[float, float]] = []
+        self.opens = self.halts = 0
+        self.bumpers: tuple[str, ...] = ()
+        self.wheel_drops: tuple[str, ...] = ()
+        self.cliffs: tuple[str, ...] = ()
+        self.silent = False                     # feedback stops updating
+        self.broken: str | None = None          # set_velocity and open raise this
+
+    def _advance(self) -> None:
+        now = self.clock()
+        dt, self.last = now - self.last, now
+        self.left += (self.v - self.w * self.track / 2) / self.radius * dt
+        self.right += (self.v + self.w * self.track / 2) / self.radius * dt
+        if not self.silent:
+            self.stamp = now
+
+    def open(self) -> None:
+        from services.base_driver.hardware import HardwareError
+        self.opens += 1
+        if self.broken:
+            raise HardwareError(self.broken)
+
+    def set_velocity(self, linear_m_s: float, angular_rad_s: float) -> None:
+        from services.base_driver.hardware import HardwareError
+        if self.broken:
+            raise HardwareError(self.broken)
+        self._advance()
+        self.v, self.w = linear_m_s, angular_rad_s
+        self.setpoints.append((linear_m_s, angular_rad_s))
+
+    def halt(self) -> None:
+        self._advance()
+        self.v = self.w = 0.0
+        self.halts += 1
+
+    def feedback(self):  # type: ignore[no-untyped-def]
+        from services.base_driver.hardware import WheelFeedback
+        self._advance()
+        if self.silent:  # the last message, again
+            return self._last_fb
+        self._last_fb = WheelFeedback(stamp=self.stamp, left_pos_rad=self.left, right_pos_rad=self.right,
+                             left_vel_rad_s=(self.v - self.w * self.track / 2) / self.radius,
+                             right_vel_rad_s=(self.v + self.w * self.track / 2) / self.radius,
+                             bumpers=self.bumpers, wheel_drops=self.wheel_drops, cliffs=self.cliffs)
+        return self._last_fb
+
+    def counters(self) -> dict[str, int]:
+        return {"fake_opens": self.opens}
+
+    def close(self) -> None:
+        pass

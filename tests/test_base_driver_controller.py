@@ -1,0 +1,181 @@
+"""The controller over a fake hardware interface, on an injected clock: the safety that every base
+gets the same way (bumpers, wheel drops, cliffs, stale feedback, hardware errors, recovery)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from services.base_driver.config import DriverConfig
+from services.base_driver.controller import BaseController, make_hardware
+from services.base_driver.odrive_can import ODriveCanHardware
+from shared.messages import DriverMode
+from shared.motion import Action
+from tests.base_driver_helpers import FakeHardware, command
+
+DT = 0.02
+
+
+class Rig:
+    def __init__(self, **config: object) -> None:
+        self.t = 0.0
+        self.config = DriverConfig(recover_every_s=0.2, **config)  # type: ignore[arg-type]
+        self.hw = FakeHardware(lambda: self.t, self.config.track_width_m, self.config.wheel_radius_m)
+        self.d = BaseController(self.config, self.hw, clock=lambda: self.t)
+
+    def run(self, seconds: float) -> None:
+        for _ in range(round(seconds / DT)):
+            self.t += DT
+            self.d.tick()
+
+    def until(self, predicate, limit_s: float = 20.0) -> None:  # type: ignore[no-untyped-def]
+        for _ in range(round(limit_s / DT)):
+            if predicate():
+                return
+            self.t += DT
+            self.d.tick()
+        raise AssertionError(f"not reached in {limit_s} s: {self.d.state()}")
+
+    @property
+    def mode(self) -> DriverMode:
+        return self.d.state().mode
+
+
+@pytest.fixture
+def rig() -> Rig:
+    rig = Rig()
+    rig.run(0.1)
+    assert rig.mode is DriverMode.READY
+    return rig
+
+
+def test_the_factory_builds_the_configured_hardware() -> None:
+    assert isinstance(make_hardware(DriverConfig()), ODriveCanHardware)
+    assert DriverConfig().hardware == "odrive_can"
+
+
+def test_a_forward_primitive_closes_the_loop_on_the_fake_wheels(rig: Rig) -> None:
+    cmd = command(Action.MOVE_FORWARD)
+    assert rig.d.submit(cmd) == "accepted"
+    rig.until(lambda: rig.d.state().last_completed == cmd.action_id)
+    assert rig.d.state().last_outcome == "done"
+    assert rig.d.odometry().x == pytest.approx(0.25, abs=0.005)
+    cmd = command(Action.TURN_LEFT)
+    rig.d.submit(cmd)
+    rig.until(lambda: rig.d.state().last_completed == cmd.action_id)
+    assert math.degrees(rig.d.odometry().yaw) == pytest.approx(30.0, abs=0.5)
+
+
+def test_a_bumper_during_a_forward_move_blocks_it_halts_and_latches_a_fault(rig: Rig) -> None:
+    cmd = command(Action.MOVE_FORWARD)
+    rig.d.submit(cmd)
+    rig.until(lambda: rig.d.odometry().linear > 0.05)
+    halts = rig.hw.halts
+    rig.hw.bumpers = ("left",)
+    rig.run(DT)
+    state = rig.d.state()
+    assert state.last_completed == cmd.action_id and state.last_outcome == "blocked"
+    assert state.mode is DriverMode.FAULT and "bumper left pressed" in state.faults
+    assert rig.hw.halts > halts and (rig.hw.v, rig.hw.w) == (0.0, 0.0)  # at once, not ramped
+    assert rig.d.submit(command(Action.TURN_LEFT)) == "rejected"
+    opens = rig.hw.opens
+    rig.run(1.0)  # latched while it is pressed: no re-open
+    assert rig.mode is DriverMode.FAULT and rig.hw.opens == opens and rig.hw.v == 0.0
+    rig.hw.bumpers = ()
+    rig.until(lambda: rig.mode is DriverMode.READY, 2.0)
+    assert rig.d.state().faults == () and rig.d.counters["recoveries"] == 1
+
+
+def test_a_bumper_while_turning_aborts_the_turn(rig: Rig) -> None:
+    cmd = command(Action.TURN_LEFT)
+    rig.d.submit(cmd)
+    rig.run(0.2)
+    rig.hw.bumpers = ("centre", "right")
+    rig.run(DT)
+    state = rig.d.state()
+    assert state.last_outcome == "aborted" and "bumper centre, right pressed" in state.faults
+
+
+def test_a_wheel_drop_halts_and_is_a_fault_until_the_wheel_is_down(rig: Rig) -> None:
+    rig.d.submit(command(linear=0.2))
+    rig.run(0.3)
+    rig.hw.wheel_drops = ("right",)
+    rig.run(DT)
+    state = rig.d.state()
+    assert state.mode is DriverMode.FAULT and "wheel drop right" in state.faults
+    assert state.last_outcome == "aborted" and rig.hw.v == 0.0
+    rig.run(1.0)
+    assert rig.mode is DriverMode.FAULT
+    rig.hw.wheel_drops = ()
+    rig.until(lambda: rig.mode is DriverMode.READY, 2.0)
+
+
+def test_a_cliff_stops_forward_motion_but_not_turns_or_reversing(rig: Rig) -> None:
+    rig.hw.cliffs = ("centre",)
+    cmd = command(Action.MOVE_FORWARD)
+    rig.d.submit(cmd)
+    rig.run(0.2)
+    state = rig.d.state()
+    assert state.last_completed == cmd.action_id and state.last_outcome == "blocked"
+    assert state.mode is DriverMode.READY and rig.d.odometry().x == pytest.approx(0.0, abs=1e-9)
+    for _ in range(10):  # teleop forward: refused (zero), not a fault
+        rig.d.submit(command(linear=0.2))
+        rig.run(0.1)
+    assert all(v <= 0.0 for v, _ in rig.hw.setpoints) and rig.mode is DriverMode.MOVING
+    for _ in range(5):
+        rig.d.submit(command(linear=-0.1, angular=0.5))
+        rig.run(0.1)
+    assert rig.d.odometry().linear < -0.05 and rig.d.odometry().angular > 0.3
+    rig.hw.cliffs = ()
+    cmd = command(Action.MOVE_FORWARD)
+    rig.d.submit(cmd)
+    rig.until(lambda: rig.d.state().last_completed == cmd.action_id)
+    assert rig.d.state().last_outcome == "done"
+
+
+def test_a_cliff_appearing_mid_move_stops_at_once(rig: Rig) -> None:
+    rig.d.submit(command(Action.MOVE_FORWARD))
+    rig.until(lambda: rig.d.odometry().linear > 0.1)
+    rig.hw.cliffs = ("left",)
+    rig.run(DT)
+    assert rig.d.state().last_outcome == "blocked" and rig.hw.v <= 0.0
+
+
+def test_stale_feedback_is_a_fault_until_it_is_fresh_again(rig: Rig) -> None:
+    rig.hw.silent = True
+    rig.run(0.4)
+    state = rig.d.state()
+    assert state.mode is DriverMode.FAULT
+    assert any(f.startswith("no feedback from the fake base for") for f in state.faults), state.faults
+    rig.hw.silent = False
+    rig.until(lambda: rig.mode is DriverMode.READY, 2.0)
+    assert rig.d.counters["faults"] == 1
+
+
+def test_a_hardware_error_is_a_fault_with_its_reason_and_reopening_recovers(rig: Rig) -> None:
+    rig.d.submit(command(linear=0.2))
+    rig.run(0.2)
+    rig.hw.broken = "serial port /dev/ttyUSB0 vanished"
+    rig.run(DT)
+    state = rig.d.state()
+    assert state.mode is DriverMode.FAULT and state.faults == ("serial port /dev/ttyUSB0 vanished",)
+    assert state.last_outcome == "aborted"
+    opens = rig.hw.opens
+    rig.run(1.0)  # re-opened every recover_every_s, refused each time
+    assert rig.mode is DriverMode.FAULT and rig.hw.opens - opens >= 4
+    rig.hw.broken = None
+    rig.until(lambda: rig.mode is DriverMode.READY, 2.0)
+
+
+def test_an_estop_halts_at_once_and_holds_the_wheels(rig: Rig) -> None:
+    rig.d.submit(command(linear=0.2))
+    rig.run(0.5)
+    rig.d.engage_estop("test")
+    assert (rig.hw.v, rig.hw.w) == (0.0, 0.0)
+    rig.hw.bumpers = ("left",)  # sensors change nothing while latched
+    rig.run(0.5)
+    assert rig.mode is DriverMode.ESTOP and rig.hw.v == 0.0
+    rig.hw.bumpers = ()
+    rig.d.clear_estop("test")
+    rig.until(lambda: rig.mode is DriverMode.READY, 1.0)
