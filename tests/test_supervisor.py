@@ -362,8 +362,8 @@ def test_shipped_service_configs_fit_their_services() -> None:
     for path in sorted((REPO / "deploy" / "services").glob("*.toml")):
         load_config(service_class(path.stem.split("-")[0]), path)
         checked.append(path.stem)
-    assert checked == ["base_driver", "camera", "gateway-laptop", "gateway", "mapping", "perception-hf",
-                       "perception-sim", "planner", "sim"]
+    assert checked == ["base_driver-kobuki", "base_driver-opencr", "base_driver", "camera", "gateway-laptop",
+                       "gateway", "mapping", "perception-hf", "perception-sim", "planner", "sim"]
 
 
 def test_a_profile_built_in_code_with_an_unknown_service_is_refused() -> None:

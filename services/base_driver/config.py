@@ -15,6 +15,11 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
+from services.base_driver.kobuki import KobukiConfig
+from services.base_driver.kobuki_protocol import WHEEL_BASE_M as KOBUKI_WHEEL_BASE_M
+from services.base_driver.kobuki_protocol import WHEEL_RADIUS_M as KOBUKI_WHEEL_RADIUS_M
+from services.base_driver.opencr import OpenCRConfig
+from services.base_driver.opencr_table import MODELS as TB3_MODELS
 from shared.config import StrictModel
 from shared.motion import Pose
 from shared.robot import PRIMITIVES, ROBOT, Primitives
@@ -57,8 +62,12 @@ class ODriveConfig(StrictModel):
 
 
 class DriverConfig(StrictModel):
-    hardware: Literal["odrive_can"] = Field(default="odrive_can", description="the base's hardware interface")
+    hardware: Literal["odrive_can", "kobuki", "opencr"] = Field(
+        default="odrive_can", description="the base's hardware interface: odrive_can (a custom CAN base), "
+                                          "kobuki (TurtleBot 2), opencr (TurtleBot 3)")
     odrive: ODriveConfig = Field(default_factory=ODriveConfig)
+    kobuki: KobukiConfig = Field(default_factory=KobukiConfig)
+    opencr: OpenCRConfig = Field(default_factory=OpenCRConfig)
     # geometry
     wheel_radius_m: float = Field(default=ROBOT.wheel_radius_m, gt=0)
     track_width_m: float = Field(default=ROBOT.track_width_m, gt=0)
@@ -89,6 +98,23 @@ class DriverConfig(StrictModel):
     heading_gain: float = Field(default=2.0, ge=0, description="1/s; holds the heading on a forward move")
     settle_rev_s: float = Field(default=0.01, gt=0, description="wheels slower than this are at rest")
     primitive_timeout_s: float = Field(default=10.0, gt=0, description="abort a primitive after this")
+
+    @model_validator(mode="after")
+    def _geometry_fits_the_hardware(self) -> DriverConfig:
+        """A Kobuki's and a TurtleBot 3's wheels are fixed by the hardware: odometry computed with
+        other ones would be wrong by the ratio, so a config that disagrees is refused."""
+        if self.hardware == "kobuki":
+            radius, track, what = KOBUKI_WHEEL_RADIUS_M, self.kobuki.wheel_base_m, "a Kobuki"
+        elif self.hardware == "opencr":
+            model = TB3_MODELS[self.opencr.model]
+            radius, track, what = model.wheel_radius_m, model.track_m, f"a TurtleBot 3 {model.name}"
+        else:
+            return self
+        if not (math.isclose(self.wheel_radius_m, radius) and math.isclose(self.track_width_m, track)):
+            raise ValueError(f"{what} has {radius} m wheels {track} m apart: set wheel_radius_m = {radius} "
+                             f"and track_width_m = {track} under [driver] (got {self.wheel_radius_m}, "
+                             f"{self.track_width_m})")
+        return self
 
     @property
     def primitives(self) -> Primitives:

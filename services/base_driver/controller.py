@@ -65,6 +65,12 @@ def make_hardware(config: DriverConfig, clock: Callable[[], float] = time.monoto
     if config.hardware == "odrive_can":
         from services.base_driver.odrive_can import ODriveCanHardware
         return ODriveCanHardware(config, clock=clock)
+    if config.hardware == "kobuki":
+        from services.base_driver.kobuki import KobukiHardware
+        return KobukiHardware(config.kobuki)
+    if config.hardware == "opencr":
+        from services.base_driver.opencr import OpenCRHardware
+        return OpenCRHardware(config.opencr)
     raise ValueError(f"unknown base hardware {config.hardware!r}")
 
 

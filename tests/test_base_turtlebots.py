@@ -1,0 +1,86 @@
+"""The base controller driving each TurtleBot base through its real client code (pyserial, the
+dynamixel-sdk) on a pseudo-terminal against a simulated device that speaks the protocol byte for
+byte: primitives land within a centimetre and a degree, and a bumper stops the wheels and reports
+the move blocked. (The ODrive base has the same checks in test_base_driver_motion.py.)"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+import pytest
+
+from services.base_driver.config import DriverConfig
+from services.base_driver.controller import BaseController
+from services.base_driver.kobuki import KobukiConfig
+from services.base_driver.kobuki_protocol import WHEEL_BASE_M, WHEEL_RADIUS_M
+from services.base_driver.kobuki_sim import SimKobuki
+from services.base_driver.opencr import OpenCRConfig
+from services.base_driver.opencr_sim import SimOpenCR
+from services.base_driver.opencr_table import MODELS
+from shared.messages import DriverMode
+from shared.motion import Action
+from tests.base_driver_helpers import command, run, wait_for_mode
+from tests.polling import wait_for
+
+
+@contextmanager
+def kobuki() -> Iterator[tuple[BaseController, Callable[[], tuple[float, float]], SimKobuki]]:
+    with SimKobuki() as sim:
+        config = DriverConfig(hardware="kobuki", kobuki=KobukiConfig(port=sim.port),
+                              wheel_radius_m=WHEEL_RADIUS_M, track_width_m=WHEEL_BASE_M,
+                              feedback_timeout_s=0.2, max_linear_m_s=0.2)
+        driver = BaseController(config).start()
+        try:
+            yield driver, lambda: (sim.left_travel_m, sim.right_travel_m), sim
+        finally:
+            driver.stop()
+
+
+@contextmanager
+def opencr() -> Iterator[tuple[BaseController, Callable[[], tuple[float, float]], SimOpenCR]]:
+    model = MODELS["burger"]
+    with SimOpenCR("burger") as sim:
+        config = DriverConfig(hardware="opencr", opencr=OpenCRConfig(port=sim.path, model="burger"),
+                              wheel_radius_m=model.wheel_radius_m, track_width_m=model.track_m,
+                              feedback_timeout_s=0.2, max_linear_m_s=0.2, max_angular_rad_s=2.0)
+        driver = BaseController(config).start()
+        try:
+            yield driver, sim.wheel_travel_m, sim
+        finally:
+            driver.stop()
+
+
+BASES = {"kobuki": (kobuki, WHEEL_BASE_M), "opencr": (opencr, MODELS["burger"].track_m)}
+
+
+@pytest.mark.parametrize("name", sorted(BASES))
+def test_primitives_land_within_a_centimetre_and_a_degree(name: str) -> None:
+    make, track = BASES[name]
+    with make() as (driver, travel, _sim):
+        wait_for_mode(driver, DriverMode.READY)
+        left0, right0 = travel()
+        assert run(driver, command(Action.MOVE_FORWARD)) == "done"
+        left1, right1 = travel()
+        assert (left1 - left0 + right1 - right0) / 2 == pytest.approx(0.25, abs=0.01)
+        assert run(driver, command(Action.TURN_LEFT)) == "done"
+        left2, right2 = travel()
+        turned = math.degrees(((right2 - right1) - (left2 - left1)) / track)
+        assert turned == pytest.approx(30.0, abs=1.0)
+        assert driver.state().primitives is not None
+
+
+def test_a_kobuki_bumper_stops_a_forward_move_as_blocked_and_latches_a_fault() -> None:
+    with kobuki() as (driver, travel, sim):
+        wait_for_mode(driver, DriverMode.READY)
+        move = command(Action.MOVE_FORWARD)
+        assert driver.submit(move) == "accepted"
+        wait_for(lambda: sum(travel()) / 2 > 0.05, 10, "the move under way")
+        sim.press_bumper("centre")
+        pressed_at = sum(travel()) / 2
+        state = wait_for(lambda: (s := driver.state()).last_completed == move.action_id and s, 5,
+                         "the move ended")
+        assert state.last_outcome == "blocked"
+        assert state.mode is DriverMode.FAULT and any("bumper centre" in f for f in state.faults)
+        assert sum(travel()) / 2 - pressed_at < 0.03  # stopped at once, not at the 0.25 m goal
