@@ -214,13 +214,18 @@ def demo(seed: Annotated[int, typer.Option(help="Episode set seed.")] = 0,
                                                                               "targets (repeatable).")] = None,
          keep_running: Annotated[bool, typer.Option(help="Stay up afterwards; print the gateway URL.")] = False,
          timeout: Annotated[float, typer.Option(help="Give the search this many seconds.")] = 600.0,
+         base: Annotated[str, typer.Option(help="How the simulated robot moves: kinematic (ideal), odrive, "
+                                                "kobuki or opencr (the real base driver and its client on a "
+                                                "simulated device).")] = "kinematic",
          out: Annotated[Path, typer.Option(help="Folder for the report, map, configs and logs.")]
          = Path("out/demo")) -> None:
     """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
-    from ovamos.demo import run_demo
+    from ovamos.demo import BASES, run_demo
+    if base not in BASES:
+        raise _fail(f"--base {base!r}: one of {', '.join(BASES)}")
     try:
         code = run_demo(console, out_dir=out, seed=seed, episode=episode, targets=targets,
-                        keep_running=keep_running, timeout_s=timeout)
+                        keep_running=keep_running, timeout_s=timeout, base=base)
     except (TimeoutError, OSError) as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)

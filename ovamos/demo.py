@@ -35,9 +35,13 @@ STARTUP_TIMEOUT_S = 90.0
 SERVICES = ("mapping", "perception", "planner", "sim", "gateway")
 
 
+BASES = ("kinematic", "odrive", "kobuki", "opencr")
+
+
 def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_port: int,
-                  width: int = 320, height: int = 240) -> dict[str, Path]:
-    """One JSON config per service, all describing the same episode (scene, start pose)."""
+                  width: int = 320, height: int = 240, base: str = "kinematic") -> dict[str, Path]:
+    """One JSON config per service, all describing the same episode (scene, start pose); ``base``
+    is how the simulated robot moves (see ``SimServiceConfig.motion``)."""
     _, scene, _ = make_episode(seed, episode)
     mapping = scene_mapping(scene)
     episode_keys = {"episode_seed": seed, "episode_index": episode}
@@ -46,7 +50,7 @@ def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_
                     "checkpoint_path": str(folder / "map.ckpt")},
         "perception": {"backend": "sim", "sim": episode_keys},
         "planner": {},
-        "sim": {**episode_keys, "motion": "kinematic", "lock_step": True, "width": width, "height": height},
+        "sim": {**episode_keys, "motion": base, "lock_step": True, "width": width, "height": height},
         "gateway": {"port": http_port, "robots": [robot_id], "state_dir": str(folder / "gateway")},
     }
     folder.mkdir(parents=True, exist_ok=True)
@@ -95,12 +99,12 @@ def _wait_for_services(client: GatewayClient, robot_id: str, deadline: float) ->
 
 def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode: int = DEMO_EPISODE,
              targets: list[str] | None = None, robot_id: str = "sim", keep_running: bool = False,
-             timeout_s: float = 600.0) -> int:
+             timeout_s: float = 600.0, base: str = "kinematic") -> int:
     spec, _, _ = make_episode(seed, episode)
     targets = targets or list(spec.targets)
     http_port, zenoh_port = free_port(), free_port()
     configs = write_configs(out_dir / "config", seed=seed, episode=episode, robot_id=robot_id,
-                            http_port=http_port)
+                            http_port=http_port, base=base)
     url = f"http://127.0.0.1:{http_port}"
     console.print(f"episode {spec.episode_id}: {', '.join(targets)}; gateway {url}; "
                   f"logs in {out_dir / 'logs'}")

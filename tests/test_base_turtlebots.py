@@ -6,6 +6,7 @@ the move blocked. (The ODrive base has the same checks in test_base_driver_motio
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -84,3 +85,60 @@ def test_a_kobuki_bumper_stops_a_forward_move_as_blocked_and_latches_a_fault() -
         assert state.last_outcome == "blocked"
         assert state.mode is DriverMode.FAULT and any("bumper centre" in f for f in state.faults)
         assert sum(travel()) / 2 - pressed_at < 0.03  # stopped at once, not at the 0.25 m goal
+
+
+def _go_silent(sim: SimKobuki | SimOpenCR, silent: bool) -> None:
+    if isinstance(sim, SimKobuki):
+        sim.stop_sending() if silent else sim.resume_sending()
+    else:
+        sim.silent = silent
+
+
+def _send_garbage(sim: SimKobuki | SimOpenCR) -> None:
+    if isinstance(sim, SimKobuki):
+        sim.send_noise(n=64)
+        sim.send_bad_checksum()
+        sim.send_partial_packet()
+    else:
+        sim.inject_noise()
+        sim.corrupt_replies(2)
+
+
+@pytest.mark.parametrize("name", sorted(BASES))
+def test_deadman_estop_stale_feedback_and_garbage_through_each_base(name: str) -> None:
+    make, _track = BASES[name]
+    with make() as (driver, travel, sim):
+        wait_for_mode(driver, DriverMode.READY)
+        # deadman: a velocity command that is not renewed ramps the wheels to a stop
+        assert driver.submit(command(linear=0.1)) == "accepted"
+        wait_for(lambda: sum(travel()) / 2 > 0.02, 5, "teleop moving")
+        wait_for(lambda: _at_rest(travel), 5, "stopped by the deadman")
+        # e-stop: latched, wheels stay still, a command is rejected until the clear
+        driver.engage_estop("test", "hand on the button")
+        assert driver.state().mode is DriverMode.ESTOP
+        moved = sum(travel())
+        assert driver.submit(command(Action.MOVE_FORWARD)) == "rejected"
+        assert _at_rest(travel) and sum(travel()) == pytest.approx(moved, abs=1e-3)
+        driver.clear_estop("test")
+        wait_for_mode(driver, DriverMode.READY)
+        # stale feedback: a fault with the reason, then recovery once the base answers again
+        _go_silent(sim, True)
+        wait_for_mode(driver, DriverMode.FAULT, 5)
+        assert driver.state().faults
+        _go_silent(sim, False)
+        wait_for_mode(driver, DriverMode.READY, 10)
+        # garbage on the line: skipped and counted; a corrupted reply to a write (OpenCR) is a
+        # fault like any failed write, and the base is working again after its recovery
+        _send_garbage(sim)
+        time.sleep(0.5)
+        wait_for_mode(driver, DriverMode.READY, 10)
+        assert run(driver, command(Action.MOVE_FORWARD)) == "done"
+        counted = driver.counters  # the controller's and its hardware interface's
+        assert sum(v for k, v in counted.items() if any(w in k for w in ("malformed", "corrupt", "skipped",
+                                                                         "resync"))) > 0, counted
+
+
+def _at_rest(travel: Callable[[], tuple[float, float]]) -> bool:
+    before = travel()
+    time.sleep(0.2)
+    return max(abs(a - b) for a, b in zip(before, travel())) < 1e-4

@@ -118,6 +118,22 @@ def test_odrive_motion_moves_the_robot_with_its_wheels(inproc_router: str, scene
         assert odom.y == pytest.approx(2.0, abs=0.01)
 
 
+@pytest.mark.parametrize("motion", ["kobuki", "opencr"])
+def test_a_turtlebot_base_moves_the_robot_through_its_serial_client(inproc_router: str, scene_file: Path,
+                                                                     motion: str) -> None:
+    """The real pyserial / dynamixel-sdk client on a pseudo-terminal, against a simulated Kobuki /
+    OpenCR board whose wheels move the simulated robot."""
+    with _start(inproc_router, _config(scene_file, motion=motion)) as robot:
+        state = robot.execute(PlanCommand(action_id=1, stamp=0.0, action=Action.MOVE_FORWARD))
+        assert state.last_outcome == "done"
+        x, y = _camera_xy(robot.frame_after(1))  # rendered from the true pose
+        assert (x, y) == pytest.approx((1.75, 2.0), abs=0.01)
+        state = robot.execute(PlanCommand(action_id=2, stamp=0.0, action=Action.TURN_LEFT))
+        assert state.last_outcome == "done"
+        axis = robot.frame_after(2).pose_matrix[:3, 2]
+        assert math.degrees(math.atan2(axis[1], axis[0])) == pytest.approx(30.0, abs=1.0)
+
+
 def test_config_refuses_a_scene_without_a_start_and_unknown_keys(scene_file: Path) -> None:
     from pydantic import ValidationError
     with pytest.raises(ValidationError, match="start pose"):

@@ -43,8 +43,15 @@ class WheelFeedback:
 
 
 class BaseHardware(Protocol):
-    """A base's bus. Methods are called from the controller's one thread; an interface that
-    reads on a thread of its own hands over the newest feedback under its own lock."""
+    """A base's bus. The controller serialises its calls under its own lock (its control thread;
+    an e-stop calls :meth:`halt` from the caller's thread so it happens at once); an interface
+    that reads on a thread of its own hands over the newest feedback under its own lock.
+    :meth:`halt` is called every control cycle while the base is halted: keep it cheap. Positions
+    must stay continuous across a re-open (the controller's odometry does not re-baseline).
+
+    Optional, looked up by the controller: ``estop()`` (an e-stop stronger than :meth:`halt`,
+    e.g. the ODrive's Estop message) and ``stale_reason(now) -> str`` (why feedback is late, in
+    the interface's words)."""
 
     name: str
 

@@ -13,7 +13,10 @@ perception backend reads).
   (deterministic lock-step runs, fast demos); odometry is the true pose;
 * ``odrive``: the real driver core with simulated ODrive axes on a virtual CAN
   bus in this process; the wheels move the robot, odometry comes from the
-  encoders (it starts at the start pose, so it shares the map's world frame).
+  encoders (it starts at the start pose, so it shares the map's world frame);
+* ``kobuki`` / ``opencr``: the same with a TurtleBot 2 / TurtleBot 3 base: the
+  real pyserial / dynamixel-sdk client on a pseudo-terminal against a simulated
+  Kobuki / OpenCR board; the robot takes that base's wheels and track.
 
 Every frame carries ``after_action``, the last command completed when it was
 rendered (the state is read *before* the frame is rendered, so a frame never
@@ -42,7 +45,7 @@ from services.base_driver.service import Base, BaseDriverService, PublishingConf
 from services.sim.kinematic import KinematicBase
 from services.sim.render import SceneRenderer
 from services.sim.robot import MotionConfig, SimRobot
-from services.sim.wheels import WheeledSimRobot
+from services.sim.wheels import TURTLEBOTS, SerialSimRobot, WheeledSimRobot, turtlebot_geometry
 from shared.bus import BusCore
 from shared.messages import RgbdFrame
 from shared.motion import Pose
@@ -53,7 +56,7 @@ class SimServiceConfig(PublishingConfig):
     episode_seed: int = 0
     episode_index: int = Field(default=0, ge=0)
     start: Pose | None = Field(default=None, description="required with scene_file; else the episode's")
-    motion: Literal["kinematic", "odrive"] = "kinematic"
+    motion: Literal["kinematic", "odrive", "kobuki", "opencr"] = "kinematic"
     robot: MotionConfig = Field(default_factory=MotionConfig, description="primitive sizes, wheel geometry")
     driver: DriverConfig = Field(default_factory=DriverConfig,
                                  description="odrive mode; geometry and primitive sizes come from robot")
@@ -78,7 +81,7 @@ class SimRobotService(BaseDriverService):
 
     def __init__(self, bus: BusCore, config: SimServiceConfig) -> None:
         super().__init__(bus, config)
-        self._wheels: WheeledSimRobot | None = None
+        self._wheels: WheeledSimRobot | SerialSimRobot | None = None
         self._kinematic: KinematicBase | None = None
         self._frame: RgbdFrame | None = None
         self._frame_at = -float("inf")
@@ -97,11 +100,18 @@ class SimRobotService(BaseDriverService):
             start = c.start or spec.start
         assert start is not None
         self.renderer = SceneRenderer(scene, c.width, c.height)
-        robot = SimRobot(start, truth.is_free, c.robot)
+        motion = c.robot
+        if c.motion in TURTLEBOTS:
+            radius, track = turtlebot_geometry(c.motion, c.driver.opencr.model)
+            motion = motion.model_copy(update={"wheel_radius_m": radius, "track_width_m": track})
+        robot = SimRobot(start, truth.is_free, motion)
         if c.motion == "kinematic":
             self._kinematic = KinematicBase(robot)
             return self._kinematic
-        self._wheels = WheeledSimRobot(robot, c.driver, c.odrive).start()
+        if c.motion in TURTLEBOTS:
+            self._wheels = SerialSimRobot(robot, c.motion, c.driver).start()
+        else:
+            self._wheels = WheeledSimRobot(robot, c.driver, c.odrive).start()
         return self._wheels.driver
 
     def start(self) -> None:

@@ -1,33 +1,81 @@
-"""The simulated robot moved by its wheels: SimRobot + simulated ODrive axes + the real base driver.
+"""The simulated robot moved by its wheels: SimRobot + a simulated base + the real base driver.
 
-The base controller and its ``odrive_can`` hardware interface run unchanged (CANSimple frames on a python-can virtual bus,
-which only works within one process); the simulated axes' wheel motion drives
-:meth:`SimRobot.drive`, so the true pose follows what the motors did, and the
-driver's odometry comes from the encoder estimates, as on the robot. A blocked
-move stalls the wheels and trips the driver's bumper input.
+The base controller and its hardware interface run unchanged: ``odrive`` (CANSimple
+frames on a python-can virtual bus, which only works within one process),
+``kobuki`` and ``opencr`` (the real pyserial / dynamixel-sdk clients on a
+pseudo-terminal, against a simulated device that speaks the protocol byte for
+byte). The simulated device's wheel motion drives :meth:`SimRobot.drive`, so the
+true pose follows what the motors did, and the driver's odometry comes from the
+encoders, as on the robot. A blocked move stalls the wheels and trips the
+driver's bumper input.
 """
 
 from __future__ import annotations
 
 import math
 import threading
+from abc import ABC, abstractmethod
+from contextlib import ExitStack
 
 from services.base_driver.config import CanConfig, DriverConfig
 from services.base_driver.controller import BaseDriver
+from services.base_driver.kobuki_protocol import WHEEL_BASE_M as KOBUKI_WHEEL_BASE_M
+from services.base_driver.kobuki_protocol import WHEEL_RADIUS_M as KOBUKI_WHEEL_RADIUS_M
+from services.base_driver.kobuki_sim import SimKobuki
 from services.base_driver.odrive_can import ODriveCanHardware
 from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
+from services.base_driver.opencr_sim import SimOpenCR
+from services.base_driver.opencr_table import MODELS as TB3_MODELS
 from services.sim.robot import SimRobot
 from shared.motion import Pose
 
 
-class WheeledSimRobot:
+class _WheelDriven(ABC):
+    """The true pose of a robot moved by its simulated wheels, and the driver told of bumps."""
+
+    driver: BaseDriver
+
+    def __init__(self, robot: SimRobot) -> None:
+        self.robot = robot
+        self._lock = threading.Lock()
+
+    @property
+    def pose(self) -> Pose:
+        """The true pose (what the camera sees from), not the odometry."""
+        with self._lock:
+            return self.robot.pose
+
+    def _move(self, left_rad_s: float, right_rad_s: float, dt: float) -> bool:
+        """Move the robot by the wheels' rotation this step; False (a stall) when blocked."""
+        with self._lock:
+            before = self.robot.pose
+            moved = self.robot.drive(left_rad_s, right_rad_s, dt)
+            if not moved:
+                self.robot.pose = before
+        if not moved:
+            self.driver.bump()
+        return moved
+
+    def __enter__(self) -> _WheelDriven:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @abstractmethod
+    def start(self) -> _WheelDriven: ...
+
+    @abstractmethod
+    def stop(self) -> None: ...
+
+
+class WheeledSimRobot(_WheelDriven):
     """Owns the simulated axes and the driver for ``robot``; geometry and primitive sizes come
     from the robot's :class:`~services.sim.robot.MotionConfig` so both agree."""
 
     def __init__(self, robot: SimRobot, driver: DriverConfig | None = None,
                  axes: SimAxisConfig | None = None) -> None:
-        self.robot = robot
-        self._lock = threading.Lock()
+        super().__init__(robot)
         base = driver or DriverConfig()
         od = base.odrive
         self._directions = {od.left.node_id: od.left.direction, od.right.node_id: od.right.direction}
@@ -49,29 +97,65 @@ class WheeledSimRobot:
         self.driver.stop()
         self.odrives.stop()
 
-    def __enter__(self) -> WheeledSimRobot:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    @property
-    def pose(self) -> Pose:
-        """The true pose (what the camera sees from), not the odometry."""
-        with self._lock:
-            return self.robot.pose
-
     def _physics(self, dt: float, deltas: dict[int, float]) -> bool:
-        """Move the robot by the wheels' rotation this step; False (a stall) when blocked."""
         if deltas[self._left] == 0.0 and deltas[self._right] == 0.0:
             return True
         left = 2 * math.pi * self._directions[self._left] * deltas[self._left] / dt
         right = 2 * math.pi * self._directions[self._right] * deltas[self._right] / dt
-        with self._lock:
-            before = self.robot.pose
-            moved = self.robot.drive(left, right, dt)
-            if not moved:
-                self.robot.pose = before
-        if not moved:
-            self.driver.bump()
-        return moved
+        return self._move(left, right, dt)
+
+
+TURTLEBOTS = ("kobuki", "opencr")
+
+
+def turtlebot_geometry(hardware: str, opencr_model: str = "burger") -> tuple[float, float]:
+    """(wheel radius, track width) of a TurtleBot base: fixed by its hardware."""
+    if hardware == "kobuki":
+        return KOBUKI_WHEEL_RADIUS_M, KOBUKI_WHEEL_BASE_M
+    model = TB3_MODELS[opencr_model]
+    return model.wheel_radius_m, model.track_m
+
+
+class SerialSimRobot(_WheelDriven):
+    """A TurtleBot base simulated on a pseudo-terminal (a Kobuki or an OpenCR board) driven by the
+    real controller through its real serial client. ``robot``'s geometry must be the base's
+    (:func:`turtlebot_geometry`): the sim service sets it."""
+
+    def __init__(self, robot: SimRobot, hardware: str, driver: DriverConfig | None = None) -> None:
+        super().__init__(robot)
+        self.hardware = hardware
+        m = robot.config
+        base = driver or DriverConfig()
+        if hardware == "kobuki":
+            self.device: SimKobuki | SimOpenCR = SimKobuki(wheel_radius_m=m.wheel_radius_m,
+                                                           wheel_base_m=m.track_width_m,
+                                                           physics=self._metres)
+        else:
+            self.device = SimOpenCR(base.opencr.model, physics=self._radians)
+        self._base = base
+        self._device_open = ExitStack()
+        self.driver = None  # type: ignore[assignment]  # built in start(): the port exists then
+
+    def start(self) -> SerialSimRobot:
+        self._device_open.enter_context(self.device)  # started now, stopped by stop()
+        m, base = self.robot.config, self._base
+        port = self.device.port if isinstance(self.device, SimKobuki) else self.device.path
+        section = {"kobuki": base.kobuki, "opencr": base.opencr}[self.hardware].model_copy(update={"port": port})
+        self.config = base.model_copy(update={
+            "hardware": self.hardware, self.hardware: section,
+            "wheel_radius_m": m.wheel_radius_m, "track_width_m": m.track_width_m,
+            "forward_m": m.forward_m, "turn_deg": m.turn_deg, "initial_pose": self.robot.pose})
+        self.driver = BaseDriver(DriverConfig.model_validate(self.config.model_dump())).start()
+        return self
+
+    def stop(self) -> None:
+        if self.driver is not None:
+            self.driver.stop()
+        self._device_open.close()
+
+    def _metres(self, dt: float, left_m: float, right_m: float) -> bool:
+        r = self.robot.config.wheel_radius_m
+        return self._move(left_m / r / dt, right_m / r / dt, dt)
+
+    def _radians(self, dt: float, left_rad: float, right_rad: float) -> bool:
+        return self._move(left_rad / dt, right_rad / dt, dt)
