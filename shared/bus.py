@@ -310,8 +310,8 @@ class Bus(BusCore):
                  dispatch: Literal["thread", "caller"] = "thread") -> None:
         super().__init__(robot_id, service, instance)
         self.session = session
-        if dispatch == "thread":
-            self.inbox.run_forever(f"bus:{service}/{instance}")
+        self._dispatcher = (self.inbox.run_forever(f"bus:{service}/{instance}") if dispatch == "thread"
+                            else None)
         # Answered on Zenoh's thread, the one exception to enqueue-only: it reads only the
         # thread-safe counters and the info snapshot, so a service busy for seconds (a model on
         # a CPU) still shows up in `ovamos status` and the gateway's /health.
@@ -378,4 +378,7 @@ class Bus(BusCore):
             return
         self._alive.undeclare()
         super().close()
+        d = self._dispatcher
+        if d is not None and d is not threading.current_thread():
+            d.join(timeout=5)  # the handler it is running finishes before the session goes
         self.session.close()

@@ -18,9 +18,10 @@ import pytest
 from shared.procs import loopback
 
 
-def wait_for(predicate: Callable[[], object], timeout: float = 20.0, what: str = "condition"
-             ) -> object:
-    """Poll until ``predicate()`` is truthy; fail the test with ``what`` after ``timeout``."""
+def wait_for(predicate: Callable[[], object], timeout: float = 20.0, what: str = "condition",
+             interval: float = 0.1) -> object:
+    """Poll every ``interval`` s until ``predicate()`` is truthy; fail the test with ``what`` after
+    ``timeout``."""
     deadline = time.monotonic() + timeout
     while True:
         value = predicate()
@@ -28,7 +29,7 @@ def wait_for(predicate: Callable[[], object], timeout: float = 20.0, what: str =
             return value
         if time.monotonic() > deadline:
             pytest.fail(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.1)
+        time.sleep(interval)
 
 
 def port_open(port: int) -> bool:

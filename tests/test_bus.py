@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import queue
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -135,3 +136,20 @@ def test_ids_that_would_break_keys_are_refused(client: zenoh.Session) -> None:
         Bus(client, "robot/1", "svc", "0")
     with pytest.raises(keys.KeyExprError):
         Bus(client, "r1", "svc", "*")
+
+
+def test_close_waits_for_the_handler_being_run(open_bus) -> None:
+    """Handlers run on the bus's dispatcher thread: closing the bus lets the one in progress
+    finish (a handler that signals before its last step must not be cut off by the close)."""
+    a, b = open_bus("a"), open_bus("b")
+    started, finished = threading.Event(), threading.Event()
+
+    def slow(_note: Note) -> None:
+        started.set()
+        time.sleep(0.3)
+        finished.set()
+
+    b.subscribe(keys.task_events("r1"), Note, slow)
+    _send_until(a.publisher(keys.task_events("r1"), Note), Note(text="x"), started)
+    b.close()
+    assert finished.is_set()

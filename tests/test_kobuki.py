@@ -29,20 +29,14 @@ from services.base_driver.kobuki_protocol import (
     TickUnwrapper, body_to_speed_radius, checksum, encode_base_control, encode_packet, encode_sub_payload,
     speed_radius_to_wheels, split_sub_payloads)
 from services.base_driver.kobuki_sim import SimKobuki
+from tests.polling import wait_for
 
 R = WHEEL_RADIUS_M
 
 
 def poll(predicate: Callable[[], object], timeout: float = 2.0, what: str = "condition") -> object:
     """Poll fast (the base streams at 50 Hz); fail with ``what`` after ``timeout``."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.005)
+    return wait_for(predicate, timeout, what, interval=0.005)
 
 
 # -- known bytes ---------------------------------------------------------------------------
