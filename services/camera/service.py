@@ -24,6 +24,7 @@ from services.camera.capture import CameraBackend, CameraError, CapturedFrame
 from services.camera.config import CameraConfig
 from services.camera.core import CameraCore
 from shared.bus import BusCore
+from shared.log import fields, sampled
 from shared.messages import DriverState, Odometry
 from shared.service import Service
 
@@ -62,6 +63,7 @@ class CameraService(Service):
         self._stopping = threading.Event()
         self._reader = threading.Thread(target=self._read_loop, name="camera-reader", daemon=True)
         self.restarts = 0
+        self.errors = 0
 
     def start(self) -> None:
         self.wire({"odom": self._on_odom, "driver_state": self._on_driver})
@@ -81,7 +83,9 @@ class CameraService(Service):
         self._flush()
 
     def _on_error(self, error: CameraError) -> None:
-        self.log.warning("camera: %s", error)
+        self.errors += 1
+        if sampled(self.errors):  # a camera that is not there fails every RESTART_S: no log flood
+            self.log.warning("camera: %s", error, extra=fields(count=self.errors))
         self.core.on_error(error)
         self._flush()
 
