@@ -17,7 +17,7 @@ import signal
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 from rich.console import Console
 from rich.live import Live
@@ -27,6 +27,7 @@ from bench.episode import scene_mapping
 from services.gateway.client import GatewayClient, GatewayError
 from services.gateway.models import TaskView
 from services.sim.episodes import make_episode
+from services.sim.service import Motion
 from ovamos.supervisor import Entry, Supervisor, port_open
 from shared.procs import free_port, loopback
 
@@ -35,7 +36,7 @@ STARTUP_TIMEOUT_S = 90.0
 SERVICES = ("mapping", "perception", "planner", "sim", "gateway")
 
 
-BASES = ("kinematic", "odrive", "kobuki", "opencr")
+BASES: tuple[str, ...] = get_args(Motion)  # the simulated robot's ways to move
 
 
 def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_port: int,

@@ -16,7 +16,6 @@ from typing import Any, Literal
 from pydantic import Field, model_validator
 
 from services.base_driver.kobuki import KobukiConfig
-from services.base_driver.kobuki_protocol import WHEEL_BASE_M as KOBUKI_WHEEL_BASE_M
 from services.base_driver.kobuki_protocol import WHEEL_RADIUS_M as KOBUKI_WHEEL_RADIUS_M
 from services.base_driver.opencr import OpenCRConfig
 from services.base_driver.opencr_table import MODELS as TB3_MODELS
@@ -99,17 +98,24 @@ class DriverConfig(StrictModel):
     settle_rev_s: float = Field(default=0.01, gt=0, description="wheels slower than this are at rest")
     primitive_timeout_s: float = Field(default=10.0, gt=0, description="abort a primitive after this")
 
+    def fixed_wheels(self) -> tuple[float, float, str] | None:
+        """(wheel radius, track width, what) of a base whose wheels its hardware fixes (a Kobuki, a
+        TurtleBot 3 model), None for one whose config sets them (ODrive)."""
+        if self.hardware == "kobuki":
+            return KOBUKI_WHEEL_RADIUS_M, self.kobuki.wheel_base_m, "a Kobuki"
+        if self.hardware == "opencr":
+            model = TB3_MODELS[self.opencr.model]
+            return model.wheel_radius_m, model.track_m, f"a TurtleBot 3 {model.name}"
+        return None
+
     @model_validator(mode="after")
     def _geometry_fits_the_hardware(self) -> DriverConfig:
-        """A Kobuki's and a TurtleBot 3's wheels are fixed by the hardware: odometry computed with
-        other ones would be wrong by the ratio, so a config that disagrees is refused."""
-        if self.hardware == "kobuki":
-            radius, track, what = KOBUKI_WHEEL_RADIUS_M, self.kobuki.wheel_base_m, "a Kobuki"
-        elif self.hardware == "opencr":
-            model = TB3_MODELS[self.opencr.model]
-            radius, track, what = model.wheel_radius_m, model.track_m, f"a TurtleBot 3 {model.name}"
-        else:
+        """Odometry computed with other wheels than the hardware's would be wrong by the ratio, so
+        a config that disagrees with :meth:`fixed_wheels` is refused."""
+        fixed = self.fixed_wheels()
+        if fixed is None:
             return self
+        radius, track, what = fixed
         if not (math.isclose(self.wheel_radius_m, radius) and math.isclose(self.track_width_m, track)):
             raise ValueError(f"{what} has {radius} m wheels {track} m apart: set wheel_radius_m = {radius} "
                              f"and track_width_m = {track} under [driver] (got {self.wheel_radius_m}, "

@@ -110,7 +110,7 @@ class CameraService(Service):
                 frame = self.backend.read(READ_TIMEOUT_S)
                 if frame is not None:
                     self.bus.inbox.put(self._on_capture, frame, channel=self._capture_key, keep=CAPTURE_KEEP,
-                                       on_drop=lambda: self.bus.counters.bump(self._capture_key, "dropped"))
+                                       on_drop=self._count_drop)
             except CameraError as exc:
                 self.bus.inbox.put(self._on_error, exc)
                 running = False
@@ -124,6 +124,9 @@ class CameraService(Service):
                 running = False
                 self._stop_backend()
                 self._stopping.wait(RESTART_S)
+
+    def _count_drop(self) -> None:
+        self.bus.counters.bump(self._capture_key, "dropped")
 
     def _stop_backend(self) -> None:
         try:

@@ -39,6 +39,7 @@ class PlannerService(Service):
         self.executive = Executive(ExecutiveConfig.model_validate(
             config.model_dump(include=set(ExecutiveConfig.model_fields))))
         self._asked_for: int | None = None  # the command a map request in flight is for
+        self._map_key = TOPOLOGY[self.name].port("queries", "map_snapshot").key(bus.robot_id)
 
     def start(self) -> None:
         ex = self.executive
@@ -49,9 +50,7 @@ class PlannerService(Service):
         wanted = self.executive.map_wanted()
         if wanted is not None and self._asked_for is None:
             self._asked_for = wanted
-            port = TOPOLOGY[self.name].port("queries", "map_snapshot")
-            self.bus.request(port.key(self.bus.robot_id), MapSnapshot, self._on_map_reply,
-                             self.config.query_timeout_s)
+            self.bus.request(self._map_key, MapSnapshot, self._on_map_reply, self.config.query_timeout_s)
         for msg in self.executive.poll(time.monotonic()):
             self.out["plan_command" if isinstance(msg, PlanCommand) else "task_events"].put(msg)
 

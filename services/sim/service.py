@@ -45,10 +45,14 @@ from services.base_driver.service import Base, BaseDriverService, PublishingConf
 from services.sim.kinematic import KinematicBase
 from services.sim.render import SceneRenderer
 from services.sim.robot import MotionConfig, SimRobot
-from services.sim.wheels import TURTLEBOTS, SerialSimRobot, WheeledSimRobot, turtlebot_geometry
+from services.sim.wheels import TURTLEBOTS, SerialSimRobot, WheeledSimRobot
 from shared.bus import BusCore
 from shared.messages import RgbdFrame
 from shared.motion import Pose
+
+
+Motion = Literal["kinematic", "odrive", "kobuki", "opencr"]
+"""How the simulated robot moves (see the module docstring)."""
 
 
 class SimServiceConfig(PublishingConfig):
@@ -56,7 +60,7 @@ class SimServiceConfig(PublishingConfig):
     episode_seed: int = 0
     episode_index: int = Field(default=0, ge=0)
     start: Pose | None = Field(default=None, description="required with scene_file; else the episode's")
-    motion: Literal["kinematic", "odrive", "kobuki", "opencr"] = "kinematic"
+    motion: Motion = "kinematic"
     robot: MotionConfig = Field(default_factory=MotionConfig, description="primitive sizes, wheel geometry")
     driver: DriverConfig = Field(default_factory=DriverConfig,
                                  description="odrive mode; geometry and primitive sizes come from robot")
@@ -102,7 +106,9 @@ class SimRobotService(BaseDriverService):
         self.renderer = SceneRenderer(scene, c.width, c.height)
         motion = c.robot
         if c.motion in TURTLEBOTS:
-            radius, track = turtlebot_geometry(c.motion, c.driver.opencr.model)
+            fixed = c.driver.model_copy(update={"hardware": c.motion}).fixed_wheels()
+            assert fixed is not None
+            radius, track, _ = fixed
             motion = motion.model_copy(update={"wheel_radius_m": radius, "track_width_m": track})
         robot = SimRobot(start, truth.is_free, motion)
         if c.motion == "kinematic":

@@ -19,13 +19,10 @@ from contextlib import ExitStack
 
 from services.base_driver.config import CanConfig, DriverConfig
 from services.base_driver.controller import BaseDriver
-from services.base_driver.kobuki_protocol import WHEEL_BASE_M as KOBUKI_WHEEL_BASE_M
-from services.base_driver.kobuki_protocol import WHEEL_RADIUS_M as KOBUKI_WHEEL_RADIUS_M
 from services.base_driver.kobuki_sim import SimKobuki
 from services.base_driver.odrive_can import ODriveCanHardware
 from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
 from services.base_driver.opencr_sim import SimOpenCR
-from services.base_driver.opencr_table import MODELS as TB3_MODELS
 from services.sim.robot import SimRobot
 from shared.motion import Pose
 
@@ -108,18 +105,10 @@ class WheeledSimRobot(_WheelDriven):
 TURTLEBOTS = ("kobuki", "opencr")
 
 
-def turtlebot_geometry(hardware: str, opencr_model: str = "burger") -> tuple[float, float]:
-    """(wheel radius, track width) of a TurtleBot base: fixed by its hardware."""
-    if hardware == "kobuki":
-        return KOBUKI_WHEEL_RADIUS_M, KOBUKI_WHEEL_BASE_M
-    model = TB3_MODELS[opencr_model]
-    return model.wheel_radius_m, model.track_m
-
-
 class SerialSimRobot(_WheelDriven):
     """A TurtleBot base simulated on a pseudo-terminal (a Kobuki or an OpenCR board) driven by the
     real controller through its real serial client. ``robot``'s geometry must be the base's
-    (:func:`turtlebot_geometry`): the sim service sets it."""
+    (``DriverConfig.fixed_wheels``): the sim service sets it."""
 
     def __init__(self, robot: SimRobot, hardware: str, driver: DriverConfig | None = None) -> None:
         super().__init__(robot)
@@ -135,17 +124,19 @@ class SerialSimRobot(_WheelDriven):
         self._base = base
         self._device_open = ExitStack()
         self.driver = None  # type: ignore[assignment]  # built in start(): the port exists then
+        self.config: DriverConfig | None = None
 
     def start(self) -> SerialSimRobot:
         self._device_open.enter_context(self.device)  # started now, stopped by stop()
         m, base = self.robot.config, self._base
         port = self.device.port if isinstance(self.device, SimKobuki) else self.device.path
         section = {"kobuki": base.kobuki, "opencr": base.opencr}[self.hardware].model_copy(update={"port": port})
-        self.config = base.model_copy(update={
-            "hardware": self.hardware, self.hardware: section,
+        # validated (model_copy is not): the wheels must be the hardware's
+        self.config = DriverConfig.model_validate({
+            **base.model_dump(), "hardware": self.hardware, self.hardware: section.model_dump(),
             "wheel_radius_m": m.wheel_radius_m, "track_width_m": m.track_width_m,
-            "forward_m": m.forward_m, "turn_deg": m.turn_deg, "initial_pose": self.robot.pose})
-        self.driver = BaseDriver(DriverConfig.model_validate(self.config.model_dump())).start()
+            "forward_m": m.forward_m, "turn_deg": m.turn_deg, "initial_pose": self.robot.pose.model_dump()})
+        self.driver = BaseDriver(self.config).start()
         return self
 
     def stop(self) -> None:
