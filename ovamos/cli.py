@@ -213,7 +213,9 @@ def demo(seed: Annotated[int, typer.Option(help="Episode set seed.")] = 0,
          targets: Annotated[Optional[list[str]], typer.Option("--target", help="Override the episode's "
                                                                               "targets (repeatable).")] = None,
          keep_running: Annotated[bool, typer.Option(help="Stay up afterwards; print the gateway URL.")] = False,
-         timeout: Annotated[float, typer.Option(help="Give the search this many seconds.")] = 600.0,
+         timeout: Annotated[Optional[float], typer.Option(
+             help="Give the search this many seconds (default: 600 on the kinematic base, 1500 on a "
+                  "wheeled one, whose primitives take real time).")] = None,
          base: Annotated[str, typer.Option(help="How the simulated robot moves: kinematic (ideal), odrive, "
                                                 "kobuki or opencr (the real base driver and its client on a "
                                                 "simulated device).")] = "kinematic",

@@ -39,6 +39,17 @@ SERVICES = ("mapping", "perception", "planner", "sim", "gateway")
 BASES: tuple[str, ...] = get_args(Motion)  # the simulated robot's ways to move
 
 
+def default_timeout_s(base: str) -> float:
+    """Time for a search to use its whole step budget (500 commands) on this base.
+
+    A kinematic base completes a primitive at once (a step costs ~0.2 s of rendering,
+    perception, mapping and planning); a wheeled base drives it in real time: 1.3-1.9 s per
+    primitive on the simulated Kobuki and OpenCR (0.26 m/s, 1 m/s^2, closed loop to 2 mm and
+    0.2 deg), so a 500-step search needs ~15 min.
+    """
+    return 600.0 if base == "kinematic" else 1500.0
+
+
 def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_port: int,
                   width: int = 320, height: int = 240, base: str = "kinematic") -> dict[str, Path]:
     """One JSON config per service, all describing the same episode (scene, start pose); ``base``
@@ -100,7 +111,7 @@ def _wait_for_services(client: GatewayClient, robot_id: str, deadline: float) ->
 
 def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode: int = DEMO_EPISODE,
              targets: list[str] | None = None, robot_id: str = "sim", keep_running: bool = False,
-             timeout_s: float = 600.0, base: str = "kinematic") -> int:
+             timeout_s: float | None = None, base: str = "kinematic") -> int:
     spec, _, _ = make_episode(seed, episode)
     targets = targets or list(spec.targets)
     http_port, zenoh_port = free_port(), free_port()
@@ -116,7 +127,8 @@ def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode:
         while not port_open("127.0.0.1", http_port) and time.monotonic() < deadline:
             time.sleep(0.2)
         _wait_for_services(client, robot_id, deadline)
-        view = _search(console, client, targets, robot_id, started, timeout_s)
+        view = _search(console, client, targets, robot_id, started,
+                       default_timeout_s(base) if timeout_s is None else timeout_s)
         report = _write_results(console, client, view, out_dir, robot_id, seed, episode,
                                 time.monotonic() - started, supervisor)
         if keep_running:

@@ -72,13 +72,13 @@ class Run:
 
 def drive(m: NavMap, start: Pose, goal: tuple[float, float], max_commands: int = 400,
           navigator: Navigator | None = None, blocked: np.ndarray | None = None,
-          snap_radius_m: float | None = None) -> Run:
+          snap_radius_m: float | None = None, robot_type: type[SimRobot] = SimRobot) -> Run:
     """Execute commands until STOP, Unreachable or ``max_commands``; assert every forward step
     stays on cells that are free of the inflated obstacles (``blocked``, default the map's)."""
     nav = navigator or Navigator()
     grid = m.grid
     blocked = inflate(m.obstacle, RADIUS, RES) if blocked is None else blocked
-    robot = SimRobot(pose=start, is_free=lambda x, y: True)
+    robot = robot_type(pose=start, is_free=lambda x, y: True)
     run = Run(poses=[start])
     for _ in range(max_commands):
         try:
@@ -560,6 +560,35 @@ def test_a_detour_may_leave_the_window_the_path_was_planned_on() -> None:
     run = drive(nav_map(obs), start, goal, max_commands=60 + int(4 * length / 0.25), navigator=nav)
     assert run.error is None and run.stopped
     assert max(p.x for p in run.poses) > 3.25
+    assert math.hypot(run.poses[-1].x - goal[0], run.poses[-1].y - goal[1]) <= TOL
+
+
+class ShortRobot(SimRobot):
+    """Lands each primitive a little short, as the simulated TurtleBots' closed loop does
+    (0.248 m and 29.85 deg, measured through the Kobuki simulation): never exactly on the
+    lattice the navigator's detours are planned on."""
+
+    def apply(self, action: Action) -> bool:
+        p = self.pose
+        if action is Action.MOVE_FORWARD:
+            self.pose = Pose(x=p.x + 0.248 * math.cos(p.yaw), y=p.y + 0.248 * math.sin(p.yaw), yaw=p.yaw)
+        elif action in (Action.TURN_LEFT, Action.TURN_RIGHT):
+            sign = 1.0 if action is Action.TURN_LEFT else -1.0
+            self.pose = Pose(x=p.x, y=p.y, yaw=p.yaw + sign * math.radians(29.85))
+        return True
+
+
+def test_a_detour_is_followed_by_a_base_that_lands_a_little_off_each_primitive() -> None:
+    """STAIRCASE_WORLD needs a lattice detour round a block's corner. A detour that demands the
+    exact predicted pose is dropped after its first turn, the path rule turns back, the detour
+    turns again...: the robot dithered on the spot until it gave up (seen on the Kobuki demo)."""
+    obs, start, goal = STAIRCASE_WORLD
+    bound = 60 + int(4 * reachable_length(obs, start, goal) / 0.25)
+    exact = Navigator(NavigationConfig(detour_tolerance_m=0.0, detour_tolerance_deg=0.0))
+    dithered = drive(nav_map(obs), start, goal, max_commands=bound, navigator=exact, robot_type=ShortRobot)
+    assert dithered.error is not None and "no progress" in str(dithered.error)
+    run = drive(nav_map(obs), start, goal, max_commands=bound, robot_type=ShortRobot)
+    assert run.error is None and run.stopped
     assert math.hypot(run.poses[-1].x - goal[0], run.poses[-1].y - goal[1]) <= TOL
 
 

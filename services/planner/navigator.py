@@ -84,6 +84,13 @@ class NavigationConfig(BaseModel):
     detour_progress_m: float = Field(
         default=1.0, gt=0,
         description="the lattice search stops once its detour gets this much closer to the goal")
+    detour_tolerance_m: float = Field(
+        default=0.05, ge=0,
+        description="a detour is followed while the robot is this close to where it expects "
+                    "(a wheeled base lands within a centimetre of each primitive, not exactly); "
+                    "farther, or a step blocked, and the path is followed afresh")
+    detour_tolerance_deg: float = Field(
+        default=5.0, ge=0, description="the same for the heading")
 
     @model_validator(mode="after")
     def _tolerance_reachable(self) -> NavigationConfig:
@@ -227,7 +234,7 @@ class _Plan:
 
 @dataclass
 class _Step:
-    """A primitive the robot should execute from an exact pose (a lattice-search detour)."""
+    """A primitive the robot should execute from a pose (a lattice-search detour)."""
 
     x: float
     y: float
@@ -452,8 +459,9 @@ class Navigator:
         """The next primitive of a lattice detour, while the robot is where the detour expects."""
         if not self._detour:
             return None
-        step = self._detour[0]
-        if abs(step.x - x) > 1e-6 or abs(step.y - y) > 1e-6 or abs(wrap_angle(step.yaw - yaw)) > 1e-6:
+        step, cfg = self._detour[0], self.config
+        if (math.hypot(step.x - x, step.y - y) > cfg.detour_tolerance_m + 1e-9
+                or abs(wrap_angle(step.yaw - yaw)) > math.radians(cfg.detour_tolerance_deg) + 1e-9):
             self._detour = []
             return None
         if step.action is Action.MOVE_FORWARD and not _segment_free(
