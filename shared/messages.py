@@ -29,7 +29,7 @@ from shared.robot import Primitives
 __all__ = ["DecodeError", "JsonMessage", "BinaryMessage", "ArraySpec", "Intrinsics", "RgbdFrame",
            "MapSnapshot", "ObjectInstance", "PerceptionResult", "CounterSet", "ServiceStats", "CameraState", "Odometry", "PlanCommand", "DriverMode",
            "Outcome", "DriverState", "EStop", "TaskSpec", "TaskStatus", "FINAL", "FoundObject",
-           "TaskEvent"]
+           "Goal", "TaskEvent"]
 
 
 def _validation_error(cls: type, exc: ValidationError) -> DecodeError:
@@ -483,6 +483,17 @@ class FoundObject(BaseModel):
     step: int = Field(ge=0)
 
 
+class Goal(BaseModel):
+    """Where the planner is taking the robot (world metres): a confirmed object to stop beside, a
+    candidate of the value map, or a frontier; shown on the operator's map."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    kind: Literal["object", "candidate", "frontier"]
+    x: float
+    y: float
+    label: str | None = None
+
+
 class TaskEvent(JsonMessage):
     """The planner's view of a task after each step: progress, found objects, the end."""
 
@@ -496,3 +507,4 @@ class TaskEvent(JsonMessage):
     message: str = ""
     x: float | None = None  # robot position when the event was made
     y: float | None = None
+    goal: Goal | None = None  # the goal being driven to; None between goals and once over

@@ -241,3 +241,18 @@ def test_no_decision_while_the_camera_reports_a_fault_and_the_event_says_why(ex:
     assert commands(out) == [] and events(out)[-1].message == "camera: no frames for 1.2 s"
     ex.on_camera(CameraState(stamp=1.0, backend="realsense"))  # frames again
     assert len(commands(ex.poll(0.1))) == 1
+
+
+def test_events_carry_the_goal_while_the_task_searches() -> None:
+    ex = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=0)))
+    ex.on_task(spec())
+    assert ex.event().goal is None  # nothing decided yet
+    cup = ObjectInstance(label="cup", x=3.0, y=1.0, score=0.8, hits=3, confirmed=True)
+    ex.on_driver(driver())
+    ex.on_snapshot(snapshot(0, (cup,)))
+    ex.on_odom(odom())
+    assert commands(ex.poll(0.0))
+    goal = ex.event().goal
+    assert goal is not None and (goal.kind, goal.x, goal.y, goal.label) == ("object", 3.0, 1.0, "cup")
+    ex.on_task(spec(cancelled=True))
+    assert ex.event().goal is None  # over: no goal shown

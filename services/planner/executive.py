@@ -40,7 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
 from services.planner.task import SearchTask, SearchTaskError
 from shared.messages import (FINAL, CameraState, DriverMode, DriverState, JsonMessage, MapSnapshot, Odometry,
-                             PlanCommand, TaskEvent, TaskSpec, TaskStatus)
+                             Goal, PlanCommand, TaskEvent, TaskSpec, TaskStatus)
 from shared.motion import Pose
 
 
@@ -156,7 +156,16 @@ class Executive:
                          found=tuple(task.found.values()), steps=task.steps,
                          distance_m=task.distance, stamp=self._wall_clock(),
                          message=task.reason or self.waiting,
-                         x=None if pose is None else pose.x, y=None if pose is None else pose.y)
+                         x=None if pose is None else pose.x, y=None if pose is None else pose.y,
+                         goal=self._goal())
+
+    def _goal(self) -> Goal | None:
+        """The agent's goal while the task searches (the operator's map shows it)."""
+        task, agent = self.task, self.agent
+        if task is None or agent is None or agent.goal is None or task.state is not TaskStatus.SEARCHING:
+            return None
+        goal = agent.goal
+        return Goal(kind=goal.kind.value, x=goal.x, y=goal.y, label=goal.label)
 
     # -- the loop ------------------------------------------------------------------------------
     def _drive(self, now: float) -> list[JsonMessage]:
