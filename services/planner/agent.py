@@ -21,6 +21,7 @@ paper's STOP ends the search for a target, so a wrong one costs the target).
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from enum import Enum
@@ -35,6 +36,8 @@ from services.planner.task import SearchTask
 from shared.messages import MapSnapshot, TaskStatus
 from shared.motion import Action, Pose
 from shared.robot import PRIMITIVES, Primitives
+
+log = logging.getLogger("ovamos.planner")
 
 
 class AgentConfig(BaseModel):
@@ -159,7 +162,8 @@ class SearchAgent:
             try:
                 action = self.navigator.next_command(self._nav_map(snapshot), pose, (goal.x, goal.y),
                                                      self._snap_radius(goal))
-            except Unreachable:
+            except Unreachable as exc:
+                log.info("step %d: %s", self.task.steps, exc)
                 self.unreachable.add(goal.x, goal.y, self.task.steps)
                 self._decide(snapshot, pose, remaining)
                 continue
@@ -167,6 +171,8 @@ class SearchAgent:
                 self._idle = 0
                 return Step(action, Reason.NAVIGATE, goal)
             if goal.kind is GoalKind.OBJECT:  # as close as the map allows, still too far
+                log.info("step %d: %s at (%.2f, %.2f): the closest reachable place is %.2f m away",
+                         self.task.steps, goal.label, goal.x, goal.y, math.hypot(goal.x - pose.x, goal.y - pose.y))
                 self.unreachable.add(goal.x, goal.y, self.task.steps)
             elif goal.kind is GoalKind.CANDIDATE:
                 self.visited.append((goal.x, goal.y))
@@ -200,13 +206,20 @@ class SearchAgent:
     def _decide(self, snapshot: MapSnapshot, pose: Pose, remaining: list[str],
                 reached: Decision | None = None) -> None:
         visited = self.visited + ([(reached.x, reached.y)] if reached else [])
+        previous = self.goal
         self.goal = decide(snapshot, (pose.x, pose.y), remaining, self.config.decision,
                            np.array(self.unreachable.points(self.task.steps), float), np.array(visited, float))
+        if self.goal != previous and self.goal is not None:
+            g = self.goal
+            log.info("step %d: goal %s%s at (%.2f, %.2f) of %d candidates", self.task.steps, g.kind.value,
+                     f" {g.label}" if g.label else "", g.x, g.y, g.candidates)
         self.decisions += 1
         self._toward_goal = 0
 
     def _give_up_goal(self) -> None:
         if self.goal is not None:
+            log.info("step %d: giving up goal (%.2f, %.2f): blocked or stuck", self.task.steps,
+                     self.goal.x, self.goal.y)
             self.unreachable.add(self.goal.x, self.goal.y, self.task.steps)
         self.goal, self._blocked = None, 0
         self._recent.clear()
