@@ -19,14 +19,17 @@ $(VENV)/.installed: pyproject.toml Makefile | $(PY)
 # System libraries from Debian/Ubuntu packages, installed when missing (with sudo
 # when not root and sudo exists): the simulator renders headless through EGL
 # (Mesa's software rasteriser when there is no GPU), and pyrealsense2 (the camera
-# service's RealSense backend) loads libusb-1.0.
+# service's RealSense backend) loads libusb-1.0; the operator page's tests drive
+# Debian's chromium through chromium-driver (selenium).
 SUDO := $(shell [ "$$(id -u)" -ne 0 ] && command -v sudo >/dev/null && echo sudo)
 syslibs:
 	@libs="$$( { ldconfig -p 2>/dev/null || /sbin/ldconfig -p; } )"; pkgs=""; \
 	echo "$$libs" | grep -q libEGL.so.1 || pkgs="$$pkgs libegl1 libgl1-mesa-dri libgles2"; \
 	echo "$$libs" | grep -q libusb-1.0.so.0 || pkgs="$$pkgs libusb-1.0-0"; \
+	command -v chromium >/dev/null || pkgs="$$pkgs chromium"; \
+	command -v chromedriver >/dev/null || pkgs="$$pkgs chromium-driver"; \
 	if [ -n "$$pkgs" ]; then \
-	  echo "missing system libraries: installing$$pkgs"; \
+	  echo "missing system packages: installing$$pkgs"; \
 	  $(SUDO) apt-get update && \
 	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends $$pkgs; \
 	fi

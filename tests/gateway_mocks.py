@@ -101,8 +101,8 @@ def small_map() -> MapSnapshot:
 class MockMapping:
     """A fake mapping service (mock): answers ``map/snapshot`` queries with :func:`small_map`."""
 
-    def __init__(self, endpoint: str, robot_id: str = ROBOT) -> None:
-        self.bus = Bus.open(build_config(connect=[endpoint]), robot_id, "mock-mapping")
+    def __init__(self, endpoint: str, robot_id: str = ROBOT, service: str = "mock-mapping") -> None:
+        self.bus = Bus.open(build_config(connect=[endpoint]), robot_id, service)
         self.bus.queryable(keys.map_snapshot(robot_id), small_map)
 
     def close(self) -> None:

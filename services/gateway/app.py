@@ -34,6 +34,9 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from services.gateway.auth import bearer_guard
 from services.gateway.config import GatewayConfig
+from services.gateway.page import mount_page
+from services.gateway.robot_routes import router as robot_router
+from services.gateway.robots import RobotMonitor
 from services.gateway.routes import Gateway, router
 from services.gateway.sse import TaskWatchers
 from services.gateway.store import TaskRecord, TaskStore
@@ -49,6 +52,8 @@ DESCRIPTION = """Submit multi-object search tasks to a robot and follow them.
 One task per robot runs at a time; further submissions for that robot are queued
 and start, in order, when the running one ends (done, failed or cancelled).
 When a token is configured, every `/v1` route needs `Authorization: Bearer <token>`.
+`GET /` is the operator's page (submit, watch the map, E-STOP); it asks for the token when
+one is needed.
 """
 
 
@@ -71,8 +76,10 @@ def create_app(config: GatewayConfig, bus_source: BusSource) -> FastAPI:
 
             manager = TaskManager(bus, store, config, notify)
             stack.callback(manager.close)  # first: requests still waiting get a 503
-            gateway = Gateway(config, bus, store, manager, watchers)
+            monitor = RobotMonitor(bus, config)
+            gateway = Gateway(config, bus, store, manager, watchers, monitor)
             await asyncio.to_thread(manager.start)
+            await asyncio.to_thread(monitor.start)
             app.state.gateway = gateway
             republisher = asyncio.create_task(_republish(manager, config.republish_s))
             log.info("gateway serving robots %s, tasks in %s", ", ".join(config.robots), config.db_path)
@@ -83,7 +90,10 @@ def create_app(config: GatewayConfig, bus_source: BusSource) -> FastAPI:
                 watchers.close()
 
     app = FastAPI(title="OVAMOS gateway", version="1", description=DESCRIPTION, lifespan=lifespan)
-    app.include_router(router, dependencies=[Depends(bearer_guard(config.resolved_token()))])
+    guard = [Depends(bearer_guard(config.resolved_token()))]
+    app.include_router(router, dependencies=guard)
+    app.include_router(robot_router, dependencies=guard)
+    mount_page(app)
     app.add_exception_handler(RequestValidationError, _validation_error)  # type: ignore[arg-type]
     app.add_exception_handler(StarletteHTTPException, _http_error)  # type: ignore[arg-type]
     app.add_middleware(BodyLimit, limit=config.max_body_bytes)

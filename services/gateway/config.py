@@ -46,6 +46,10 @@ class GatewayConfig(ServiceConfig):
     map_timeout_s: float = Field(default=3.0, gt=0, description="wait this long for a map snapshot")
     health_timeout_s: float = Field(default=1.0, gt=0, description="wait this long for liveliness")
     sse_heartbeat_s: float = Field(default=15.0, gt=0, description="comment line on idle event streams")
+    estop_confirm_s: float = Field(default=2.0, gt=0,
+                                   description="an e-stop request waits this long for the driver "
+                                               "to confirm the latch before answering 504")
+    estop_resend_s: float = Field(default=0.2, gt=0, description="re-send an unconfirmed e-stop this often")
     max_body_bytes: int = Field(default=65536, ge=1024,
                                 description="larger request bodies get 413 (a task is a short list)")
 

@@ -1,4 +1,5 @@
-"""The latest map of a robot as a PNG, asked from its mapping service on demand.
+"""The latest map of a robot, asked from its mapping service on demand: as a PNG, or as the
+raster plus vector layers the operator's page draws (:func:`map_view`).
 
 The gateway keeps no map of its own: it queries ``map/snapshot`` when a
 picture is requested, so it never holds megabytes per robot nor shows a map
@@ -8,13 +9,20 @@ latest task reported) is drawn over the map.
 
 from __future__ import annotations
 
+import base64
 from collections.abc import Sequence
 
 import cv2
+import numpy as np
 
-from services.mapping.render import render_map
+from services.gateway.models import Candidate, MapView, Pose
+from services.gateway.store import TaskRecord
+from services.mapping.render import crop_box, map_raster, render_map, value_image
+from services.planner.candidates import find_candidates
+from services.planner.decide import DecisionConfig, decision_values, explored_window
 from shared.bus import Bus
-from shared.messages import MapSnapshot
+from shared.messages import Goal, MapSnapshot
+from shared.robot import ROBOT
 from shared.topology import TOPOLOGY
 
 MAP_SNAPSHOT = TOPOLOGY["gateway"].port("queries", "map_snapshot")
@@ -34,10 +42,52 @@ def fetch_snapshot(bus: Bus, robot_id: str, timeout_s: float) -> MapSnapshot:
     return snapshot
 
 
-def map_png(snapshot: MapSnapshot, path: Sequence[tuple[float, float]] = (),
-            layer: str | None = None) -> bytes:
-    """PNG bytes of :func:`render_map`; ValueError for an unknown ``layer``."""
-    ok, data = cv2.imencode(".png", render_map(snapshot, layer=layer, path=path))
+def _png(image: np.ndarray) -> bytes:
+    ok, data = cv2.imencode(".png", image)
     if not ok:
         raise ValueError("the map could not be encoded as PNG")
     return data.tobytes()
+
+
+def map_png(snapshot: MapSnapshot, path: Sequence[tuple[float, float]] = (),
+            layer: str | None = None) -> bytes:
+    """PNG bytes of :func:`render_map`; ValueError for an unknown ``layer``."""
+    return _png(render_map(snapshot, layer=layer, path=path))
+
+
+def candidates(snapshot: MapSnapshot, remaining: Sequence[str],
+               config: DecisionConfig | None = None) -> list[Candidate]:
+    """The candidates a planner with ``config`` (default: the planner's defaults) finds on this
+    map for the ``remaining`` targets: the same functions, so the page shows what it weighs."""
+    config = config or DecisionConfig()
+    rows, cols, grid = explored_window(snapshot)
+    values = decision_values(snapshot, list(remaining), config, (rows, cols))
+    if values is None:
+        return []
+    found = find_candidates(values, grid, config.candidates)
+    return [Candidate(x=float(x), y=float(y), value=float(v)) for (x, y), v in zip(found.points, found.values)]
+
+
+def map_view(snapshot: MapSnapshot, task: TaskRecord | None, *, layer: str | None = None,
+             robot: Pose | None = None, goal: Goal | None = None, searching: Sequence[str] = (),
+             margin_cells: int = 10) -> MapView:
+    """The page's map: the raster of the window holding the explored area, the robot, ``task``'s
+    path, objects and frontiers (:func:`services.mapping.render.crop_box`), and those in world
+    metres; candidates of the ``searching`` targets (none when no task searches). ValueError
+    for an unknown ``layer``."""
+    heat = value_image(snapshot, layer)  # validates the layer name first
+    path = task.path if task is not None else []
+    points = [(o.x, o.y) for o in snapshot.objects] + [tuple(f) for f in snapshot.frontiers] + path
+    if robot is not None:
+        points.append((robot.x, robot.y))
+    r0, r1, c0, c1 = box = crop_box(snapshot, np.asarray(points, float).reshape(-1, 2), margin_cells)
+    res, (x0, y0) = snapshot.resolution, snapshot.origin
+    image = base64.b64encode(_png(map_raster(snapshot, heat, box))).decode()
+    return MapView(seq=snapshot.seq, stamp=snapshot.stamp, resolution=res, x0=x0 + c0 * res,
+                   y0=y0 + r0 * res, width=c1 - c0, height=r1 - r0,
+                   image=f"data:image/png;base64,{image}", layers=list(snapshot.layers), layer=layer,
+                   frontiers=[(float(x), float(y)) for x, y in snapshot.frontiers],
+                   candidates=candidates(snapshot, searching) if searching else [],
+                   objects=list(snapshot.objects), task_id=task.id if task is not None else None,
+                   path=path, found=task.found if task is not None else [], robot=robot,
+                   robot_radius_m=ROBOT.radius_m, goal=goal)

@@ -11,11 +11,13 @@ from __future__ import annotations
 from datetime import UTC, datetime
 
 from fastapi.exceptions import RequestValidationError
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from services.gateway.config import MAX_STEPS_LIMIT, GatewayConfig
 from services.gateway.store import TaskRecord
-from shared.messages import FINAL, FoundObject, TaskStatus
+from shared.messages import FINAL, DriverState, FoundObject, Goal, ObjectInstance, TaskStatus
 
 MAX_TARGETS = 16
 MAX_TARGET_CHARS = 64
@@ -132,6 +134,78 @@ class Health(BaseModel):
     status: str = "ok"
     robots: dict[str, RobotHealth]
     counters: dict[str, int] = Field(description="task events applied / ignored, and why")
+
+
+class Pose(BaseModel):
+    """The robot's pose from its odometry (metres, radians; yaw 0 = world +x, counter-clockwise)."""
+
+    x: float
+    y: float
+    yaw: float
+
+
+class RobotState(BaseModel):
+    """``GET /v1/robots/{id}``: what the robot's driver reports now, whether or not a task runs."""
+
+    robot_id: str
+    driver: DriverState | None = Field(description="the driver's latest state; null until one came")
+    driver_age_s: float | None = Field(description="how long ago that state came")
+    pose: Pose | None = Field(description="the latest odometry pose; null until one came")
+    active_task: str | None
+
+
+class EStopRequest(BaseModel):
+    """``POST /v1/robots/{id}/estop`` (the body is optional)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    reason: str = Field(default="", max_length=256, description="shown in the driver's state and log")
+
+
+class EStopClear(BaseModel):
+    """``POST /v1/robots/{id}/estop/clear``: the robot may move again once cleared, so the request
+    must say so explicitly."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    confirm: Literal[True] = Field(description="must be true: the robot may move again")
+
+
+class Candidate(BaseModel):
+    """A place the target may be: the best cell of a cluster of the value map (the planner's
+    candidates, from the remaining targets' decayed values)."""
+
+    x: float
+    y: float
+    value: float
+
+
+class MapView(BaseModel):
+    """``GET /v1/robots/{id}/map``: the robot's map for the operator's page.
+
+    ``image`` is the raster (unexplored, free, value heat, obstacles) of the window that holds
+    everything worth showing, one pixel per cell, world +y up; its bottom-left corner is at
+    (``x0``, ``y0``) and it is ``width`` x ``height`` cells of ``resolution`` metres. Everything
+    else is in world metres, for the page to draw over it.
+    """
+
+    seq: int = Field(description="the newest frame the map fused")
+    stamp: float
+    resolution: float
+    x0: float
+    y0: float
+    width: int
+    height: int
+    image: str = Field(description="a data: URL of the raster (PNG)")
+    layers: list[str] = Field(description="the value layers the map holds (one per target)")
+    layer: str | None = Field(description="the layer shown; null = the aggregate of all")
+    frontiers: list[tuple[float, float]]
+    candidates: list[Candidate]
+    objects: list[ObjectInstance] = Field(description="objects the map believes exist")
+    task_id: str | None = Field(description="the robot's latest task (its path and found objects)")
+    path: list[tuple[float, float]]
+    found: list[FoundObject]
+    robot: Pose | None
+    robot_radius_m: float = Field(description="the robot's footprint, to draw it to scale")
+    goal: Goal | None = Field(description="where the planner takes the robot (searching only)")
 
 
 class Problem(BaseModel):

@@ -21,6 +21,7 @@ from services.gateway.config import GatewayConfig
 from services.gateway.maps import NoMap, fetch_snapshot, map_png
 from services.gateway.models import (Health, Problem, RobotHealth, ServiceEntry, TaskAccepted,
                                      TaskList, TaskRequest, TaskView, check_against_config, task_view)
+from services.gateway.robots import RobotMonitor
 from services.gateway.sse import TaskWatchers, task_stream
 from services.gateway.store import TaskRecord, TaskStore
 from services.gateway.tasks import GatewayBusy, TaskConflict, TaskManager
@@ -39,6 +40,7 @@ class Gateway:
     store: TaskStore
     manager: TaskManager
     watchers: TaskWatchers
+    monitor: RobotMonitor
 
     def view(self, record: TaskRecord) -> TaskView:
         return task_view(record, self.store.queue_position(record))

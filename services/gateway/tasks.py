@@ -40,7 +40,7 @@ from typing import Any, TypeVar
 from services.gateway.config import GatewayConfig
 from services.gateway.store import TaskRecord, TaskStore
 from shared.bus import BusCore, Publisher
-from shared.messages import FINAL, TaskEvent, TaskSpec, TaskStatus
+from shared.messages import FINAL, Goal, TaskEvent, TaskSpec, TaskStatus
 from shared.topology import TOPOLOGY
 
 Notify = Callable[[TaskRecord], None]
@@ -79,6 +79,9 @@ class TaskManager:
         self._waiting_lock = threading.Lock()
         self._waiting: set[Future[Any]] = set()  # requests handed to the owner thread, not answered
         self._closed = False
+        # robot -> (task id, the planner's goal in its latest event): live state, not stored;
+        # replaced whole on the owner thread, read by HTTP threads (one dict item, no lock needed)
+        self._goals: dict[str, tuple[str, Goal | None]] = {}
 
     def start(self) -> None:
         """Declare the gateway's ports (:data:`shared.topology.TOPOLOGY`) for every robot it
@@ -200,12 +203,18 @@ class TaskManager:
         self.store.progress(record.id, found=event.found, steps=event.steps,
                             distance_m=event.distance_m, message=event.message, position=position)
         self._count("events_applied")
+        self._goals[robot_id] = (record.id, event.goal)
         if event.status in FINAL:
             self.store.finish(record.id, event.status)
             self._changed(record.id)
             self._start_next(robot_id)
         else:
             self._changed(record.id)
+
+    def goal(self, robot_id: str, task_id: str) -> Goal | None:
+        """Where the planner last said it takes the robot for ``task_id`` (any thread)."""
+        entry = self._goals.get(robot_id)
+        return entry[1] if entry is not None and entry[0] == task_id else None
 
     # -- periodic (owner thread) ---------------------------------------------------------------
     def republish(self) -> None:

@@ -24,7 +24,7 @@ from shared.atomic import write_atomic
 from shared.messages import MapSnapshot
 from shared.robot import ROBOT as ROBOT_GEOMETRY
 
-__all__ = ["render_map", "value_image", "write_png"]
+__all__ = ["crop_box", "map_raster", "render_map", "value_image", "write_png"]
 
 UNEXPLORED = (70, 70, 70)     # BGR
 FREE = (235, 235, 235)
@@ -59,7 +59,7 @@ def value_image(snapshot: MapSnapshot, layer: str | None = None, *, tau: float =
     return total / top if top > 0 else total
 
 
-def _crop_box(snapshot: MapSnapshot, extra_xy: np.ndarray, margin_cells: int
+def crop_box(snapshot: MapSnapshot, extra_xy: np.ndarray, margin_cells: int
               ) -> tuple[int, int, int, int]:
     """(r0, r1, c0, c1), end-exclusive: explored cells and extra points, plus a margin."""
     rows, cols = snapshot.obstacle.shape
@@ -74,6 +74,25 @@ def _crop_box(snapshot: MapSnapshot, extra_xy: np.ndarray, margin_cells: int
         return 0, rows, 0, cols
     return (max(0, int(r.min()) - margin_cells), min(rows, int(r.max()) + 1 + margin_cells),
             max(0, int(c.min()) - margin_cells), min(cols, int(c.max()) + 1 + margin_cells))
+
+
+def map_raster(snapshot: MapSnapshot, heat: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+    """The raster layers of the cells in ``box`` (r0, r1, c0, c1, end-exclusive), one BGR pixel per
+    cell, world +y up (row 0 of the grid at the bottom): unexplored, explored free, ``heat``
+    (:func:`value_image`) over explored free cells, obstacles. The operator's page draws its
+    vector layers over this same picture."""
+    r0, r1, c0, c1 = box
+    window = np.s_[r0:r1, c0:c1]
+    explored, obstacle = snapshot.explored[window], snapshot.obstacle[window]
+    image = np.empty((r1 - r0, c1 - c0, 3), np.uint8)
+    image[:] = UNEXPLORED
+    image[explored] = FREE
+    hot = explored & ~obstacle & (heat[window] > 0)
+    if hot.any():
+        scaled = np.clip(np.round(heat[window][hot] * 255), 0, 255).astype(np.uint8)
+        image[hot] = cv2.applyColorMap(scaled.reshape(-1, 1), COLORMAP).reshape(-1, 3)
+    image[obstacle] = OBSTACLE
+    return np.ascontiguousarray(image[::-1])
 
 
 def _text(image: np.ndarray, label: str, at: tuple[int, int], scale: float = 0.35) -> None:
@@ -110,21 +129,9 @@ def render_map(snapshot: MapSnapshot, *, layer: str | None = None,
     extra = [objects, frontiers, path_xy]
     if robot is not None:
         extra.append(np.array([robot[:2]], float))
-    r0, r1, c0, c1 = (_crop_box(snapshot, np.vstack(extra), margin_cells) if crop
-                      else (0, rows, 0, cols))
-
-    # Raster layers, one pixel per cell, row 0 at the bottom of the picture.
-    window = np.s_[r0:r1, c0:c1]
-    explored, obstacle = snapshot.explored[window], snapshot.obstacle[window]
-    image = np.empty((r1 - r0, c1 - c0, 3), np.uint8)
-    image[:] = UNEXPLORED
-    image[explored] = FREE
-    hot = explored & ~obstacle & (heat[window] > 0)
-    if hot.any():
-        scaled = np.clip(np.round(heat[window][hot] * 255), 0, 255).astype(np.uint8)
-        image[hot] = cv2.applyColorMap(scaled.reshape(-1, 1), COLORMAP).reshape(-1, 3)
-    image[obstacle] = OBSTACLE
-    image = np.ascontiguousarray(image[::-1])
+    r0, r1, c0, c1 = box = (crop_box(snapshot, np.vstack(extra), margin_cells) if crop
+                            else (0, rows, 0, cols))
+    image = map_raster(snapshot, heat, box)
     if px_per_cell > 1:
         image = cv2.resize(image, None, fx=px_per_cell, fy=px_per_cell,
                            interpolation=cv2.INTER_NEAREST)

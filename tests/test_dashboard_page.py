@@ -1,0 +1,205 @@
+"""The operator's page in a real browser against a real gateway (its peers mocked over real
+Zenoh): the gateway's validation messages next to their fields, the token prompt, keyboard
+use, the phone layout, and the page's own endpoints (state, e-stop, map) over HTTP."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+from selenium.webdriver.common.by import By
+from selenium.webdriver.common.keys import Keys
+
+from services.gateway.page import STATIC
+from shared import keys
+from shared.bus import Bus
+from shared.messages import DriverMode, DriverState, EStop, Odometry
+from shared.zconfig import build_config
+from tests.browser import (PHONE, by_id, chromium, console_errors, row, screenshot, set_viewport,
+                           task_rows, text_of, wait_text)
+from tests.gateway_mocks import ROBOT, MockMapping, RunningGateway, gateway_config
+from tests.polling import wait_for
+
+
+@pytest.fixture(scope="module")
+def chromium_session() -> Iterator:
+    with chromium() as session:
+        yield session
+
+
+@pytest.fixture
+def browser(chromium_session):
+    """The module's browser on a blank page with an empty console (the last test's page, polling
+    a gateway that is gone, logged errors of its own)."""
+    chromium_session.get("about:blank")
+    chromium_session.get_log("browser")
+    return chromium_session
+
+
+class MockDriver:
+    """A fake base driver (mock) over real Zenoh: latches and clears its e-stop on ``driver/estop``
+    as the real one does, publishing its state on every change and a few times a second."""
+
+    def __init__(self, endpoint: str, answer: bool = True) -> None:
+        self.bus = Bus.open(build_config(connect=[endpoint]), ROBOT, "mock-driver")
+        self.requests: list[EStop] = []
+        self.latched = False
+        self.answer = answer
+        self._states = self.bus.publisher(keys.driver_state(ROBOT), DriverState)
+        self._odom = self.bus.publisher(keys.odom(ROBOT), Odometry)
+        self.bus.subscribe(keys.estop(ROBOT), EStop, self._on_estop)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _on_estop(self, request: EStop) -> None:
+        self.requests.append(request)
+        self.latched = request.engage
+        self._publish()
+
+    def _publish(self) -> None:
+        if self.answer:
+            self._states.put(DriverState(stamp=0.0, mode=DriverMode.ESTOP if self.latched else DriverMode.READY,
+                                         estop_latched=self.latched))
+            self._odom.put(Odometry(seq=0, stamp=0.0, x=0.5, y=0.5, yaw=1.0))
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.2):
+            self._publish()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+        self.bus.close()
+
+
+def test_the_page_and_its_files_are_served_without_a_token_and_fetch_nothing_from_elsewhere(
+        inproc_router: str, tmp_path: Path) -> None:
+    running = RunningGateway(inproc_router, gateway_config(tmp_path, token="s3cret"))
+    try:
+        page = httpx.get(f"{running.url}/", timeout=10)
+        assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
+        for name in ("app.js", "style.css"):
+            assert httpx.get(f"{running.url}/static/{name}", timeout=10).status_code == 200
+        assert httpx.get(f"{running.url}/v1/tasks", timeout=10).status_code == 401  # the data is guarded
+    finally:
+        running.close()
+    for path in STATIC.iterdir():  # every asset is local: no CDN, no web font, no absolute URL
+        text = path.read_text()
+        assert "http://" not in text and "https://" not in text and "@import" not in text, path
+
+
+def test_estop_endpoints_are_confirmed_by_the_driver_and_work_without_a_task(
+        inproc_router: str, gateway: RunningGateway) -> None:
+    url = f"{gateway.url}/v1/robots/{ROBOT}"
+    assert httpx.get(url, timeout=10).json()["driver"] is None
+    driver = MockDriver(inproc_router)
+    try:
+        wait_for(lambda: httpx.get(url, timeout=10).json()["driver"], what="the driver state")
+        engaged = httpx.post(f"{url}/estop", json={"reason": "test"}, timeout=10)
+        assert engaged.status_code == 200, engaged.text
+        assert engaged.json()["driver"]["estop_latched"] is True and engaged.json()["active_task"] is None
+        assert driver.requests[-1].engage and driver.requests[-1].source == "gateway"
+        assert driver.requests[-1].reason == "test"
+        assert httpx.post(f"{url}/estop", timeout=10).status_code == 200  # no body: still latches
+        refused = httpx.post(f"{url}/estop/clear", json={"confirm": False}, timeout=10)
+        assert refused.status_code == 422 and refused.json()["errors"][0]["field"] == "confirm"
+        assert httpx.post(f"{url}/estop/clear", timeout=10).status_code == 422  # confirm is required
+        assert driver.latched
+        cleared = httpx.post(f"{url}/estop/clear", json={"confirm": True}, timeout=10)
+        assert cleared.status_code == 200 and cleared.json()["driver"]["estop_latched"] is False
+        assert cleared.json()["pose"] == {"x": 0.5, "y": 0.5, "yaw": 1.0}
+        assert httpx.post(f"{gateway.url}/v1/robots/nope/estop", timeout=10).status_code == 404
+    finally:
+        driver.close()
+
+
+def test_an_estop_the_driver_does_not_confirm_is_a_504_that_says_so(
+        inproc_router: str, tmp_path: Path) -> None:
+    running = RunningGateway(inproc_router, gateway_config(tmp_path, estop_confirm_s=0.6))
+    deaf = MockDriver(inproc_router, answer=False)  # receives, never reports
+    try:
+        response = httpx.post(f"{running.url}/v1/robots/{ROBOT}/estop", timeout=10)
+        assert response.status_code == 504
+        detail = response.json()["detail"]
+        assert "did not confirm" in detail and "no driver state" in detail and "hardware stop" in detail
+        assert len(deaf.requests) >= 2 and all(r.engage for r in deaf.requests)  # re-sent until the deadline
+    finally:
+        deaf.close()
+        running.close()
+
+
+def test_bad_submissions_show_the_gateways_messages_next_to_their_fields(
+        browser, gateway: RunningGateway, tmp_path: Path) -> None:
+    browser.get(gateway.url)
+    wait_text(browser, "health", "gateway")
+    names = by_id(browser, "target-input")
+    for i in range(17):  # keyboard only: a name and Enter makes a chip; Enter on an empty field submits
+        names.send_keys(f"thing{i}", Keys.ENTER)
+    assert text_of(browser, "target-count") == "17 / 16"
+    names.send_keys(Keys.ENTER)
+    expected = httpx.post(f"{gateway.url}/v1/tasks", json={"targets": [f"thing{i}" for i in range(17)],
+                                                           "robot_id": ROBOT}).json()["detail"]
+    assert wait_text(browser, "error-targets", expected) == expected  # "targets: must hold 1 to 16 ..."
+    assert names.get_attribute("aria-invalid") == "true"
+
+    for _ in range(16):  # Backspace on the empty field removes the last chip
+        names.send_keys(Keys.BACKSPACE)
+    assert text_of(browser, "target-count") == "1 / 16"
+    names.send_keys(" ", Keys.ENTER)  # a blank name
+    by_id(browser, "max-steps").send_keys("0")
+    by_id(browser, "submit").send_keys(Keys.ENTER)
+    wait_text(browser, "error-targets", "target 1 must be 1 to 64 characters after trimming, got 0")
+    wait_text(browser, "error-max_steps", "max_steps: Input should be greater than or equal to 1")
+    assert task_rows(browser) == []  # nothing was accepted
+    screenshot(browser, tmp_path, "bad-submission")
+    assert console_errors(browser, expected_statuses=(422,)) == []
+
+
+def test_with_a_token_the_page_asks_for_it_and_then_works(browser, inproc_router: str,
+                                                          tmp_path: Path) -> None:
+    running = RunningGateway(inproc_router, gateway_config(tmp_path / "state", token="s3cret"))
+    try:
+        browser.get(running.url)
+        wait_text(browser, "token-message", "This gateway needs a token (401: missing bearer token")
+        by_id(browser, "token").send_keys("wrong", Keys.ENTER)
+        wait_text(browser, "token-message", "The gateway refused the token (401: wrong bearer token)")
+        by_id(browser, "token").send_keys("s3cret", Keys.ENTER)
+        wait_text(browser, "health", "gateway")
+        assert not by_id(browser, "token-form").is_displayed()
+        by_id(browser, "target-input").send_keys("chair", Keys.ENTER, Keys.ENTER)
+        task = wait_for(lambda: task_rows(browser), what="the task in the list")[0]
+        task_id = task.get_attribute("data-task")
+        wait_text(browser, "events", f"task {task_id[:8]} searching")  # the event stream, with the token
+        assert browser.execute_script("return sessionStorage.getItem('ovamos.gateway.token')") == "s3cret"
+        row(browser, task_id).find_element(By.CSS_SELECTOR, "button.cancel").click()
+        wait_text(browser, "events", f"task {task_id[:8]} cancelled")
+        screenshot(browser, tmp_path, "token")
+        assert console_errors(browser, expected_statuses=(401,)) == []
+    finally:
+        running.close()
+
+
+def test_the_phone_layout_keeps_the_estop_in_view_and_nothing_overflows(
+        browser, inproc_router: str, gateway: RunningGateway, tmp_path: Path) -> None:
+    mapping = MockMapping(inproc_router, service="mapping")  # the page asks a live "mapping" for maps
+    try:
+        set_viewport(browser, PHONE)
+        browser.get(gateway.url)
+        wait_for(lambda: by_id(browser, "map").get_attribute("data-seq"), what="a map drawn")
+        for y in (0, 600, 2000):
+            browser.execute_script(f"window.scrollTo(0, {y})")
+            box = browser.execute_script(
+                "const r = document.getElementById('estop').getBoundingClientRect();"
+                "return [r.top, r.bottom, r.left, r.right, window.innerHeight, window.innerWidth];")
+            top, bottom, left, right, height, width = box
+            assert 0 <= top and bottom <= height and 0 <= left and right <= width, box
+        assert browser.execute_script("return document.documentElement.scrollWidth") <= PHONE[0]
+        screenshot(browser, tmp_path, "phone")
+        assert console_errors(browser) == []
+    finally:
+        mapping.close()
+        set_viewport(browser, (1280, 800))
