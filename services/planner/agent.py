@@ -172,7 +172,8 @@ class SearchAgent:
                 return Step(action, Reason.NAVIGATE, goal)
             if goal.kind is GoalKind.OBJECT:  # as close as the map allows, still too far
                 log.info("step %d: %s at (%.2f, %.2f): the closest reachable place is %.2f m away",
-                         self.task.steps, goal.label, goal.x, goal.y, math.hypot(goal.x - pose.x, goal.y - pose.y))
+                         self.task.steps, goal.label, goal.x, goal.y,
+                         math.hypot(goal.x - pose.x, goal.y - pose.y))
                 self.unreachable.add(goal.x, goal.y, self.task.steps)
             elif goal.kind is GoalKind.CANDIDATE:
                 self.visited.append((goal.x, goal.y))
@@ -209,8 +210,9 @@ class SearchAgent:
         previous = self.goal
         self.goal = decide(snapshot, (pose.x, pose.y), remaining, self.config.decision,
                            np.array(self.unreachable.points(self.task.steps), float), np.array(visited, float))
-        if self.goal != previous and self.goal is not None:
-            g = self.goal
+        g, same_place = self.goal, self.config.decision.avoid_radius_m
+        if g is not None and (previous is None or (g.kind, g.label) != (previous.kind, previous.label)
+                              or math.hypot(g.x - previous.x, g.y - previous.y) > same_place):
             log.info("step %d: goal %s%s at (%.2f, %.2f) of %d candidates", self.task.steps, g.kind.value,
                      f" {g.label}" if g.label else "", g.x, g.y, g.candidates)
         self.decisions += 1
