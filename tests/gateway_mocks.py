@@ -19,7 +19,7 @@ from services.gateway.config import GatewayConfig
 from services.gateway.service import GatewayService
 from shared import keys
 from shared.bus import Bus
-from shared.messages import FoundObject, MapSnapshot, ObjectInstance, TaskEvent, TaskSpec, TaskStatus
+from shared.messages import FoundObject, Goal, MapSnapshot, ObjectInstance, TaskEvent, TaskSpec, TaskStatus
 from shared.procs import free_port
 from shared.service import run_service
 from shared.zconfig import build_config
@@ -74,10 +74,11 @@ class MockPlanner:
             return [s for s in self._specs if task_id is None or s.task_id == task_id]
 
     def report(self, task_id: str, status: TaskStatus, targets: list[str], *, steps: int,
-               found: tuple[FoundObject, ...] = (), x: float = 0.0, y: float = 0.0) -> None:
+               found: tuple[FoundObject, ...] = (), x: float = 0.0, y: float = 0.0,
+               goal: Goal | None = None) -> None:
         self.events.put(TaskEvent(task_id=task_id, status=status, targets=tuple(targets), found=found,
                                   steps=steps, distance_m=0.25 * steps, stamp=time.time(), x=x, y=y,
-                                  message=f"mock step {steps}"))
+                                  message=f"mock step {steps}", goal=goal))
 
     def close(self) -> None:
         self.bus.close()

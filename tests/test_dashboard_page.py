@@ -16,11 +16,12 @@ from selenium.webdriver.common.keys import Keys
 from services.gateway.page import STATIC
 from shared import keys
 from shared.bus import Bus
-from shared.messages import DriverMode, DriverState, EStop, Odometry
+from services.gateway.client import GatewayClient
+from shared.messages import DriverMode, DriverState, EStop, Goal, Odometry, TaskStatus
 from shared.zconfig import build_config
 from tests.browser import (PHONE, by_id, chromium, console_errors, row, screenshot, set_viewport,
                            task_rows, text_of, wait_text)
-from tests.gateway_mocks import ROBOT, MockMapping, RunningGateway, gateway_config
+from tests.gateway_mocks import ROBOT, MockMapping, MockPlanner, RunningGateway, gateway_config
 from tests.polling import wait_for
 
 
@@ -203,3 +204,43 @@ def test_the_phone_layout_keeps_the_estop_in_view_and_nothing_overflows(
     finally:
         mapping.close()
         set_viewport(browser, (1280, 800))
+
+
+def test_the_map_view_holds_what_the_page_draws(inproc_router: str, gateway: RunningGateway,
+                                                planner: MockPlanner) -> None:
+    mapping, driver = MockMapping(inproc_router), MockDriver(inproc_router)
+    url = f"{gateway.url}/v1/robots/{ROBOT}/map"
+    try:
+        with GatewayClient(gateway.url) as api:
+            task = api.submit(["chair", "sofa"])
+            goal = Goal(kind="candidate", x=0.6, y=1.3)
+            for step, (x, y) in enumerate([(0.4, 0.4), (0.5, 0.6)], start=1):
+                wait_for(lambda: planner.report(task.id, TaskStatus.SEARCHING, ["chair", "sofa"], steps=step,
+                                                x=x, y=y, goal=goal) or api.get(task.id).steps == step,
+                         what=f"step {step} applied")
+        view = wait_for(lambda: (r := httpx.get(url, timeout=10)).status_code == 200 and r.json()
+                        and r.json()["robot"] and r.json(), what="the map view with the robot")
+        assert view["task_id"] == task.id and view["path"] == [[0.4, 0.4], [0.5, 0.6]]
+        assert view["goal"] == {"kind": "candidate", "x": 0.6, "y": 1.3, "label": None}
+        assert view["robot"] == {"x": 0.5, "y": 0.5, "yaw": 1.0}  # the driver's odometry
+        assert view["layers"] == ["chair"] and view["frontiers"] == [[1.7, 1.0]]
+        assert [o["label"] for o in view["objects"]] == ["chair"]
+        # the chair layer's hot patch (rows 25-29, columns 10-14 at 5 cm) is one candidate
+        (best,) = view["candidates"]
+        assert 0.5 <= best["x"] <= 0.75 and 1.25 <= best["y"] <= 1.5 and best["value"] > 0
+        # the raster covers the window it says, and everything drawn lies inside it
+        assert view["image"].startswith("data:image/png;base64,")
+        right, top = view["x0"] + view["width"] * view["resolution"], view["y0"] + view["height"] * view["resolution"]
+        for x, y in [*view["path"], *view["frontiers"], (0.6, 1.4)]:
+            assert view["x0"] <= x <= right and view["y0"] <= y <= top
+        assert httpx.get(url, params={"layer": "chair"}, timeout=10).json()["layer"] == "chair"
+        bad = httpx.get(url, params={"layer": "piano"}, timeout=10)
+        assert bad.status_code == 422 and "unknown value layer 'piano'" in bad.json()["detail"]
+        api_cancel = httpx.delete(f"{gateway.url}/v1/tasks/{task.id}", timeout=10)
+        assert api_cancel.status_code == 200
+        after = httpx.get(url, timeout=10).json()
+        assert after["goal"] is None and after["candidates"] == []  # no search: no goal, no candidates
+        assert httpx.get(f"{gateway.url}/v1/robots/nope/map", timeout=10).status_code == 404
+    finally:
+        driver.close()
+        mapping.close()

@@ -181,7 +181,7 @@ function showDriver(robot) {
     kind = d.mode;
   }
   box.textContent = text;
-  box.className = `driver ${kind}`;
+  box.className = `driver mode-${kind}`;
   box.dataset.mode = d ? d.mode : "";
   box.dataset.latched = d && d.estop_latched ? "true" : "false";
   $("clear-estop").hidden = !(d && d.estop_latched);
@@ -308,7 +308,7 @@ function cell(tr, name) {
 function taskRow(view) {
   const tr = document.createElement("tr");
   tr.dataset.task = view.id;
-  for (const name of ["status", "queue", "found", "steps", "distance", "actions"]) {
+  for (const name of ["status", "found", "steps", "distance", "actions"]) {
     const td = document.createElement("td");
     td.className = name;
     tr.append(td);
@@ -323,16 +323,16 @@ function taskRow(view) {
   cancel.className = "cancel";
   cancel.textContent = "Cancel";
   cancel.addEventListener("click", () => cancelTask(view.id));
-  cell(tr, "actions").append(watch, " ", cancel);
+  cell(tr, "actions").append(watch, cancel);
   return tr;
 }
 
 function updateRow(tr, v) {
   const status = cell(tr, "status");
-  status.textContent = v.status + (v.message && !v.final ? ` – ${v.message}` : "");
+  const note = v.queue_position ? ` #${v.queue_position}` : v.message && !ROUTINE_WAIT.test(v.message) ? ` – ${v.message}` : "";
+  status.textContent = v.status + note;
   status.className = `status ${v.status}`;
   tr.dataset.status = v.status;
-  cell(tr, "queue").textContent = v.queue_position ?? "";
   const found = v.found.map((f) => f.label);
   const f = cell(tr, "found");
   f.replaceChildren();
@@ -343,7 +343,7 @@ function updateRow(tr, v) {
     f.append(ok, v.remaining.length ? " / " : "");
   }
   f.append(v.remaining.join(", "));
-  cell(tr, "steps").textContent = `${v.steps} / ${v.max_steps}`;
+  cell(tr, "steps").textContent = `${v.steps}/${v.max_steps}`;
   tr.dataset.steps = v.steps;
   cell(tr, "distance").textContent = `${v.distance_m.toFixed(1)} m`;
   tr.querySelector("button.cancel").hidden = isFinal(v);
@@ -553,11 +553,12 @@ function drawMap() {
 
   const font = Math.round(12 * dpr);
   ctx.font = `${font}px system-ui, sans-serif`;
+  const foundLabels = new Set(view.found.map((f) => f.label));
   for (const o of view.objects) {
     const at = px(o.x, o.y);
     ctx.strokeStyle = o.confirmed ? COLOURS.confirmed : COLOURS.unconfirmed;
     circle(ctx, at, unit * 0.7, false);
-    label(ctx, `${o.label} ×${o.hits}`, at[0] + unit, at[1] - unit * 0.3, font);
+    if (!foundLabels.has(o.label)) label(ctx, `${o.label} ×${o.hits}`, at[0] + unit, at[1] - unit * 0.3, font);
   }
 
   const foundAt = [];
@@ -619,6 +620,9 @@ function circle(ctx, [u, v], r, fill) {
 function label(ctx, text, u, v, font, bold = false) {
   ctx.save();
   ctx.font = `${bold ? "bold " : ""}${font}px system-ui, sans-serif`;
+  const width = ctx.measureText(text).width;  // kept inside the canvas: flipped left at the right edge
+  if (u + width > ctx.canvas.width - 2) u = Math.max(2, Math.min(u - width - 2 * font, ctx.canvas.width - width - 2));
+  v = Math.min(Math.max(v, font), ctx.canvas.height - 4);
   ctx.lineWidth = 3;
   ctx.strokeStyle = "rgba(255,255,255,0.9)";
   ctx.strokeText(text, u, v);
