@@ -12,6 +12,7 @@ from collections.abc import Iterator
 import httpx
 import pytest
 from selenium.webdriver.common.by import By
+from selenium.webdriver.common.keys import Keys
 
 from ovamos.demo import DEMO_EPISODE, DEMO_SEED, SERVICES, demo_entries, write_configs
 from ovamos.supervisor import Supervisor, port_open
@@ -101,8 +102,11 @@ def test_an_operator_searches_stops_resumes_and_cancels_from_the_page(
         assert view["task_id"] == task_id and len(view["path"]) > 1 and view["robot"] is not None
         screenshot(browser, shots, "searching")
 
-        # E-STOP: the driver reports the latch, the robot stops, the planner says why it waits
-        by_id(browser, "estop").click()
+        assert browser.execute_script("return document.documentElement.scrollWidth") <= LAPTOP[0]
+
+        # E-STOP (from the keyboard): the driver reports the latch, the robot stops, the planner
+        # says why it waits
+        by_id(browser, "estop").send_keys(Keys.ENTER)
         wait_for(lambda: by_id(browser, "driver-state").get_attribute("data-latched") == "true",
                  what="the driver reporting the latched e-stop")
         assert "estop" in text_of(browser, "driver-state")
@@ -115,7 +119,10 @@ def test_an_operator_searches_stops_resumes_and_cancels_from_the_page(
         # clear, confirmed in a dialog: the search resumes
         by_id(browser, "clear-estop").click()
         assert by_id(browser, "clear-dialog").is_displayed()
-        by_id(browser, "clear-confirm").click()
+        focused = browser.switch_to.active_element
+        assert focused.text == "Keep it latched"  # Enter right away keeps it latched
+        focused.send_keys(Keys.TAB)
+        browser.switch_to.active_element.send_keys(Keys.ENTER)  # "Clear e-stop"
         wait_for(lambda: by_id(browser, "driver-state").get_attribute("data-latched") == "false",
                  what="the e-stop released")
         wait_text(browser, "events", f"task {task_id[:8]} resumed")
