@@ -108,7 +108,8 @@ def test_estop_endpoints_are_confirmed_by_the_driver_and_work_without_a_task(
         assert httpx.post(f"{url}/estop", timeout=10).status_code == 200  # no body: still latches
         refused = httpx.post(f"{url}/estop/clear", json={"confirm": False}, timeout=10)
         assert refused.status_code == 422 and refused.json()["errors"][0]["field"] == "confirm"
-        assert httpx.post(f"{url}/estop/clear", timeout=10).status_code == 422  # confirm is required
+        missing = httpx.post(f"{url}/estop/clear", timeout=10)  # confirm is required
+        assert missing.status_code == 422 and 'send a JSON object like {"confirm": true}' in missing.json()["detail"]
         assert driver.latched
         cleared = httpx.post(f"{url}/estop/clear", json={"confirm": True}, timeout=10)
         assert cleared.status_code == 200 and cleared.json()["driver"]["estop_latched"] is False

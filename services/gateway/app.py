@@ -153,10 +153,12 @@ def _where(loc: tuple[object, ...]) -> str:
     return out or "body"
 
 
+# what to send, by route: a body-level error says it (the task body unless another is named)
+BODY_EXAMPLES = {"/v1/robots/{robot_id}/estop/clear": '{"confirm": true}'}
 BODY_EXAMPLE = '{"targets": ["chair", "fridge"]}'
 
 
-def _problem(error: dict, sent_json: bool) -> dict[str, str]:
+def _problem(error: dict, sent_json: bool, example: str = BODY_EXAMPLE) -> dict[str, str]:
     """One validation error as ``{"field", "message"}``; the body-level ones say what to send."""
     kind, loc = error.get("type"), tuple(error.get("loc", ()))
     if kind == "json_invalid":
@@ -165,7 +167,7 @@ def _problem(error: dict, sent_json: bool) -> dict[str, str]:
     if loc == ("body",):
         what = ("missing" if kind == "missing" else "not a JSON object" if sent_json
                 else "not sent as JSON (Content-Type: application/json)")
-        return {"field": "body", "message": f"body is {what}: send a JSON object like {BODY_EXAMPLE}"}
+        return {"field": "body", "message": f"body is {what}: send a JSON object like {example}"}
     msg = str(error.get("msg", "invalid")).removeprefix("Value error, ")
     return {"field": _where(loc), "message": f"{_where(loc)}: {msg}"}
 
@@ -180,7 +182,9 @@ async def _validation_error(request: Request, exc: RequestValidationError) -> JS
     """422 with one readable sentence (``detail``) and one entry per problem (``errors``)."""
     _count_rejected(request.app, 422)
     sent_json = "json" in request.headers.get("content-type", "")
-    errors = [_problem(e, sent_json) for e in exc.errors()]
+    route = request.scope.get("route")
+    example = BODY_EXAMPLES.get(getattr(route, "path", ""), BODY_EXAMPLE)
+    errors = [_problem(e, sent_json, example) for e in exc.errors()]
     detail = "; ".join(e["message"] for e in errors) or "invalid request"
     return JSONResponse({"detail": detail, "errors": errors}, status_code=422)
 
