@@ -179,6 +179,11 @@ def test_with_a_token_the_page_asks_for_it_and_then_works(browser, inproc_router
         assert browser.execute_script("return sessionStorage.getItem('ovamos.gateway.token')") == "s3cret"
         row(browser, task_id).find_element(By.CSS_SELECTOR, "button.cancel").click()
         wait_text(browser, "events", f"task {task_id[:8]} cancelled")
+        # a task started elsewhere (here: over HTTP) is listed and watched
+        other = httpx.post(f"{running.url}/v1/tasks", json={"targets": ["sofa"]},
+                           headers={"Authorization": "Bearer s3cret"}, timeout=10).json()["id"]
+        wait_text(browser, "events", f"task {other[:8]} searching")
+        assert "selected" in row(browser, other).get_attribute("class")
         screenshot(browser, tmp_path, "token")
         assert console_errors(browser, expected_statuses=(401,)) == []
     finally:

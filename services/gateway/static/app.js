@@ -23,6 +23,7 @@ const state = {
   robot: null, robots: [], taskId: null, stream: null, streamTask: null, views: new Map(),
   chips: [], needToken: false, mapBusy: false, lastMap: null, image: null, lastWait: new Map(),
   services: new Map(),  // robot -> names of its live services
+  lastActive: null,  // the robot's running task when the list was last read
 };
 
 // -- the API ---------------------------------------------------------------------------------------
@@ -126,6 +127,7 @@ function selectRobot(robot) {
   $("robot").value = robot;
   $("submit-robot").value = robot;
   state.taskId = null;
+  state.lastActive = null;
   state.lastMap = null;
   loadRobot().catch((err) => banner(err.message));
   loadTasks().catch((err) => banner(err.message));
@@ -371,9 +373,14 @@ async function loadTasks() {
   });
   for (const tr of rows.values()) tr.remove();
   $("tasks-empty").hidden = tasks.length > 0;
-  if (state.taskId === null && tasks.length) {
-    const active = tasks.find((t) => t.status === "searching");
-    selectTask((active || tasks[0]).id);
+  // watch the robot's running task: at first, and whenever another one starts (from this page
+  // or anywhere else); a task picked with Watch stays watched until then
+  const active = tasks.find((t) => t.status === "searching");
+  if (active && active.id !== state.lastActive) {
+    state.lastActive = active.id;
+    selectTask(active.id);
+  } else if (state.taskId === null && tasks.length) {
+    selectTask(tasks[0].id);
   }
 }
 
