@@ -325,7 +325,10 @@ function taskRow(view) {
   cancel.className = "cancel";
   cancel.textContent = "Cancel";
   cancel.addEventListener("click", () => cancelTask(view.id));
-  cell(tr, "actions").append(watch, cancel);
+  const buttons = document.createElement("div");
+  buttons.className = "buttons";
+  buttons.append(watch, cancel);
+  cell(tr, "actions").append(buttons);
   return tr;
 }
 
