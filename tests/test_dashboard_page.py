@@ -128,7 +128,8 @@ def test_an_estop_the_driver_does_not_confirm_is_a_504_that_says_so(
         assert response.status_code == 504
         detail = response.json()["detail"]
         assert "did not confirm" in detail and "no driver state" in detail and "hardware stop" in detail
-        assert len(deaf.requests) >= 2 and all(r.engage for r in deaf.requests)  # re-sent until the deadline
+        wait_for(lambda: len(deaf.requests) >= 2, what="the e-stop re-sent until the deadline")
+        assert all(r.engage for r in deaf.requests)
     finally:
         deaf.close()
         running.close()
