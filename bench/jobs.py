@@ -5,8 +5,8 @@ step) and episodes are independent, so the work units are (policy, episode index
 over worker processes. Workers are started with "spawn": a fresh interpreter per worker inherits
 no MuJoCo/EGL context or thread state from the parent. Results stream back as they finish.
 
-An episode's outcome depends only on (seed, index, policy, step limit): the runner is
-deterministic.
+An episode's outcome depends only on (seed, index, policy, step limit, perception preset, home
+tier): the runner is deterministic.
 """
 
 from __future__ import annotations
@@ -19,9 +19,10 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from typing import Any
 
-from bench.episode import EpisodeResult, episode_config, run_episode
+from bench.episode import EpisodeConfig, EpisodeResult, episode_config, run_episode
 from services.sim.episodes import make_episode
 from services.sim.evaluator import GroundTruth
+from services.sim.perception_presets import perception_preset
 from services.sim.prior import ObjectPrior
 from services.sim.world import Scene
 
@@ -38,6 +39,8 @@ class Job:
     seed: int
     index: int
     max_steps: int | None = None
+    perception: str = "ideal"
+    homes: str = "default"
 
     @property
     def name(self) -> str:
@@ -51,10 +54,10 @@ def load_prior() -> ObjectPrior:
 
 
 @functools.lru_cache(maxsize=4)
-def load_episode(seed: int, index: int) -> tuple[Any, Scene, GroundTruth]:
+def load_episode(seed: int, index: int, homes: str = "default") -> tuple[Any, Scene, GroundTruth]:
     """An episode's spec, scene and ground truth: cached because the policies of one episode
     share them, and generating a scene and its distance fields costs about a second."""
-    return make_episode(seed, index, load_prior())
+    return make_episode(seed, index, load_prior(), homes)
 
 
 def init_worker() -> None:
@@ -66,10 +69,11 @@ def init_worker() -> None:
 
 def run_job(job: Job) -> EpisodeResult:
     """The episode of ``job`` with its policy (the step limit overridden for quick runs)."""
-    spec, scene, truth = load_episode(job.seed, job.index)
+    spec, scene, truth = load_episode(job.seed, job.index, job.homes)
     if job.max_steps is not None:
         spec = spec.model_copy(update={"max_steps": job.max_steps})
-    return run_episode(spec, scene, truth, episode_config(job.policy), load_prior())
+    config = EpisodeConfig(perception=perception_preset(job.perception))
+    return run_episode(spec, scene, truth, episode_config(job.policy, config), load_prior())
 
 
 def _work(job: Job) -> dict[str, Any]:
@@ -80,11 +84,11 @@ def _work(job: Job) -> dict[str, Any]:
         raise EpisodeFailed(f"episode {job.name}: {type(exc).__name__}: {exc}") from None
 
 
-def jobs_for(episodes: int, seed: int, policies: Sequence[str], max_steps: int | None = None
-             ) -> list[Job]:
+def jobs_for(episodes: int, seed: int, policies: Sequence[str], max_steps: int | None = None,
+             perception: str = "ideal", homes: str = "default") -> list[Job]:
     """Episode-major order: a worker tends to get the policies of one episode in a row (its scene
     is cached), and a run cut short has covered every policy about equally."""
-    return [Job(p, seed, i, max_steps) for i in range(episodes) for p in policies]
+    return [Job(p, seed, i, max_steps, perception, homes) for i in range(episodes) for p in policies]
 
 
 def iter_results(jobs: Sequence[Job], workers: int) -> Iterator[EpisodeResult]:

@@ -34,6 +34,8 @@ from bench.policies import POLICY_ORDER
 from bench.stats import miss_reasons, paired_differences, policy_scores
 from bench.tables import print_table
 from services.mapping.render import write_png
+from services.sim.generate import home_tier
+from services.sim.perception_presets import perception_preset
 
 TIMING_FIELDS = {"seconds"}  # wall clock: kept out of the comparable JSONL
 
@@ -53,6 +55,15 @@ def parse_policies(text: str | Sequence[str]) -> tuple[str, ...]:
     if unknown or not names:
         raise SearchError(f"unknown or no policies {unknown or names} (known: {', '.join(POLICY_ORDER)})")
     return tuple(p for p in POLICY_ORDER if p in names)
+
+
+def check_settings(perception: str, homes: str) -> None:
+    """A perception preset and a home tier that exist (else a :class:`SearchError` naming them)."""
+    try:
+        perception_preset(perception)
+        home_tier(homes)
+    except ValueError as exc:
+        raise SearchError(str(exc)) from None
 
 
 def parse_episode_id(episode_id: str) -> tuple[int, int]:
@@ -83,6 +94,8 @@ class SearchRun:
     max_steps: int | None
     results: list[EpisodeResult]  # sorted by (policy, episode index)
     seconds: float
+    perception: str = "ideal"
+    homes: str = "default"
 
 
 def sort_results(results: Iterable[EpisodeResult]) -> list[EpisodeResult]:
@@ -121,14 +134,17 @@ def _progress(console: Console | None, total: int) -> Iterator[Callable[[Episode
 
 
 def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = POLICY_ORDER, workers: int = 2,
-               max_steps: int | None = None, progress: Console | None = None) -> SearchRun:
-    """Run every (policy, episode) pair; ``max_steps`` overrides the paper's 500 (quick runs and
+               max_steps: int | None = None, progress: Console | None = None, perception: str = "ideal",
+               homes: str = "default") -> SearchRun:
+    """Run every (policy, episode) pair with the simulated perception ``perception`` (a preset
+    name) in homes of tier ``homes``; ``max_steps`` overrides the paper's 500 (quick runs and
     tests only: the tables need the paper's limit)."""
     if episodes < 1 or workers < 1 or (max_steps is not None and max_steps < 1):
         raise SearchError(f"need episodes >= 1, workers >= 1 and max steps >= 1 "
                           f"(got {episodes}, {workers}, {max_steps})")
     policies = parse_policies(policies)
-    jobs = jobs_for(episodes, seed, policies, max_steps)
+    check_settings(perception, homes)
+    jobs = jobs_for(episodes, seed, policies, max_steps, perception, homes)
     started = time.perf_counter()
     results = []
     with _progress(progress, len(jobs)) as advance:
@@ -136,7 +152,7 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = POLICY_OR
             results.append(result)
             advance(result)
     return SearchRun(seed, episodes, policies, workers, max_steps, sort_results(results),
-                     time.perf_counter() - started)
+                     time.perf_counter() - started, perception, homes)
 
 
 def summary(run: SearchRun) -> dict[str, Any]:
@@ -146,7 +162,7 @@ def summary(run: SearchRun) -> dict[str, Any]:
             "seconds": round(run.seconds, 1),
             "episodes_per_min": round(60 * len(run.results) / max(run.seconds, 1e-9), 2),
             "seed": run.seed, "episodes": run.episodes, "workers": run.workers,
-            "max_steps": run.max_steps}
+            "max_steps": run.max_steps, "perception": run.perception, "homes": run.homes}
 
 
 # -- files ----------------------------------------------------------------------------------------
@@ -191,16 +207,18 @@ def find_result(results: Iterable[EpisodeResult], episode_id: str, policy: str) 
 
 
 def replay(episode_id: str, out: Path, policy: str = "ovamos", source: Path | None = None,
-           max_steps: int | None = None) -> tuple[Path, EpisodeResult]:
+           max_steps: int | None = None, perception: str = "ideal", homes: str = "default"
+           ) -> tuple[Path, EpisodeResult]:
     """Draw one episode: re-run it (deterministic), or read it from ``source`` (a JSONL this
     module wrote). The scene is always regenerated from the id; a file whose scene seed differs
     was made by another generator and is refused rather than drawn on the wrong house."""
     seed, index = parse_episode_id(episode_id)
     (policy,) = parse_policies(policy)
+    check_settings(perception, homes)
     init_worker()
-    spec, scene, _ = load_episode(seed, index)
+    spec, scene, _ = load_episode(seed, index, homes)
     if source is None:
-        result = run_job(Job(policy, seed, index, max_steps))
+        result = run_job(Job(policy, seed, index, max_steps, perception, homes))
     else:
         result = find_result(read_results(source), spec.episode_id, policy)
         if result.scene_seed != spec.scene_seed:
@@ -215,6 +233,7 @@ def replay(episode_id: str, out: Path, policy: str = "ovamos", source: Path | No
 def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(POLICY_ORDER), workers: int = 2,
          as_json: bool = False, out: Path | None = None, max_steps: int | None = None,
          replay_id: str | None = None, policy: str = "ovamos", source: Path | None = None,
+         perception: str = "ideal", homes: str = "default",
          console: Console | None = None, err: Console | None = None) -> int:
     """``ovamos bench search``: the benchmark, or with ``replay_id`` one episode's picture.
     Raises :class:`SearchError` for bad arguments; returns the exit code."""
@@ -223,7 +242,7 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(POLICY_
     if replay_id is not None:
         if out is None:
             raise SearchError("--replay needs --out DIR for the picture")
-        path, result = replay(replay_id, out, policy, source, max_steps)
+        path, result = replay(replay_id, out, policy, source, max_steps, perception, homes)
         if as_json:
             print(json.dumps({"png": str(path), **result.model_dump(mode="json", exclude={"trajectory"})}))
         else:
@@ -231,7 +250,8 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(POLICY_
                           f"{'success' if result.success else 'failure'}, found {list(result.found)} of "
                           f"{list(result.targets)}, {result.steps} steps -> {path}")
         return 0
-    run = run_search(episodes, seed, parse_policies(policies), workers, max_steps, progress=err)
+    run = run_search(episodes, seed, parse_policies(policies), workers, max_steps, progress=err,
+                     perception=perception, homes=homes)
     result = summary(run)
     if out is not None:
         written = write_outputs(out, run, result)

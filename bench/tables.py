@@ -19,6 +19,7 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
     """Table I (baselines vs. the method) and Table II (ablations), ours beside the paper's."""
     scores = result["policies"]
     limit = "" if result.get("max_steps") is None else f", max {result['max_steps']} steps (quick run)"
+    limit += f", {result.get('perception', 'ideal')} perception, {result.get('homes', 'default')} homes"
     for title, rows in (("Table I: comparison with baselines", TABLE_I),
                         ("Table II: ablations", TABLE_II)):
         present = [p for p in rows if p in scores]

@@ -358,6 +358,10 @@ def bench_search(
                                                                       "episode from (default: re-run it).")] = None,
         max_steps: Annotated[Optional[int], typer.Option(help="Step limit override, for quick runs and "
                                                               "tests only (the paper's: 500).")] = None,
+        perception: Annotated[str, typer.Option(help="Simulated perception preset: ideal, realistic or hard "
+                                                     "(services/sim/perception_presets.py).")] = "ideal",
+        homes: Annotated[str, typer.Option(help="Home tier: default (40-150 m2, 5-8 rooms) or large "
+                                                "(150-300 m2, 8-12 rooms).")] = "default",
         as_json: AsJson = False) -> None:
     """Search benchmark: SR and MSPL per policy (the paper's Tables I and II), or one episode's picture."""
     from bench.search import SearchError
@@ -365,7 +369,7 @@ def bench_search(
     try:
         code = search_main(episodes=episodes, seed=seed, policies=policies, workers=workers, as_json=as_json,
                            out=out, max_steps=max_steps, replay_id=replay, policy=policy, source=source,
-                           console=console, err=err)
+                           perception=perception, homes=homes, console=console, err=err)
     except SearchError as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)

@@ -230,3 +230,16 @@ def test_replay_reruns_the_episode_and_draws_it(run: SearchRun, tmp_path: Path) 
     assert np.array_equal(image, cv2.imread(str(rerun_png)))
     with pytest.raises(SearchError, match="no episode 0-1 with policy vlfm"):
         replay("0-1", tmp_path, "vlfm", source=tmp_path / EPISODES_FILE)
+
+
+def test_a_run_with_a_perception_preset_and_a_home_tier_says_so_and_bad_names_are_refused() -> None:
+    hard = run_search(1, SEED, ("ovamos",), workers=1, max_steps=STEPS, perception="hard", homes="large")
+    result = summary(hard)
+    assert (result["perception"], result["homes"]) == ("hard", "large")
+    out = io.StringIO()
+    print_table(Console(file=out, width=200), result)
+    assert "hard perception, large homes" in out.getvalue()
+    with pytest.raises(SearchError, match="unknown perception preset 'perfect'"):
+        run_search(1, SEED, ("ovamos",), workers=1, perception="perfect")
+    with pytest.raises(SearchError, match="unknown home tier 'huge'"):
+        run_search(1, SEED, ("ovamos",), workers=1, homes="huge")

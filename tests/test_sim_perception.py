@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
+from services.sim.perception_presets import PERCEPTION_PRESETS, perception_preset
 from services.sim.prior import ObjectPrior
 from services.sim.render import SceneRenderer
 from services.sim.world import Scene
@@ -109,3 +110,32 @@ def test_frames_without_instance_ids_are_refused(prior) -> None:
     frame = render(scene).model_copy(update={"instance_ids": None})
     with pytest.raises(ValueError, match="simulated frames"):
         SimPerception(FrameLabels.of(scene), prior).score(frame, TARGETS)
+
+
+def test_presets_get_worse_in_every_figure_from_ideal_to_hard() -> None:
+    """Each preset is a validated config; realistic and hard are noisier, miss more, see less far
+    and confuse more than the one before (the figures behind them: perception_presets.py)."""
+    ideal, realistic, hard = (perception_preset(n) for n in PERCEPTION_PRESETS)
+    assert ideal == SimPerceptionConfig()
+    for better, worse in ((ideal, realistic), (realistic, hard)):
+        assert worse.score_noise > better.score_noise
+        assert worse.p_max < better.p_max
+        assert worse.fp_rate > better.fp_rate
+        assert worse.full_size_pixels >= better.full_size_pixels
+        assert worse.occlusion_power >= better.occlusion_power
+    with pytest.raises(ValueError, match="unknown perception preset 'perfect'"):
+        perception_preset("perfect")
+
+
+def test_a_harder_preset_detects_less_often_from_the_same_views(prior) -> None:
+    """Over a walk of views past the fridge, the share of frames in which it is detected falls
+    from preset to preset: the config is what the detector reads."""
+    scene = two_rooms()
+    with SceneRenderer(scene, 160, 120) as renderer:
+        frames = [renderer.render(1.0 + 0.1 * i, 1.2, POSE[2], seq=i) for i in range(12)]
+    rates = []
+    for name in PERCEPTION_PRESETS:
+        perception = SimPerception(FrameLabels.of(scene), prior, perception_preset(name))
+        hits = [any(d.label == "fridge" for d in perception.detect(f, ["fridge"])) for f in frames]
+        rates.append(sum(hits) / len(frames))
+    assert rates[0] > rates[2] and rates == sorted(rates, reverse=True)

@@ -11,7 +11,7 @@ import pytest
 
 from services.sim.episodes import EpisodeSpec, load_episodes, make_episode, save_episodes
 from services.sim.evaluator import GroundTruth
-from services.sim.generate import generate_scene
+from services.sim.generate import generate_scene, home_tier
 from services.sim.occupancy import box_corners
 from services.sim.prior import ObjectPrior
 from services.sim.world import Scene, SceneError
@@ -127,3 +127,19 @@ def test_episodes_are_seeded_reachable_and_have_a_small_target(tmp_path, prior) 
     save_episodes([e[0] for e in episodes], path)
     assert load_episodes(path) == [e[0] for e in episodes]
     assert isinstance(load_episodes(path)[0], EpisodeSpec)
+
+
+def test_large_homes_are_150_to_300_m2_with_8_to_12_reachable_rooms(prior) -> None:
+    tier = home_tier("large")
+    for seed in range(4):
+        scene = generate_scene(seed, prior, tier)
+        assert 150 <= scene.area <= 300
+        assert 8 <= len(scene.rooms) <= 12
+        rooms = {r.type for r in scene.rooms}
+        assert {"living_room", "kitchen", "bedroom", "bathroom"} <= rooms
+    spec, scene, truth = make_episode(0, 1, prior, homes="large")
+    assert spec.homes == "large" and scene.area >= 150
+    assert truth.stoppable_classes(spec.start.x, spec.start.y)
+    assert make_episode(0, 1, prior)[0].homes == "default"
+    with pytest.raises(ValueError, match="unknown home tier 'huge'"):
+        make_episode(0, 1, prior, homes="huge")

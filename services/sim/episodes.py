@@ -10,7 +10,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from services.sim.evaluator import GroundTruth
-from services.sim.generate import generate_scene
+from services.sim.generate import HomeTier, generate_scene, home_tier
 from services.sim.prior import ObjectPrior
 from shared.motion import Pose
 from services.sim.world import Scene, SceneError
@@ -27,20 +27,23 @@ class EpisodeSpec(BaseModel):
     start: Pose
     targets: tuple[str, ...] = Field(min_length=1)
     max_steps: int = Field(default=MAX_STEPS, gt=0)
+    homes: HomeTier = "default"
 
 
-def make_episode(base_seed: int, index: int, prior: ObjectPrior | None = None
-                 ) -> tuple[EpisodeSpec, Scene, GroundTruth]:
-    """Episode ``index`` of the set drawn from ``base_seed``, with its scene and ground truth.
+def make_episode(base_seed: int, index: int, prior: ObjectPrior | None = None,
+                 homes: str = "default") -> tuple[EpisodeSpec, Scene, GroundTruth]:
+    """Episode ``index`` of the set drawn from ``base_seed`` in homes of tier ``homes``
+    (:data:`~services.sim.generate.HOME_TIERS`), with its scene and ground truth.
 
     Targets are distinct classes present in the scene that a STOP can succeed for (some place
     reachable from the start is within 1 m of an instance), at least one of them small (the
     hard case the method is about).
     """
     prior = prior or ObjectPrior.load()
+    generator = home_tier(homes)
     rng = np.random.default_rng([base_seed, index])
     for _ in range(_SCENE_TRIES):
-        scene = generate_scene(int(rng.integers(2**31)), prior)
+        scene = generate_scene(int(rng.integers(2**31)), prior, generator)
         truth = GroundTruth(scene)
         start = _random_free_pose(rng, truth)
         stoppable = truth.stoppable_classes(start.x, start.y)
@@ -51,7 +54,7 @@ def make_episode(base_seed: int, index: int, prior: ObjectPrior | None = None
         rest = [c for c in stoppable if c != first]
         others = [str(c) for c in rng.choice(rest, TARGETS_PER_EPISODE - 1, replace=False)]
         spec = EpisodeSpec(episode_id=f"{base_seed}-{index}", scene_seed=scene.seed or 0,
-                           start=start, targets=(first, *others))
+                           start=start, targets=(first, *others), homes=homes)
         return spec, scene, truth
     raise RuntimeError(f"no usable scene for episode {base_seed}-{index} in {_SCENE_TRIES} tries")
 

@@ -18,15 +18,20 @@ import hashlib
 import math
 from collections import defaultdict
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from services.sim.occupancy import box_corners
 from services.sim.prior import ObjectPrior
 from services.sim.world import Room, Scene, SceneObject, Wall
 
 SIDES = ("south", "north", "west", "east")
+# Room types besides the living room (the biggest) and a bathroom (the smallest), taken in
+# this order as homes get more rooms.
+_MIDDLE_ROOMS = ("kitchen", "bedroom", "office", "dining_room", "bedroom", "bathroom", "office",
+                 "bedroom", "bathroom", "bedroom", "office")
 
 
 class GeneratorConfig(BaseModel):
@@ -37,6 +42,8 @@ class GeneratorConfig(BaseModel):
     max_area_m2: float = Field(default=150.0, gt=0)
     min_room_side_m: float = Field(default=2.4, gt=1.0)
     m2_per_room: float = Field(default=18.0, gt=0)
+    min_rooms: int = Field(default=5, ge=2, description="area / m2_per_room is clipped to this range")
+    max_rooms: int = Field(default=8, ge=2, le=2 + len(_MIDDLE_ROOMS))
     door_width_m: float = Field(default=0.9, gt=0.5)
     door_clearance_m: float = Field(default=1.0, ge=0, description="kept free around doorways")
     extra_door_probability: float = Field(default=0.3, ge=0, le=1)
@@ -45,6 +52,29 @@ class GeneratorConfig(BaseModel):
     tucked_fraction: float = Field(default=0.3, ge=0, le=1,
                                    description="share of small objects put on the floor beside furniture")
     placement_tries: int = Field(default=40, ge=1)
+
+    @model_validator(mode="after")
+    def _ranges(self) -> GeneratorConfig:
+        if self.min_area_m2 > self.max_area_m2 or self.min_rooms > self.max_rooms:
+            raise ValueError("min_area_m2 / min_rooms must not exceed max_area_m2 / max_rooms")
+        return self
+
+
+HomeTier = Literal["default", "large"]
+HOME_TIERS: dict[str, GeneratorConfig] = {
+    "default": GeneratorConfig(),
+    # The upper range of HM3D's scenes: 150-300 m2 and 8-12 rooms.
+    "large": GeneratorConfig(min_area_m2=150.0, max_area_m2=300.0, m2_per_room=22.0, min_rooms=8, max_rooms=12),
+}
+"""The benchmark's home sizes (``ovamos bench search --homes``)."""
+
+
+def home_tier(name: str) -> GeneratorConfig:
+    """The generator config of a tier; a clear error for an unknown name."""
+    try:
+        return HOME_TIERS[name]
+    except KeyError:
+        raise ValueError(f"unknown home tier {name!r} (known: {', '.join(HOME_TIERS)})") from None
 
 
 @dataclass
@@ -90,8 +120,7 @@ def _split_rooms(rng: np.random.Generator, w: float, d: float, n: int, min_side:
 
 def _room_types(rng: np.random.Generator, rects: list[_Rect]) -> list[str]:
     order = sorted(range(len(rects)), key=lambda i: -rects[i].w * rects[i].h)
-    middle = ["kitchen", "bedroom", "office", "dining_room", "bedroom", "bathroom", "office"]
-    rest = [middle[i] for i in range(len(order) - 2)]
+    rest = list(_MIDDLE_ROOMS[:len(order) - 2])
     rng.shuffle(rest)
     types = ["living_room", *rest, "bathroom"]
     out = [""] * len(rects)
@@ -242,7 +271,7 @@ def generate_scene(seed: int, prior: ObjectPrior | None = None,
     area = rng.uniform(cfg.min_area_m2, cfg.max_area_m2)
     aspect = rng.uniform(0.6, 1.0)
     width, depth = round(math.sqrt(area / aspect), 2), round(math.sqrt(area * aspect), 2)
-    n_rooms = int(np.clip(round(area / cfg.m2_per_room), 5, 8))
+    n_rooms = int(np.clip(round(area / cfg.m2_per_room), cfg.min_rooms, cfg.max_rooms))
     rects = _split_rooms(rng, width, depth, n_rooms, cfg.min_room_side_m)
     types = _room_types(rng, rects)
     rooms = [Room(id=i, type=t, x0=r.x0, y0=r.y0, x1=r.x1, y1=r.y1)
