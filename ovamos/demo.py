@@ -171,7 +171,7 @@ def _write_results(console: Console, client: GatewayClient, view: TaskView, out_
 
 
 def _serve_until_interrupted(console: Console, url: str, robot_id: str) -> None:
-    console.print(f"Everything keeps running. Gateway: {url} (API docs: {url}/docs). Try:\n"
+    console.print(f"Everything keeps running. Operator page: {url}/ (API docs: {url}/docs). Try:\n"
                   f"  curl -X POST {url}/v1/tasks -H 'Content-Type: application/json' "
                   f"-d '{{\"targets\": [\"bed\"], \"robot_id\": \"{robot_id}\"}}'\n"
                   f"Ctrl-C stops everything.")
