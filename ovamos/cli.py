@@ -341,6 +341,19 @@ def bench_perception(frames: Annotated[int, typer.Option(help="hf frames per run
     _report(result, as_json, print_table)
 
 
+@bench_app.command("homes")
+def bench_homes(count: Annotated[int, typer.Option(help="Homes to generate (seeds 0..count-1).")] = 200,
+                homes: Annotated[str, typer.Option(help="Home tier: default or large.")] = "default",
+                as_json: AsJson = False) -> None:
+    """Statistics of the generated homes (rooms, areas, furniture, small objects) beside ProcTHOR-10K's."""
+    from bench.homes import print_table, run
+    try:
+        result = run(count, homes)
+    except ValueError as exc:
+        raise _fail(str(exc)) from None
+    _report(result, as_json, print_table)
+
+
 @bench_app.command("search")
 def bench_search(
         episodes: Annotated[int, typer.Option(help="Episodes per policy (the paper: 120).")] = 120,
