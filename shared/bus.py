@@ -86,6 +86,12 @@ class Publisher(Generic[M]):
             self._put(msg.to_bytes(self._buffer))
         self._bus.counters.bump(self.key, "published")
 
+    def put_bytes(self, payload: bytes) -> None:
+        """Publish a payload already encoded as this key's message type, unchanged (a replayed
+        recording goes back on the wire bit for bit; its subscribers validate it as usual)."""
+        self._put(payload)
+        self._bus.counters.bump(self.key, "published")
+
 
 class Subscription:
     """A declaration (subscriber, queryable, liveliness token or watcher); ``undeclare()`` ends it,
@@ -182,6 +188,23 @@ class BusCore:
         def on_payload(key: str, read: Callable[[], bytes]) -> None:
             self.counters.bump(key, "received")
             self.inbox.put(self._guard(lambda _: handler(key, read()), key_expr), None)
+
+        sub = Subscription(self._listen(key_expr, on_payload))
+        self._declared.append(sub)
+        return sub
+
+    def tap(self, key_expr: str, handler: Callable[[str, bytes], None]) -> Subscription:
+        """Call ``handler(key, payload)`` on the transport's thread for every sample under
+        ``key_expr``, past the inbox (counted as received; exceptions counted as errors).
+
+        For a recorder that bounds its own queue by bytes: the inbox bounds events by count,
+        and 10,000 RGB-D frames are 20 GB. The handler must only enqueue, never block.
+        """
+        guarded = self._guard(lambda sample: handler(*sample), key_expr)
+
+        def on_payload(key: str, read: Callable[[], bytes]) -> None:
+            self.counters.bump(key, "received")
+            guarded((key, read()))
 
         sub = Subscription(self._listen(key_expr, on_payload))
         self._declared.append(sub)

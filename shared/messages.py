@@ -29,7 +29,7 @@ from shared.robot import Primitives
 __all__ = ["DecodeError", "JsonMessage", "BinaryMessage", "ArraySpec", "Intrinsics", "RgbdFrame",
            "MapSnapshot", "ObjectInstance", "PerceptionResult", "CounterSet", "ServiceStats", "CameraState", "Odometry", "PlanCommand", "DriverMode",
            "Outcome", "DriverState", "EStop", "TaskSpec", "TaskStatus", "FINAL", "FoundObject",
-           "Goal", "TaskEvent"]
+           "Goal", "TaskEvent", "TraceOption", "DecisionTrace"]
 
 
 def _validation_error(cls: type, exc: ValidationError) -> DecodeError:
@@ -508,3 +508,42 @@ class TaskEvent(JsonMessage):
     x: float | None = None  # robot position when the event was made
     y: float | None = None
     goal: Goal | None = None  # the goal being driven to; None between goals and once over
+
+
+class TraceOption(BaseModel):
+    """One action a decision step weighed: a candidate of the value map or the best frontier.
+
+    ``belief``: the candidate's share of the belief (None for the frontier); ``path_m``: the
+    path length from the robot on the obstacle map (None where the policy computed none, inf
+    when unreachable); ``q`` and ``visits``: POUCT's mean return and visit count at the root
+    (None when the policy ran no POUCT).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    kind: Literal["candidate", "frontier"]
+    x: float
+    y: float
+    value: float = Field(description="the decision value map at the point")
+    belief: float | None = None
+    path_m: float | None = None
+    q: float | None = None
+    visits: int | None = None
+
+
+class DecisionTrace(JsonMessage):
+    """Why the planner chose its goal: the options of one decision step and the choice.
+
+    Published at every decision (not at every command), so a recording or the live view shows
+    why the robot went where it went. ``goal`` None: nothing left to go to.
+    """
+
+    task_id: str
+    step: int = Field(ge=0)
+    stamp: float
+    map_seq: int = Field(ge=-1, description="seq of the snapshot the decision read")
+    robot_x: float
+    robot_y: float
+    remaining: tuple[str, ...]
+    options: tuple[TraceOption, ...] = ()
+    goal: Goal | None = None
+    reason: str

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from shared import keys
-from shared.messages import (CameraState, DriverState, EStop, MapSnapshot, Odometry, PerceptionResult,
-                             PlanCommand, RgbdFrame, TaskEvent, TaskSpec)
+from shared.messages import (CameraState, DecisionTrace, DriverState, EStop, MapSnapshot, Odometry,
+                             PerceptionResult, PlanCommand, RgbdFrame, TaskEvent, TaskSpec)
 
 __all__ = ["Port", "Node", "TOPOLOGY", "graph"]
 
@@ -76,7 +76,8 @@ TOPOLOGY: dict[str, Node] = {
     "planner": Node(inputs=(Port("task_current", TaskSpec), Port("driver_state", DriverState),
                             Port("camera_state", CameraState),
                             Port("odom", Odometry, keep=1), Port("map_snapshot", MapSnapshot, keep=1)),
-                    outputs=(Port("plan_command", PlanCommand), Port("task_events", TaskEvent)),
+                    outputs=(Port("plan_command", PlanCommand), Port("task_events", TaskEvent),
+                             Port("plan_trace", DecisionTrace)),
                     queries=(Port("map_snapshot", MapSnapshot),)),
     "gateway": Node(inputs=(Port("task_events", TaskEvent), Port("driver_state", DriverState),
                             Port("odom", Odometry, keep=1)),

@@ -91,3 +91,20 @@ def test_vlfm_goes_only_to_objects_of_its_current_target() -> None:
     vlfm = decide(snap, (5.0, 5.0), ["bed", "cup"], DecisionConfig(policy=Policy.VLFM))
     assert vlfm.kind is GoalKind.FRONTIER
     assert decide(snap, (5.0, 5.0), ["cup", "bed"], DecisionConfig(policy=Policy.VLFM)).kind is GoalKind.OBJECT
+
+
+def test_the_trace_holds_every_option_with_belief_path_and_pouct_statistics() -> None:
+    snap = snapshot({(6.0, 5.0): 0.9, (2.0, 8.0): 0.4}, [(9.5, 9.5)])
+    d = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig())
+    kinds = [o.kind for o in d.options]
+    assert kinds.count("frontier") == 1 and kinds.count("candidate") == d.candidates == 2
+    candidates = [o for o in d.options if o.kind == "candidate"]
+    assert sum(o.belief for o in candidates) == pytest.approx(1.0)
+    near = min(candidates, key=lambda o: (o.x - 6.0) ** 2 + (o.y - 5.0) ** 2)
+    assert near.path_m == pytest.approx(1.0, abs=0.5)   # 1 m from the robot, open floor
+    chosen = next(o for o in d.options if (o.x, o.y) == (d.x, d.y))
+    visited = [o for o in d.options if o.visits]
+    assert chosen.q == max(o.q for o in visited) and sum(o.visits for o in d.options) > 0
+    assert d.reason.startswith("POUCT")
+    greedy = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig(policy=Policy.GREEDY))
+    assert greedy.reason and all(o.q is None and o.path_m is None for o in greedy.options)

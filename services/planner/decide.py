@@ -24,7 +24,7 @@ from services.planner.pomdp import POMDPConfig, SearchPOMDP, root_particles
 from services.planner.pouct import POUCT
 from shared.gridpaths import FreeSpaceGraph
 from shared.grid import GridGeometry, inflate
-from shared.messages import MapSnapshot
+from shared.messages import MapSnapshot, TraceOption
 from shared.robot import ROBOT
 
 
@@ -69,6 +69,8 @@ class Decision:
     y: float
     label: str | None = None   # the target, for OBJECT goals
     candidates: int = 0        # how many candidates the step considered
+    reason: str = ""           # why this goal, in words (the planner's decision trace)
+    options: tuple[TraceOption, ...] = ()  # what the step weighed (the decision trace)
 
 
 def explored_window(snapshot: MapSnapshot) -> tuple[slice, slice, GridGeometry]:
@@ -178,7 +180,8 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     for obj in snapshot.objects:
         if obj.confirmed and obj.label in remaining and away(np.array([[obj.x, obj.y]]), avoid,
                                                               radius)[0]:
-            return Decision(GoalKind.OBJECT, obj.x, obj.y, obj.label)
+            return Decision(GoalKind.OBJECT, obj.x, obj.y, obj.label,
+                            reason=f"a confirmed {obj.label}, a remaining target: go beside it and stop")
     avoid = np.vstack([avoid, _points(visited)])
     frontiers = snapshot.frontiers[away(snapshot.frontiers, avoid, radius)]
     if config.policy is Policy.RANDOM:
@@ -194,29 +197,58 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
                            cands.belief[keep] / max(cands.belief[keep].sum(), 1e-12))
     f = best_frontier(frontiers, values, grid, config.candidates.frontier_radius_m)
     frontier = None if f is None else frontiers[f]
+    frontier_value = 0.0 if frontier is None else _value_at(values, grid, frontier)
     if config.policy in FRONTIER_ONLY or len(cands.points) == 0:
-        return None if frontier is None else Decision(GoalKind.FRONTIER, *map(float, frontier))
+        why = (f"{config.policy.value} always takes the best frontier" if config.policy in FRONTIER_ONLY
+               else "no candidate above the value threshold: the best frontier")
+        return None if frontier is None else Decision(
+            GoalKind.FRONTIER, *map(float, frontier), reason=why,
+            options=_options(cands, frontier, frontier_value))
     if config.policy is Policy.GREEDY:
-        return _greedy(cands, frontier, values, grid, config)
-    return _pouct(cands, frontier, robot_xy, snapshot, config)
+        return _greedy(cands, frontier, frontier_value)
+    return _pouct(cands, frontier, frontier_value, robot_xy, snapshot, config)
 
 
 def _points(xy: np.ndarray | None) -> np.ndarray:
     return np.zeros((0, 2)) if xy is None else np.asarray(xy, float).reshape(-1, 2)
 
 
-def _greedy(cands: Candidates, frontier: np.ndarray | None, values: np.ndarray, grid: GridGeometry,
-            config: DecisionConfig) -> Decision:
-    best = int(np.argmax(cands.values))
+def _value_at(values: np.ndarray, grid: GridGeometry, xy: np.ndarray) -> float:
+    """The value map at a world point (its nearest cell of the window)."""
+    row, col = grid.to_cell(*xy)
+    return float(values[int(np.clip(row, 0, grid.rows - 1)), int(np.clip(col, 0, grid.cols - 1))])
+
+
+def _options(cands: Candidates, frontier: np.ndarray | None, frontier_value: float,
+             distances: np.ndarray | None = None, q: dict[int, tuple[float, int]] | None = None
+             ) -> tuple[TraceOption, ...]:
+    """The decision trace's options: the candidates (action i + 1) and the frontier (the last
+    action), with path lengths from the robot (row 0 of ``distances``) and POUCT's ``q``."""
+    def option(kind: str, i: int, xy: np.ndarray, value: float, belief: float | None) -> TraceOption:
+        path = None if distances is None or not np.isfinite(distances[0, i]) else float(distances[0, i])
+        qi, visits = (q or {}).get(i, (None, None))
+        return TraceOption(kind=kind, x=float(xy[0]), y=float(xy[1]), value=value, belief=belief,  # type: ignore[arg-type]
+                           path_m=path, q=qi, visits=visits)
+
+    out = [option("candidate", i + 1, xy, float(v), float(b))
+           for i, (xy, v, b) in enumerate(zip(cands.points, cands.values, cands.belief))]
     if frontier is not None:
-        frontier_value = values[grid.to_cell(*frontier)]
-        if frontier_value > cands.values[best]:
-            return Decision(GoalKind.FRONTIER, *map(float, frontier), candidates=len(cands.points))
-    return Decision(GoalKind.CANDIDATE, *map(float, cands.points[best]), candidates=len(cands.points))
+        out.append(option("frontier", len(cands.points) + 1, frontier, frontier_value, None))
+    return tuple(out)
 
 
-def _pouct(cands: Candidates, frontier: np.ndarray | None, robot_xy: tuple[float, float],
-           snapshot: MapSnapshot, config: DecisionConfig) -> Decision:
+def _greedy(cands: Candidates, frontier: np.ndarray | None, frontier_value: float) -> Decision:
+    best = int(np.argmax(cands.values))
+    options = _options(cands, frontier, frontier_value)
+    if frontier is not None and frontier_value > cands.values[best]:
+        return Decision(GoalKind.FRONTIER, *map(float, frontier), candidates=len(cands.points),
+                        reason="greedy: the frontier's value beats every candidate's", options=options)
+    return Decision(GoalKind.CANDIDATE, *map(float, cands.points[best]), candidates=len(cands.points),
+                    reason="greedy: the highest-valued candidate", options=options)
+
+
+def _pouct(cands: Candidates, frontier: np.ndarray | None, frontier_value: float,
+           robot_xy: tuple[float, float], snapshot: MapSnapshot, config: DecisionConfig) -> Decision:
     points = np.vstack([np.asarray(robot_xy, float)[None], cands.points,
                         *([frontier[None]] if frontier is not None else [])])
     distances = ActionDistances(snapshot, config, include=points).matrix(points)
@@ -224,10 +256,15 @@ def _pouct(cands: Candidates, frontier: np.ndarray | None, robot_xy: tuple[float
     reachable = [i for i in range(1, n + 1) if np.isfinite(distances[0, i])]
     frontier_index = n + 1 if frontier is not None and np.isfinite(distances[0, n + 1]) else None
     if not reachable:
+        options = _options(cands, frontier, frontier_value, distances)
         if frontier_index is None:
-            return Decision(GoalKind.FRONTIER, *map(float, frontier)) if frontier is not None \
-                else Decision(GoalKind.CANDIDATE, *map(float, cands.points[0]), candidates=n)
-        return Decision(GoalKind.FRONTIER, *map(float, points[frontier_index]), candidates=n)
+            why = "no candidate and no frontier has a path: trying the "
+            return Decision(GoalKind.FRONTIER, *map(float, frontier), reason=why + "frontier",
+                            options=options) if frontier is not None \
+                else Decision(GoalKind.CANDIDATE, *map(float, cands.points[0]), candidates=n,
+                              reason=why + "best candidate", options=options)
+        return Decision(GoalKind.FRONTIER, *map(float, points[frontier_index]), candidates=n,
+                        reason="no candidate has a path: the frontier", options=options)
     belief = cands.belief[[i - 1 for i in reachable]]
     belief = belief / belief.sum()
     c = config.pomdp
@@ -237,4 +274,9 @@ def _pouct(cands: Candidates, frontier: np.ndarray | None, robot_xy: tuple[float
                     exploration=c.exploration, seed=config.seed)
     action = planner.plan(root_particles(reachable, belief, c.particles, config.seed))
     kind = GoalKind.FRONTIER if action == frontier_index else GoalKind.CANDIDATE
-    return Decision(kind, float(points[action][0]), float(points[action][1]), candidates=n)
+    q = planner.action_values()
+    value, visits = q[action]
+    sims = planner.last_stats.sims if planner.last_stats else 0
+    return Decision(kind, float(points[action][0]), float(points[action][1]), candidates=n,
+                    reason=f"POUCT: the highest mean return (Q {value:.1f}, {visits} of {sims} simulations)",
+                    options=_options(cands, frontier, frontier_value, distances, q))

@@ -22,7 +22,8 @@ rules be tested message by message:
 * nothing is sent while the driver is in fault or e-stop, or advertises primitive sizes
   (``DriverState.primitives``) other than the planner's;
 * the task's progress goes out as a :class:`TaskEvent` after every step and
-  again every ``event_every_s`` (the gateway may have missed one).
+  again every ``event_every_s`` (the gateway may have missed one);
+* every decision goes out as a :class:`DecisionTrace` (the options weighed, the goal, why).
 
 ``now`` in :meth:`Executive.poll` is a monotonic clock (timers only); the
 stamps of outgoing messages come from ``wall_clock`` (for people and logs).
@@ -39,8 +40,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
 from services.planner.task import SearchTask, SearchTaskError
-from shared.messages import (FINAL, CameraState, DriverMode, DriverState, JsonMessage, MapSnapshot, Odometry,
-                             Goal, PlanCommand, TaskEvent, TaskSpec, TaskStatus)
+from shared.messages import (FINAL, CameraState, DecisionTrace, DriverMode, DriverState, JsonMessage,
+                             MapSnapshot, Odometry, Goal, PlanCommand, TaskEvent, TaskSpec, TaskStatus)
 from shared.motion import Pose
 
 
@@ -223,17 +224,31 @@ class Executive:
             return []
         self.waiting = ""
         self._decided_on = snapshot.seq
+        decisions = self.agent.decisions
         step = self.agent.next_step(snapshot, pose)
+        trace: list[JsonMessage] = ([self._trace(snapshot, pose)] if self.agent.decisions != decisions
+                                    else [])
         if step.action is None:
             self._event_due = True
-            return []
+            return trace
         command = PlanCommand(action_id=self._next_id, stamp=self._wall_clock(), task_id=self.task.task_id if self.task
                               else None, action=step.action)
         self._next_id += 1
         self.in_flight = _InFlight(command, step, pose, now)
         if step.reason is Reason.FOUND:
             self._event_due = True
-        return [command]
+        return trace + [command]
+
+    def _trace(self, snapshot: MapSnapshot, pose: Pose) -> DecisionTrace:
+        """The agent's newest decision, as the planner's decision trace."""
+        task, agent = self.task, self.agent
+        assert task is not None and agent is not None
+        g = agent.goal
+        return DecisionTrace(task_id=task.task_id, step=task.steps, stamp=self._wall_clock(),
+                             map_seq=snapshot.seq, robot_x=pose.x, robot_y=pose.y,
+                             remaining=tuple(task.remaining), options=() if g is None else g.options,
+                             goal=None if g is None else Goal(kind=g.kind.value, x=g.x, y=g.y, label=g.label),
+                             reason="nothing left to go to" if g is None else g.reason)
 
     def _wait(self, reason: str) -> list[JsonMessage]:
         if reason != self.waiting:

@@ -18,9 +18,13 @@ from pydantic import Field
 from services.planner.executive import Executive, ExecutiveConfig
 from shared.bus import BusCore
 from shared.config import ServiceConfig
-from shared.messages import MapSnapshot, PlanCommand
+from shared.messages import DecisionTrace, MapSnapshot, PlanCommand, TaskEvent
 from shared.service import Service
 from shared.topology import TOPOLOGY
+
+
+_PORTS = {PlanCommand: "plan_command", TaskEvent: "task_events", DecisionTrace: "plan_trace"}
+"""The output port of each message type :meth:`Executive.poll` returns."""
 
 
 class PlannerServiceConfig(ServiceConfig, ExecutiveConfig):
@@ -52,7 +56,7 @@ class PlannerService(Service):
             self._asked_for = wanted
             self.bus.request(self._map_key, MapSnapshot, self._on_map_reply, self.config.query_timeout_s)
         for msg in self.executive.poll(time.monotonic()):
-            self.out["plan_command" if isinstance(msg, PlanCommand) else "task_events"].put(msg)
+            self.out[_PORTS[type(msg)]].put(msg)
 
     def _on_map_reply(self, snapshot: MapSnapshot | None) -> None:
         self._asked_for = None
