@@ -220,17 +220,121 @@ def demo(seed: Annotated[int, typer.Option(help="Episode set seed.")] = 0,
                                                 "kobuki or opencr (the real base driver and its client on a "
                                                 "simulated device).")] = "kinematic",
          out: Annotated[Path, typer.Option(help="Folder for the report, map, configs and logs.")]
-         = Path("out/demo")) -> None:
+         = Path("out/demo"),
+         record: Annotated[bool, typer.Option(help="Record the run to OUT/run.mcap.")] = True) -> None:
     """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
     from ovamos.demo import BASES, run_demo
     if base not in BASES:
         raise _fail(f"--base {base!r}: one of {', '.join(BASES)}")
     try:
         code = run_demo(console, out_dir=out, seed=seed, episode=episode, targets=targets,
-                        keep_running=keep_running, timeout_s=timeout, base=base)
+                        keep_running=keep_running, timeout_s=timeout, base=base,
+                        record=out / "run.mcap" if record else None)
     except (TimeoutError, OSError) as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)
+
+
+KeyNames = Annotated[Optional[list[str]], typer.Option(
+    "--keys", help="Key names to take (repeatable; default: every key a service publishes, see ovamos graph).")]
+
+
+def _stop_on_signals() -> threading.Event:
+    from shared.service import install_signal_handlers
+    stop = threading.Event()
+    install_signal_handlers(stop)
+    return stop
+
+
+@app.command()
+def record(out: Annotated[Path, typer.Option("--out", help="MCAP file to write.")],
+           robot_id: RobotId = "robot1", keys_: KeyNames = None,
+           split_mb: Annotated[Optional[float], typer.Option(
+               "--split-mb", help="Start a new file (run.1.mcap, ...) past this many MB.")] = None,
+           budget_mb: Annotated[float, typer.Option(
+               "--budget-mb", help="Queue at most this many MB; beyond, messages are dropped and counted.")]
+           = 256.0,
+           compression: Annotated[str, typer.Option(help="Chunk compression: zstd, lz4 or none.")] = "zstd",
+           views: Annotated[bool, typer.Option(help="Also write the Foxglove view channels.")] = True,
+           overwrite: Annotated[bool, typer.Option(help="Replace OUT if it exists.")] = False,
+           zenoh_file: ZenohFile = None, connect: Connect = None,
+           log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
+    """Record a robot's keys to MCAP (raw channels for replay, Foxglove views) until SIGINT / SIGTERM."""
+    from ovamos.record.channels import UnknownKeyError, select
+    from ovamos.record.live import record as run_record
+    from ovamos.record.recorder import RecorderConfig, RecordingExistsError
+    from shared.keys import KeyExprError
+    setup_logging(json_lines=log_json, level=log_level)
+    if compression not in ("zstd", "lz4", "none"):
+        raise _fail(f"--compression {compression!r}: one of zstd, lz4, none")
+    try:
+        ports = select(keys_)
+        config = RecorderConfig(budget_bytes=int(budget_mb * 2 ** 20), compression=compression,  # type: ignore[arg-type]
+                                split_bytes=None if split_mb is None else int(split_mb * 2 ** 20),
+                                views=views, overwrite=overwrite)
+        zcfg = build_config(file=zenoh_file, connect=connect or ())
+        stats = run_record(zcfg, robot_id, ports, out, config, _stop_on_signals())
+    except (UnknownKeyError, RecordingExistsError, ZenohConfigError, KeyExprError, OSError) as exc:
+        raise _fail(str(exc)) from None
+    written = sum(stats["written"].values())
+    dropped = sum(stats["dropped"].values())
+    err.print(f"recorded {written} messages ({stats['bytes'] / 2 ** 20:.1f} MB raw, {dropped} dropped) "
+              f"-> {', '.join(stats['files'])}")
+
+
+@app.command()
+def replay(recording: Annotated[Path, typer.Argument(help="MCAP file written by ovamos record.")],
+           rate: Annotated[float, typer.Option(help="Speed: 1.0 is the recorded pace.")] = 1.0,
+           as_fast: Annotated[bool, typer.Option("--max", help="Publish as fast as possible (no pacing).")]
+           = False,
+           keys_: KeyNames = None,
+           robot_id: Annotated[Optional[str], typer.Option(
+               "--robot-id", help="Publish on this robot's keys (default: the recorded robot's).")] = None,
+           zenoh_file: ZenohFile = None, connect: Connect = None,
+           log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
+    """Publish a recording's raw channels back on Zenoh, with their recorded timing."""
+    from ovamos.record.channels import UnknownKeyError
+    from ovamos.record.live import replay as run_replay
+    from ovamos.record.replay import RecordingError
+    from shared.keys import KeyExprError
+    setup_logging(json_lines=log_json, level=log_level)
+    if rate <= 0:
+        raise _fail(f"--rate {rate}: must be > 0")
+    try:
+        zcfg = build_config(file=zenoh_file, connect=connect or ())
+        report = run_replay(zcfg, recording, rate=None if as_fast else rate, names=keys_, robot_id=robot_id,
+                            stop=_stop_on_signals())
+    except (RecordingError, UnknownKeyError, ZenohConfigError, KeyExprError) as exc:
+        raise _fail(str(exc)) from None
+    counts = ", ".join(f"{k} {n}" for k, n in sorted(report.read.items())) or "nothing"
+    err.print(f"replayed {counts}")
+    for skipped in report.skipped_channels:
+        err.print(f"[yellow]skipped[/yellow] {skipped}")
+    if report.truncated:
+        err.print(f"[yellow]the file ends early:[/yellow] {report.truncated}")
+
+
+@app.command()
+def view(robot_id: RobotId = "robot1", keys_: KeyNames = None,
+         host: Annotated[str, typer.Option(help="Address to listen on (loopback by default).")] = "127.0.0.1",
+         port: Annotated[int, typer.Option(help="WebSocket port (0: a free one).")] = 8765,
+         zenoh_file: ZenohFile = None, connect: Connect = None,
+         log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
+    """A Foxglove WebSocket server showing a robot's live traffic (camera, map layers, planner, task)."""
+    from ovamos.record.channels import UnknownKeyError, select
+    from ovamos.record.live import view as run_view
+    from shared.keys import KeyExprError
+    setup_logging(json_lines=log_json, level=log_level)
+
+    def started(bound: int) -> None:
+        err.print(f"Foxglove live view of {robot_id} on ws://{host}:{bound} (open it in Foxglove: "
+                  f"Open connection > Foxglove WebSocket; layout deploy/foxglove/ovamos.json)")
+
+    try:
+        run_view(build_config(file=zenoh_file, connect=connect or ()), robot_id, select(keys_), host=host,
+                 port=port, stop=_stop_on_signals(), on_started=started)
+    except (UnknownKeyError, ZenohConfigError, KeyExprError, RuntimeError) as exc:
+        raise _fail(str(exc)) from None
 
 
 @app.command("map")

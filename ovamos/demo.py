@@ -5,7 +5,8 @@ planner, the simulated robot, the gateway) run as separate supervised
 processes over real Zenoh on loopback, on free ports, with their configs and
 logs under the output folder. The demo submits a search task over HTTP,
 shows its progress live, then writes a report (JSON) and the map with the
-robot's path (PNG) and stops everything. The default episode is one the
+robot's path (PNG) and stops everything. A recorder (``ovamos record``) runs
+alongside and leaves the whole run in ``run.mcap`` (replay it, open it in Foxglove). The default episode is one the
 method solves, so a first run shows a success; ``--seed``/``--episode``/
 ``--targets`` pick others.
 """
@@ -73,12 +74,17 @@ def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_
     return paths
 
 
-def demo_entries(configs: dict[str, Path], *, robot_id: str, zenoh_port: int) -> list[Entry]:
+def demo_entries(configs: dict[str, Path], *, robot_id: str, zenoh_port: int,
+                 record: Path | None = None) -> list[Entry]:
+    """The router, a recorder writing ``record`` (if given; it starts before the services and stops
+    after them, so it holds the whole run) and the services."""
     router = Entry("router", ("router", "--listen", loopback(zenoh_port), "--log-level", "WARNING"),
                    ready=("127.0.0.1", zenoh_port))
-    return [router] + [Entry(name, ("run", name, "--robot-id", robot_id, "--config", str(configs[name]),
-                                    "--connect", loopback(zenoh_port)))
-                       for name in SERVICES]
+    recorder = [] if record is None else [Entry("record", ("record", "--robot-id", robot_id, "--out", str(record),
+                                                           "--overwrite", "--connect", loopback(zenoh_port)))]
+    return [router, *recorder] + [Entry(name, ("run", name, "--robot-id", robot_id, "--config", str(configs[name]),
+                                               "--connect", loopback(zenoh_port)))
+                                  for name in SERVICES]
 
 
 def _progress(view: TaskView | None, elapsed: float) -> Table:
@@ -111,7 +117,8 @@ def _wait_for_services(client: GatewayClient, robot_id: str, deadline: float) ->
 
 def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode: int = DEMO_EPISODE,
              targets: list[str] | None = None, robot_id: str = "sim", keep_running: bool = False,
-             timeout_s: float | None = None, base: str = "kinematic") -> int:
+             timeout_s: float | None = None, base: str = "kinematic", record: Path | None = None) -> int:
+    """Run the demo; ``record``: the MCAP file to record the run to (None: no recording)."""
     spec, _, _ = make_episode(seed, episode)
     targets = targets or list(spec.targets)
     http_port, zenoh_port = free_port(), free_port()
@@ -121,8 +128,8 @@ def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode:
     console.print(f"episode {spec.episode_id}: {', '.join(targets)}; gateway {url}; "
                   f"logs in {out_dir / 'logs'}")
     started = time.monotonic()
-    with Supervisor(demo_entries(configs, robot_id=robot_id, zenoh_port=zenoh_port),
-                    log_dir=out_dir / "logs") as supervisor, GatewayClient(url) as client:
+    entries = demo_entries(configs, robot_id=robot_id, zenoh_port=zenoh_port, record=record)
+    with Supervisor(entries, log_dir=out_dir / "logs") as supervisor, GatewayClient(url) as client:
         deadline = started + STARTUP_TIMEOUT_S
         while not port_open("127.0.0.1", http_port) and time.monotonic() < deadline:
             time.sleep(0.2)
@@ -133,6 +140,8 @@ def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode:
                                 time.monotonic() - started, supervisor)
         if keep_running:
             _serve_until_interrupted(console, url, robot_id)
+    if record is not None:  # complete once the supervisor stopped the recorder, after the services
+        console.print(f"recorded the run to {record} (ovamos replay {record}; or open it in Foxglove)")
     return 0 if report["task"]["status"] == "done" else 1
 
 

@@ -322,7 +322,8 @@ class BusCore:
 
 
 class Bus(BusCore):
-    """One service instance's Zenoh session, with its liveliness token and stats queryable.
+    """One service instance's Zenoh session, with its liveliness token and stats queryable
+    (and its final stats, put on the same key when it closes).
 
     ``dispatch="thread"`` (tools, tests, embedding programs): a thread of the bus
     takes the inbox's events. ``"caller"``: the owner takes them
@@ -338,7 +339,7 @@ class Bus(BusCore):
         # Answered on Zenoh's thread, the one exception to enqueue-only: it reads only the
         # thread-safe counters and the info snapshot, so a service busy for seconds (a model on
         # a CPU) still shows up in `ovamos status` and the gateway's /health.
-        stats_key = keys.stats(robot_id, service, instance)
+        stats_key = self._stats_key = keys.stats(robot_id, service, instance)
         self._declared.append(self.session.declare_queryable(
             stats_key, lambda query: query.reply(stats_key, self.stats().to_bytes())))
         self._alive = session.liveliness().declare_token(keys.alive(robot_id, service, instance))
@@ -404,4 +405,7 @@ class Bus(BusCore):
         d = self._dispatcher
         if d is not None and d is not threading.current_thread():
             d.join(timeout=5)  # the handler it is running finishes before the session goes
+        # The final counters, put once on the stats key: a process that is gone answers no
+        # query, yet a recording is checked against what its publishers counted.
+        self.session.put(self._stats_key, self.stats().to_bytes())
         self.session.close()

@@ -1,0 +1,123 @@
+"""The Zenoh side of ``ovamos record``, ``replay`` and ``view``: the cores wired to a robot's keys.
+
+Each runs as a tool on a :class:`~shared.bus.Bus` of its own (service ``recorder``,
+``replay`` or ``viewer``, instance = its process id), so ``ovamos status`` lists it with its
+counters: a recorder's ``received`` and ``dropped`` per key, a replay's ``published``.
+Payloads are taken on Zenoh's threads straight into the recorder's byte-bounded queue
+(:meth:`~shared.bus.BusCore.tap`), never decoded there.
+
+The recorder and the viewer declare a ``ready`` liveliness token once their subscriptions
+are in place: a test or a launcher that waits for it knows nothing published after it is lost.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import threading
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import foxglove
+import zenoh
+
+from ovamos.record.channels import RawChannel
+from ovamos.record.recorder import Recorder, RecorderConfig
+from ovamos.record.replay import ReadReport, paced, read_raw
+from ovamos.record.views import ViewPump
+from shared import keys
+from shared.bus import Bus
+
+__all__ = ["record", "replay", "view", "STATUS_EVERY_S"]
+
+STATUS_EVERY_S = 1.0
+
+
+def _tool_bus(zenoh_config: zenoh.Config, robot_id: str, service: str) -> Bus:
+    return Bus.open(zenoh_config, robot_id, service, str(os.getpid()), dispatch="thread")
+
+
+def _tap_all(bus: Bus, ports: Mapping[str, type], take: Callable[[str, bytes], bool]) -> None:
+    """Every port's key into ``take(name, payload)``; False from it counts a drop on the key."""
+    for name in ports:
+        def on_sample(key: str, payload: bytes, name: str = name) -> None:
+            if not take(name, payload):
+                bus.counters.bump(key, "dropped")
+
+        bus.tap(RawChannel(name, ports[name], bus.robot_id).key, on_sample)
+    bus.declare_token(keys.ready(bus.robot_id, bus.service, bus.instance))
+
+
+def record(zenoh_config: zenoh.Config, robot_id: str, ports: Mapping[str, type], path: Path,
+           config: RecorderConfig, stop: threading.Event,
+           on_status: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+    """Record ``ports`` of ``robot_id`` to ``path`` until ``stop``; the recorder's final stats.
+
+    The file is created before Zenoh is opened, so a bad path fails at once."""
+    recorder = Recorder(path, ports, robot_id, config)
+    try:
+        bus = _tool_bus(zenoh_config, robot_id, "recorder")
+        try:
+            _tap_all(bus, ports, recorder.offer)
+            while not stop.wait(STATUS_EVERY_S):
+                bus.info = recorder.stats()
+                if on_status is not None:
+                    on_status(bus.info)
+        finally:
+            bus.close()
+    finally:
+        recorder.close()
+    return recorder.stats()
+
+
+def replay(zenoh_config: zenoh.Config, path: Path, *, rate: float | None, names: Sequence[str] | None,
+           robot_id: str | None, stop: threading.Event) -> ReadReport:
+    """Publish the raw channels of ``path`` (those in ``names``) on ``robot_id``'s keys (the
+    recorded robot's when None) at ``rate`` times their recorded pace (None: at once)."""
+    report = ReadReport()
+    messages = read_raw(path, names, report)
+    first = next(messages, None)  # a file that is not a recording fails before Zenoh is opened
+    if first is None:
+        return report
+    robot = robot_id or first.channel.robot_id
+    bus = _tool_bus(zenoh_config, robot, "replay")
+    try:
+        publishers: dict[str, Any] = {}
+        for msg in paced(itertools.chain((first,), messages), rate, stopped=stop.is_set):
+            pub = publishers.get(msg.channel.name)
+            if pub is None:
+                key = RawChannel(msg.channel.name, msg.channel.message, robot).key
+                pub = publishers[msg.channel.name] = bus.publisher(key, msg.channel.message)
+            pub.put_bytes(msg.payload)
+    finally:
+        bus.close()
+    return report
+
+
+def view(zenoh_config: zenoh.Config, robot_id: str, ports: Mapping[str, type], *, host: str, port: int,
+         stop: threading.Event, on_started: Callable[[int], None] | None = None) -> dict[str, int]:
+    """A Foxglove WebSocket server on ``host:port`` drawing ``robot_id``'s live traffic until
+    ``stop``; ``on_started(port)`` once it listens (port 0: a free one). Returns the view counters."""
+    context = foxglove.Context()
+    pump = ViewPump(context, ports)
+    server = foxglove.start_server(name=f"ovamos {robot_id}", host=host, port=port, context=context)
+    try:
+        bus = _tool_bus(zenoh_config, robot_id, "viewer")
+        try:
+            def take(name: str, payload: bytes) -> bool:
+                pump.offer(name, payload, time.time_ns())
+                return True
+
+            _tap_all(bus, ports, take)
+            if on_started is not None:
+                on_started(server.port)
+            while not stop.wait(STATUS_EVERY_S):
+                bus.info = dict(pump.counters)
+        finally:
+            bus.close()
+    finally:
+        pump.close()
+        server.stop()
+    return dict(pump.counters)

@@ -1,0 +1,286 @@
+"""Recording, replay and live view against real processes, files read back with the ``mcap`` library.
+
+One short demo run (the demo's processes, a 40-step task) is recorded once for the module;
+the tests check that file against what the publishers counted (their final stats), replay it
+into a fresh mapping service, and kill a recorder to read what it left.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import threading
+import time
+from collections import defaultdict
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+import websockets
+import zenoh
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader, make_reader
+
+from ovamos.demo import DEMO_EPISODE, DEMO_SEED, SERVICES, demo_entries, write_configs
+from ovamos.record.channels import META_KEY, recorded_ports
+from ovamos.record.live import replay
+from ovamos.record.replay import RecordingError, read_raw
+from ovamos.record.views import TOPICS
+from ovamos.supervisor import Supervisor, port_open
+from services.gateway.client import GatewayClient
+from services.mapping.checkpoint import load_checkpoint
+from services.mapping.service import MappingServiceConfig
+from services.sim.episodes import make_episode
+from shared import keys
+from shared.bus import Bus
+from shared.messages import Odometry, ServiceStats
+from shared.procs import free_port, kill, loopback, start_cli, stop
+from shared.zconfig import build_config, open_session
+from tests.polling import wait_for
+
+ROBOT = "sim"
+STEPS = 40
+
+
+@dataclass
+class Run:
+    path: Path
+    configs: dict[str, Path]
+    published: dict[str, int]            # key -> messages its publishers counted (final stats)
+    received: dict[str, int]             # key -> messages a subscriber of the test got
+    task_events: list[bytes]             # payloads on task/events, as a subscriber got them
+
+
+def _ready(session: zenoh.Session, robot: str, service: str) -> bool:
+    return any(r.ok is not None for r in session.liveliness().get(keys.ready(robot, service), timeout=1.0))
+
+
+def _alive(session: zenoh.Session, robot: str, service: str) -> bool:
+    return any(r.ok is not None for r in session.liveliness().get(keys.alive(robot, service), timeout=1.0))
+
+
+@pytest.fixture(scope="module")
+def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Run:
+    tmp = tmp_path_factory.mktemp("run")
+    http_port, zenoh_port = free_port(), free_port()
+    configs = write_configs(tmp / "config", seed=DEMO_SEED, episode=DEMO_EPISODE, robot_id=ROBOT,
+                            http_port=http_port)
+    path = tmp / "run.mcap"
+    router, recorder, *services = demo_entries(configs, robot_id=ROBOT, zenoh_port=zenoh_port, record=path)
+    final: dict[str, ServiceStats] = {}
+    events: list[bytes] = []
+    received: dict[str, int] = defaultdict(int)
+    with Supervisor([router, recorder], log_dir=tmp / "logs"):
+        session = open_session(build_config(connect=[loopback(zenoh_port)]))
+        try:
+            def on_stats(sample: zenoh.Sample) -> None:  # the services' final counters, put as they close
+                stats = ServiceStats.from_bytes(sample.payload.to_bytes())
+                final[f"{stats.service}/{stats.instance}"] = stats
+
+            subs = [session.declare_subscriber(keys.stats(ROBOT), on_stats),
+                    session.declare_subscriber(keys.task_events(ROBOT),
+                                               lambda s: events.append(s.payload.to_bytes())),
+                    session.declare_subscriber(keys.robot_all(ROBOT),
+                                               lambda s: received.__setitem__(str(s.key_expr),
+                                                                              received[str(s.key_expr)] + 1))]
+            wait_for(lambda: _ready(session, ROBOT, "recorder"), timeout=60, what="the recorder subscribed")
+            with Supervisor(services, log_dir=tmp / "logs"), \
+                    GatewayClient(f"http://127.0.0.1:{http_port}") as client:
+                wait_for(lambda: port_open("127.0.0.1", http_port), timeout=60, what="the gateway")
+                wait_for(lambda: all(_alive(session, ROBOT, s) for s in SERVICES), timeout=90,
+                         what="every service")
+                targets = list(make_episode(DEMO_SEED, DEMO_EPISODE)[0].targets)
+                task = client.submit(targets, robot_id=ROBOT, max_steps=STEPS).id
+                wait_for(lambda: client.get(task).final, timeout=120, what="the task ends")
+            wait_for(lambda: set(SERVICES) <= {k.split("/")[0] for k in final}, timeout=20,
+                     what="every service's final stats")
+            for sub in subs:
+                sub.undeclare()
+        finally:
+            session.close()
+    published: dict[str, int] = defaultdict(int)
+    for stats in final.values():
+        if stats.service in SERVICES:
+            for key, counters in stats.counters.items():
+                published[key] += counters.published
+    return Run(path, configs, dict(published), dict(received), events)
+
+
+def test_a_recorded_demo_run_holds_every_message_its_publishers_counted(recorded_run: Run) -> None:
+    with recorded_run.path.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None and summary.chunk_indexes
+        counts = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
+        assert all(i.compression == "zstd" for i in summary.chunk_indexes)
+        raw = {ch.topic: ch for ch in summary.channels.values() if META_KEY in ch.metadata}
+        events = [m.data for _, ch, m in reader.iter_messages(topics=[keys.task_events(ROBOT)])]
+    published = {k: n for k, n in recorded_run.published.items() if n}
+    for name in ("odom", "driver_state", "rgbd", "perception_result", "map_snapshot", "plan_command",
+                 "task_events", "plan_trace", "task_current"):
+        assert published.get(getattr(keys, name)(ROBOT), 0) > 0, name
+    # Everything a subscriber got; and everything published but the simulator's very first odometry
+    # and driver state, put as its session opened: Zenoh had not yet told it of any subscriber
+    # (the test's own subscriber misses them too)
+    assert {k: counts.get(k, 0) for k in published} == {k: recorded_run.received.get(k, 0) for k in published}
+    startup = {keys.odom(ROBOT), keys.driver_state(ROBOT)}
+    assert {k: n for k, n in published.items() if k not in startup} == \
+        {k: counts.get(k, 0) for k in published if k not in startup}
+    assert all(0 <= published[k] - counts.get(k, 0) <= 1 for k in startup)
+    for topic, channel in raw.items():
+        meta = channel.metadata
+        message = recorded_ports()[meta[META_KEY]]
+        assert (meta["ovamos.message"], meta["ovamos.version"]) == (message.__name__, str(message.VERSION))
+    # bit for bit: the recorded payloads are the ones a subscriber got, in the same order
+    assert events == recorded_run.task_events
+    targets = make_episode(DEMO_SEED, DEMO_EPISODE)[0].targets
+    views = [*TOPICS, *(f"/map/value/{t}" for t in targets)]
+    assert {t: counts.get(t, 0) > 0 for t in views} == {t: True for t in views}
+
+
+def test_replaying_frames_odometry_and_perception_into_a_fresh_mapping_rebuilds_the_same_map(
+        recorded_run: Run, tmp_path: Path) -> None:
+    original_config = MappingServiceConfig.model_validate_json(recorded_run.configs["mapping"].read_text())
+    original = load_checkpoint(original_config.checkpoint_path, original_config)
+    config = original_config.model_copy(update={"checkpoint_path": tmp_path / "replayed.ckpt"})
+    (tmp_path / "mapping.json").write_text(config.model_dump_json())
+    port = free_port()
+    robot = "replayed"  # --robot-id: the recording goes out on another robot's keys
+    procs = [start_cli(["router", "--listen", loopback(port), "--log-level", "WARNING"])]
+    try:
+        wait_for(lambda: port_open("127.0.0.1", port), what="the router")
+        procs.append(start_cli(["run", "mapping", "--robot-id", robot, "--config", str(tmp_path / "mapping.json"),
+                                "--connect", loopback(port)]))
+        zcfg = build_config(connect=[loopback(port)])
+        session = open_session(zcfg)
+        try:
+            wait_for(lambda: _alive(session, robot, "mapping"), timeout=60, what="the mapping service")
+            time.sleep(1.0)  # its subscriptions follow its liveliness token
+            report = replay(zcfg, recorded_run.path, rate=1.0, names=["rgbd", "odom", "perception_result"],
+                            robot_id=robot, stop=threading.Event())
+        finally:
+            session.close()
+        assert report.read["rgbd"] > STEPS and not report.truncated
+        time.sleep(2.0)  # the last frame's pairing and fusion
+        stop(procs.pop())
+        replayed = load_checkpoint(tmp_path / "replayed.ckpt", config)
+    finally:
+        for proc in procs:
+            stop(proc)
+    a, b = original.snapshot(0.0, with_confidence=False), replayed.snapshot(0.0, with_confidence=False)
+    assert b.seq == a.seq and b.layers == a.layers
+    assert np.array_equal(b.obstacle, a.obstacle) and np.array_equal(b.explored, a.explored)
+    assert np.array_equal(b.counts, a.counts)
+    np.testing.assert_allclose(b.values, a.values, atol=1e-6)
+
+
+def _publish_odometry(bus: Bus, first: int, n: int) -> list[bytes]:
+    pub = bus.publisher(keys.odom(ROBOT), Odometry)
+    payloads = []
+    for seq in range(first, first + n):
+        msg = Odometry(seq=seq, stamp=time.time(), x=seq * 0.01, y=0.0, yaw=0.0)
+        pub.put(msg)
+        payloads.append(msg.to_bytes())
+        time.sleep(0.002)
+    return payloads
+
+
+def test_a_killed_recorder_leaves_a_file_readable_up_to_its_last_chunk(tmp_path: Path) -> None:
+    port = free_port()
+    path = tmp_path / "killed.mcap"
+    procs = [start_cli(["router", "--listen", loopback(port), "--log-level", "WARNING"])]
+    try:
+        wait_for(lambda: port_open("127.0.0.1", port), what="the router")
+        recorder = start_cli(["record", "--robot-id", ROBOT, "--out", str(path), "--connect", loopback(port)])
+        procs.append(recorder)
+        with Bus.open(build_config(connect=[loopback(port)]), ROBOT, "test") as bus:
+            wait_for(lambda: _ready(bus.session, ROBOT, "recorder"), timeout=60, what="the recorder")
+            flushed = _publish_odometry(bus, 0, 200)
+            time.sleep(2.5)  # past the recorder's flush period: these are in complete chunks
+            unflushed = _publish_odometry(bus, 200, 200)
+            kill(recorder)
+    finally:
+        for proc in procs:
+            stop(proc)
+    assert not path.read_bytes().endswith(b"\x89MCAP0\r\n")  # killed: no summary, no closing magic
+    got = []
+    with path.open("rb") as f:
+        try:
+            for _, channel, message in NonSeekingReader(f).iter_messages(log_time_order=False):
+                if channel.topic == keys.odom(ROBOT):
+                    got.append(message.data)
+        except McapError:
+            pass  # the truncated tail
+    assert got[:len(flushed)] == flushed
+    assert got == (flushed + unflushed)[:len(got)]  # a prefix: nothing lost before the break, nothing torn
+    # our own reader says where it stopped instead of failing
+    assert [m.payload for m in read_raw(path, ["odom"])] == got
+
+
+def test_a_file_that_is_not_a_recording_is_a_clear_error(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not an mcap file" * 100)
+    with pytest.raises(RecordingError, match="not a readable MCAP"):
+        list(read_raw(bad))
+
+
+async def _watch(url: str, wanted: set[str], timeout: float) -> tuple[set[str], set[str]]:
+    """Connect with the Foxglove protocol, subscribe to ``wanted`` once advertised; the topics
+    advertised and the topics a message arrived on."""
+    advertised: dict[int, str] = {}
+    received: set[str] = set()
+    subscribed: dict[int, str] = {}
+    async with websockets.connect(url, subprotocols=["foxglove.sdk.v1"]) as ws:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and received < wanted:
+            try:
+                frame = await asyncio.wait_for(ws.recv(), timeout=1.0)
+            except TimeoutError:
+                continue
+            if isinstance(frame, str):
+                msg = json.loads(frame)
+                if msg.get("op") == "advertise":
+                    advertised.update({c["id"]: c["topic"] for c in msg["channels"]})
+                    fresh = [{"id": len(subscribed) + i + 1, "channelId": cid}
+                             for i, (cid, topic) in enumerate(advertised.items())
+                             if topic in wanted and cid not in subscribed.values()]
+                    if fresh:
+                        subscribed.update({s["id"]: advertised[s["channelId"]] for s in fresh})
+                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": fresh}))
+            elif frame[0] == 1:  # message data: opcode, subscription id (u32 LE), time, payload
+                received.add(subscribed[int.from_bytes(frame[1:5], "little")])
+    return set(advertised.values()), received
+
+
+def test_the_live_view_serves_foxglove_channels_of_live_traffic(tmp_path: Path) -> None:
+    port, ws_port = free_port(), free_port()
+    procs = [start_cli(["router", "--listen", loopback(port), "--log-level", "WARNING"])]
+    try:
+        wait_for(lambda: port_open("127.0.0.1", port), what="the router")
+        procs.append(start_cli(["view", "--robot-id", ROBOT, "--port", str(ws_port), "--connect", loopback(port)]))
+        with Bus.open(build_config(connect=[loopback(port)]), ROBOT, "test") as bus:
+            wait_for(lambda: _ready(bus.session, ROBOT, "viewer"), timeout=60, what="the viewer")
+            stop_publishing = threading.Event()
+
+            def publish() -> None:
+                seq = 0
+                while not stop_publishing.is_set():
+                    _publish_odometry(bus, seq, 5)
+                    seq += 5
+                    time.sleep(0.05)
+
+            publisher = threading.Thread(target=publish)
+            publisher.start()
+            try:
+                advertised, received = asyncio.run(_watch(f"ws://127.0.0.1:{ws_port}",
+                                                          {"/robot/pose", "/robot/path", "/tf"}, 30.0))
+            finally:
+                stop_publishing.set()
+                publisher.join()
+    finally:
+        for proc in procs:
+            stop(proc)
+    assert set(TOPICS) <= advertised
+    assert received == {"/robot/pose", "/robot/path", "/tf"}
