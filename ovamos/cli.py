@@ -428,6 +428,16 @@ def bench_camera(frames: Annotated[int, typer.Option(help="Frames per run.")] = 
     _report(result, as_json, print_table)
 
 
+@bench_app.command("record")
+def bench_record(seconds: Annotated[float, typer.Option(help="How long to record.")] = 20.0,
+                 noise: Annotated[bool, typer.Option(help="Give the simulator's frames a camera's noise "
+                                                          "(flat renders compress ~170x).")] = True,
+                 as_json: AsJson = False) -> None:
+    """Recording 640x480 RGB-D at 30 Hz plus map snapshots at 2 Hz over Zenoh: MB/s, frames/s, drops."""
+    from bench.record import print_table, run_benchmark
+    _report(run_benchmark(seconds=seconds, noise=noise), as_json, print_table)
+
+
 SceneSeed = Annotated[int, typer.Option("--seed", help="Scene seed.")]
 SceneFile = Annotated[Optional[Path], typer.Option("--scene", help="Scene JSON (instead of --seed).")]
 

@@ -5,7 +5,8 @@ whatever sinks the context has get them: the recorder's MCAP file, ``ovamos view
 WebSocket server. World things are in the ``map`` frame (the odometry frame, x forward, y
 left); images in ``camera``.
 
-* ``/camera/color`` (RawImage rgb8), ``/camera/depth`` (RawImage 32FC1 metres, or 16UC1 in
+* ``/camera/color`` (CompressedImage, JPEG: a tenth of the raw image's bytes in the file; the
+  raw channel keeps the exact pixels), ``/camera/depth`` (RawImage 32FC1 metres, or 16UC1 in
   the frame's own units);
 * ``/map/obstacle``, ``/map/explored`` (Grid, uint8 0/1), ``/map/value/<target>`` (Grid,
   float32: the layer decayed by the update counts, as the planner decides on it);
@@ -31,11 +32,12 @@ from collections import Counter
 from collections.abc import Mapping
 from typing import Any
 
+import cv2
 import numpy as np
 from foxglove import Context
-from foxglove.channels import (FrameTransformChannel, GridChannel, LogChannel, PoseInFrameChannel,
+from foxglove.channels import (CompressedImageChannel, FrameTransformChannel, GridChannel, LogChannel, PoseInFrameChannel,
                                PosesInFrameChannel, RawImageChannel, SceneUpdateChannel)
-from foxglove.messages import (Color, FrameTransform, Grid, Log, LogLevel, PackedElementField,
+from foxglove.messages import (Color, CompressedImage, FrameTransform, Grid, Log, LogLevel, PackedElementField,
                                PackedElementFieldNumericType, Pose, PoseInFrame, PosesInFrame, Quaternion,
                                RawImage, SceneEntity, SceneEntityDeletion, SceneEntityDeletionType,
                                SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp, Vector2, Vector3,
@@ -57,6 +59,7 @@ log = logging.getLogger("ovamos.views")
 
 LATEST_ONLY = frozenset({"rgbd", "map_snapshot"})
 """Keys whose views may skip samples while the pump is busy (large, and superseded by the next)."""
+JPEG_QUALITY = 90
 PATH_STEP_M = 0.05     # a new path point once the robot moved this far
 PATH_MAX_POINTS = 20_000
 
@@ -105,7 +108,7 @@ class ViewBuilder:
 
     def __init__(self, context: Context) -> None:
         self._context = context
-        self._color = RawImageChannel("/camera/color", context=context)
+        self._color = CompressedImageChannel("/camera/color", context=context)
         self._depth = RawImageChannel("/camera/depth", context=context)
         self._obstacle = GridChannel("/map/obstacle", context=context)
         self._explored = GridChannel("/map/explored", context=context)
@@ -135,8 +138,12 @@ class ViewBuilder:
     def _frame(self, f: RgbdFrame, ns: int) -> None:
         h, w = f.depth.shape
         t = _stamp(ns)
-        self._color.log(RawImage(timestamp=t, frame_id=CAMERA, width=w, height=h, encoding="rgb8", step=3 * w,
-                                 data=f.rgb.tobytes()), log_time=ns)
+        ok, jpeg = cv2.imencode(".jpg", cv2.cvtColor(f.rgb, cv2.COLOR_RGB2BGR),
+                                [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        if not ok:
+            raise ValueError(f"frame {f.seq}: JPEG encoding failed")
+        self._color.log(CompressedImage(timestamp=t, frame_id=CAMERA, format="jpeg", data=jpeg.tobytes()),
+                        log_time=ns)
         encoding = "32FC1" if f.depth.dtype == np.float32 else "16UC1"
         self._depth.log(RawImage(timestamp=t, frame_id=CAMERA, width=w, height=h, encoding=encoding,
                                  step=w * f.depth.itemsize, data=f.depth.tobytes()), log_time=ns)
