@@ -8,8 +8,8 @@ import pytest
 
 from services.planner.agent import AgentConfig
 from services.planner.executive import Executive, ExecutiveConfig
-from shared.messages import (DriverMode, DriverState, MapSnapshot, ObjectInstance, Odometry, PlanCommand,
-                             TaskEvent, TaskSpec, TaskStatus)
+from shared.messages import (DecisionTrace, DriverMode, DriverState, MapSnapshot, ObjectInstance, Odometry,
+                             PlanCommand, TaskEvent, TaskSpec, TaskStatus)
 from shared.motion import Action
 
 N = 120  # 6 x 6 m at 5 cm
@@ -256,3 +256,23 @@ def test_events_carry_the_goal_while_the_task_searches() -> None:
     assert goal is not None and (goal.kind, goal.x, goal.y, goal.label) == ("object", 3.0, 1.0, "cup")
     ex.on_task(spec(cancelled=True))
     assert ex.event().goal is None  # over: no goal shown
+
+
+def test_each_decision_goes_out_as_a_trace_and_a_kept_goal_sends_none() -> None:
+    ex = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=0)))
+    ex.on_task(spec())
+    cup = ObjectInstance(label="cup", x=3.0, y=1.0, score=0.8, hits=3, confirmed=True)
+    ex.on_driver(driver())
+    ex.on_snapshot(snapshot(0, (cup,)))
+    ex.on_odom(odom())
+    out = ex.poll(0.0)
+    traces = [m for m in out if isinstance(m, DecisionTrace)]
+    assert len(traces) == 1 and commands(out)
+    trace = traces[0]
+    assert (trace.task_id, trace.map_seq, trace.remaining, trace.robot_x) == ("t1", 0, ("cup",), 1.0)
+    assert trace.goal == ex.event().goal and "confirmed cup" in trace.reason
+    ex.on_driver(driver(completed=1))
+    ex.on_odom(odom(x=1.25, after=1))
+    ex.on_snapshot(snapshot(1, (cup,)))
+    out = ex.poll(0.1)
+    assert commands(out) and not [m for m in out if isinstance(m, DecisionTrace)]  # same goal: no decision
