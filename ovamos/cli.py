@@ -239,13 +239,6 @@ KeyNames = Annotated[Optional[list[str]], typer.Option(
     "--keys", help="Key names to take (repeatable; default: every key a service publishes, see ovamos graph).")]
 
 
-def _stop_on_signals() -> threading.Event:
-    from shared.service import install_signal_handlers
-    stop = threading.Event()
-    install_signal_handlers(stop)
-    return stop
-
-
 @app.command()
 def record(out: Annotated[Path, typer.Option("--out", help="MCAP file to write.")],
            robot_id: RobotId = "robot1", keys_: KeyNames = None,
@@ -273,7 +266,7 @@ def record(out: Annotated[Path, typer.Option("--out", help="MCAP file to write."
                                 split_bytes=None if split_mb is None else int(split_mb * 2 ** 20),
                                 views=views, overwrite=overwrite)
         zcfg = build_config(file=zenoh_file, connect=connect or ())
-        stats = run_record(zcfg, robot_id, ports, out, config, _stop_on_signals())
+        stats = run_record(zcfg, robot_id, ports, out, config, threading.Event())
     except (UnknownKeyError, RecordingExistsError, ZenohConfigError, KeyExprError, OSError) as exc:
         raise _fail(str(exc)) from None
     written = sum(stats["written"].values())
@@ -303,7 +296,7 @@ def replay(recording: Annotated[Path, typer.Argument(help="MCAP file written by 
     try:
         zcfg = build_config(file=zenoh_file, connect=connect or ())
         report = run_replay(zcfg, recording, rate=None if as_fast else rate, names=keys_, robot_id=robot_id,
-                            stop=_stop_on_signals())
+                            stop=threading.Event())
     except (RecordingError, UnknownKeyError, ZenohConfigError, KeyExprError) as exc:
         raise _fail(str(exc)) from None
     counts = ", ".join(f"{k} {n}" for k, n in sorted(report.read.items())) or "nothing"
@@ -332,7 +325,7 @@ def view(robot_id: RobotId = "robot1", keys_: KeyNames = None,
 
     try:
         run_view(build_config(file=zenoh_file, connect=connect or ()), robot_id, select(keys_), host=host,
-                 port=port, stop=_stop_on_signals(), on_started=started)
+                 port=port, stop=threading.Event(), on_started=started)
     except (UnknownKeyError, ZenohConfigError, KeyExprError, RuntimeError) as exc:
         raise _fail(str(exc)) from None
 

@@ -29,14 +29,19 @@ from ovamos.record.replay import ReadReport, paced, read_raw
 from ovamos.record.views import ViewPump
 from shared import keys
 from shared.bus import Bus
+from shared.service import install_signal_handlers
 
 __all__ = ["record", "replay", "view", "STATUS_EVERY_S"]
 
 STATUS_EVERY_S = 1.0
 
 
-def _tool_bus(zenoh_config: zenoh.Config, robot_id: str, service: str) -> Bus:
-    return Bus.open(zenoh_config, robot_id, service, str(os.getpid()), dispatch="thread")
+def _tool_bus(zenoh_config: zenoh.Config, robot_id: str, service: str, stop: threading.Event) -> Bus:
+    """The tool's bus; from then on SIGINT / SIGTERM set ``stop`` (in the main thread). Before, while
+    the session waits for a router, they end the process at once: there is nothing to finish yet."""
+    bus = Bus.open(zenoh_config, robot_id, service, str(os.getpid()), dispatch="thread")
+    install_signal_handlers(stop)
+    return bus
 
 
 def _tap_all(bus: Bus, ports: Mapping[str, type], take: Callable[[str, bytes], bool]) -> None:
@@ -58,7 +63,7 @@ def record(zenoh_config: zenoh.Config, robot_id: str, ports: Mapping[str, type],
     The file is created before Zenoh is opened, so a bad path fails at once."""
     recorder = Recorder(path, ports, robot_id, config)
     try:
-        bus = _tool_bus(zenoh_config, robot_id, "recorder")
+        bus = _tool_bus(zenoh_config, robot_id, "recorder", stop)
         try:
             _tap_all(bus, ports, recorder.offer)
             while not stop.wait(STATUS_EVERY_S):
@@ -82,7 +87,7 @@ def replay(zenoh_config: zenoh.Config, path: Path, *, rate: float | None, names:
     if first is None:
         return report
     robot = robot_id or first.channel.robot_id
-    bus = _tool_bus(zenoh_config, robot, "replay")
+    bus = _tool_bus(zenoh_config, robot, "replay", stop)
     try:
         publishers: dict[str, Any] = {}
         for msg in paced(itertools.chain((first,), messages), rate, stopped=stop.is_set):
@@ -104,7 +109,7 @@ def view(zenoh_config: zenoh.Config, robot_id: str, ports: Mapping[str, type], *
     pump = ViewPump(context, ports)
     server = foxglove.start_server(name=f"ovamos {robot_id}", host=host, port=port, context=context)
     try:
-        bus = _tool_bus(zenoh_config, robot_id, "viewer")
+        bus = _tool_bus(zenoh_config, robot_id, "viewer", stop)
         try:
             def take(name: str, payload: bytes) -> bool:
                 pump.offer(name, payload, time.time_ns())
