@@ -87,6 +87,27 @@ def test_a_bumper_during_a_forward_move_blocks_it_halts_and_latches_a_fault(rig:
     assert rig.d.state().faults == () and rig.d.counters["recoveries"] == 1
 
 
+def test_a_collision_report_during_a_forward_move_backs_off_to_the_start_then_blocks() -> None:
+    """BaseController.bump (the simulator's contact check): the robot drives straight back to
+    where the step began, so a blocked step leaves it where the planner thinks it is; with
+    back_off_on_bump off it stays at the contact. Neither is a fault."""
+    for back_off, end_x in ((True, 0.0), (False, 0.1)):
+        rig = Rig(back_off_on_bump=back_off)
+        rig.run(0.1)
+        cmd = command(Action.MOVE_FORWARD)
+        rig.d.submit(cmd)
+        rig.until(lambda: rig.d.odometry().x > 0.1)
+        rig.d.bump()
+        rig.until(lambda: rig.d.state().last_completed == cmd.action_id)
+        state = rig.d.state()
+        assert state.last_outcome == "blocked" and state.mode is DriverMode.READY
+        assert rig.d.odometry().x == pytest.approx(end_x, abs=0.02)
+        assert rig.d.counters["back_offs"] == int(back_off)
+    rig.d.bump()  # nothing under way: nothing to block
+    rig.run(DT)
+    assert rig.d.counters["bumps"] == 1
+
+
 def test_a_bumper_while_turning_aborts_the_turn(rig: Rig) -> None:
     cmd = command(Action.TURN_LEFT)
     rig.d.submit(cmd)

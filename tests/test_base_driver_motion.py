@@ -91,12 +91,14 @@ def test_deadman_ramps_to_zero_when_commands_stop(base: WheeledSimRobot) -> None
     assert base.pose.x == pytest.approx(x, abs=1e-4)  # holding (0.2 m/s would be 6 cm)
 
 
-def test_a_blocked_move_reports_blocked_and_stops() -> None:
+def test_a_blocked_move_backs_off_to_its_start_and_reports_blocked() -> None:
     base = sim_base(is_free=lambda x, y: x < 0.1)  # a wall 10 cm ahead
     try:
         assert run(base.driver, command(Action.MOVE_FORWARD)) == "blocked"
         wait_for(lambda: wheels_at_rest(base.driver), 10, "wheels at rest")
-        assert base.pose.x < 0.1
+        assert base.pose.x == pytest.approx(0.0, abs=0.01)  # back where the step began
+        assert base.driver.odometry().x == pytest.approx(base.pose.x, abs=0.005)
+        assert base.driver.counters["back_offs"] == 1
         assert base.driver.state().mode is DriverMode.READY
     finally:
         base.stop()

@@ -20,8 +20,10 @@ from services.base_driver.kobuki_sim import SimKobuki
 from services.base_driver.opencr import OpenCRConfig
 from services.base_driver.opencr_sim import SimOpenCR
 from services.base_driver.opencr_table import MODELS
+from services.sim.robot import MotionConfig, SimRobot
+from services.sim.wheels import SerialSimRobot
 from shared.messages import DriverMode
-from shared.motion import Action
+from shared.motion import Action, Pose
 from tests.base_driver_helpers import command, run, wait_for_mode
 from tests.polling import wait_for
 
@@ -142,3 +144,20 @@ def _at_rest(travel: Callable[[], tuple[float, float]]) -> bool:
     before = travel()
     time.sleep(0.2)
     return max(abs(a - b) for a, b in zip(before, travel())) < 1e-4
+
+
+@pytest.mark.parametrize("hardware", ["kobuki", "opencr"])
+def test_a_simulated_turtlebot_that_hits_a_wall_backs_off_to_where_the_step_began(hardware: str) -> None:
+    """The simulator's robot on each TurtleBot base (real client, simulated board): a wall 10 cm
+    ahead stalls the wheels, the step backs off to its start through the same serial path and
+    completes as blocked; odometry and the true pose agree."""
+    fixed = DriverConfig().model_copy(update={"hardware": hardware}).fixed_wheels()
+    assert fixed is not None
+    motion = MotionConfig(wheel_radius_m=fixed[0], track_width_m=fixed[1])
+    robot = SimRobot(Pose(x=0.0, y=0.0, yaw=0.0), lambda x, y: x < 0.1, motion)
+    with SerialSimRobot(robot, hardware) as sim:
+        wait_for_mode(sim.driver, DriverMode.READY)
+        assert run(sim.driver, command(Action.MOVE_FORWARD)) == "blocked"
+        assert sim.pose.x == pytest.approx(0.0, abs=0.01)
+        assert sim.driver.odometry().x == pytest.approx(sim.pose.x, abs=0.005)
+        assert sim.driver.counters["back_offs"] == 1 and sim.driver.state().mode is DriverMode.READY

@@ -211,6 +211,25 @@ def test_stale_board_gives_a_visible_stale_stamp_and_commands_raise(sim: SimOpen
         hw.close()
 
 
+def test_a_write_whose_answer_is_lost_is_tried_again_before_it_is_a_fault(sim: SimOpenCR) -> None:
+    """Writes are idempotent: one lost status packet (a busy host, a USB hiccup) is asked again;
+    as many lost answers as write_attempts raise."""
+    for attempts, raises in ((2, False), (1, True)):
+        hw = _hw(sim, write_attempts=attempts)
+        try:
+            timeouts = hw.counters()["rx_timeouts"]
+            sim.drop_answers = 1
+            if raises:
+                with pytest.raises(HardwareError, match="no status packet"):
+                    hw.set_velocity(0.1, 0.0)
+            else:
+                hw.set_velocity(0.1, 0.0)
+                assert hw.counters()["writes"] >= 1
+            assert hw.counters()["rx_timeouts"] == timeouts + 1 and sim.drop_answers == 0
+        finally:
+            hw.close()
+
+
 def test_noise_and_bad_crc_towards_the_host_are_skipped_and_counted(sim: SimOpenCR) -> None:
     hw = _hw(sim, poll_period_s=0.01)
     try:

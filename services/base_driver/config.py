@@ -97,6 +97,12 @@ class DriverConfig(StrictModel):
     heading_gain: float = Field(default=2.0, ge=0, description="1/s; holds the heading on a forward move")
     settle_rev_s: float = Field(default=0.01, gt=0, description="wheels slower than this are at rest")
     primitive_timeout_s: float = Field(default=10.0, gt=0, description="abort a primitive after this")
+    back_off_on_bump: bool = Field(
+        default=True,
+        description="a MOVE_FORWARD stopped by a collision report (BaseController.bump: the "
+                    "simulator's contact check) drives straight back to where it started before "
+                    "it completes as blocked: the planner treats a blocked step as not made, and "
+                    "a robot left touching the obstacle cannot plan its way out")
 
     def fixed_wheels(self) -> tuple[float, float, str] | None:
         """(wheel radius, track width, what) of a base whose wheels its hardware fixes (a Kobuki, a

@@ -43,7 +43,7 @@ import logging
 import math
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
@@ -80,6 +80,7 @@ class _Active:
     received: float
     started: float | None = None         # when execution began (the base was ready)
     tracker: PrimitiveTracker | None = None
+    outcome: Outcome = "done"            # how it completes when the tracker reaches its goal
 
 
 @dataclass
@@ -109,6 +110,7 @@ class BaseController:
         self._last_tick: float | None = None
         self._age_checks_from = -math.inf
         self._active: _Active | None = None
+        self._bumps: deque[bool] = deque()    # bump() reports, for the next tick
         self._action_ids = ActionIds()
         self._primitives = config.primitives  # advertised in every state
         self._last_command_at = -math.inf
@@ -224,12 +226,37 @@ class BaseController:
             self._counters["commands"] += 1
             return "accepted"
 
-    def bump(self) -> None:
+    def bump(self, backward: bool = False) -> None:
         """Something outside the hardware's sensors (the simulator's collision check) hit an
-        obstacle: stop the active command as blocked."""
-        with self._lock:
-            if self._active is not None and self._active.started is not None:
-                self._counters["bumps"] += 1
+        obstacle, the wheels turning ``backward`` or not: the next tick stops the active command
+        as blocked, a forward move first driving back to where it started (``back_off_on_bump``).
+
+        Queued, never waiting for the lock: the simulator calls it from a simulated device's
+        thread, which the control thread may be waiting on for an answer (the OpenCR's status
+        packet) while it holds the lock."""
+        self._bumps.append(backward)
+
+    def _take_bumps(self) -> None:
+        """Act on the queued :meth:`bump` reports (under the lock, in the tick)."""
+        while self._bumps:
+            backward = self._bumps.popleft()
+            active = self._active
+            if active is None or active.started is None:
+                continue
+            self._counters["bumps"] += 1
+            tracker = active.tracker
+            if active.outcome == "blocked":  # backing off already
+                if backward:  # hit something behind: stop there
+                    self._finish("blocked")
+                continue  # else the last forward push of wheels still slowing down: keep going
+            if (self.config.back_off_on_bump and tracker is not None
+                    and tracker.action is Action.MOVE_FORWARD):
+                active.tracker = PrimitiveTracker(Action.MOVE_FORWARD, tracker.start, self.config,
+                                                  distance_m=0.0)
+                active.outcome = "blocked"
+                self._v = 0.0  # at once: the wheels are against the obstacle
+                self._counters["back_offs"] += 1
+            else:
                 self._finish("blocked")
 
     def _finish(self, outcome: Outcome) -> None:
@@ -288,6 +315,7 @@ class BaseController:
             if self._phase == "closed":
                 self._open(now)
             fb = self._read_feedback(now)
+            self._take_bumps()
             if self._estop is not None:
                 self._estop_hw()  # repeated: cheap, and re-sent if the base did not take it
                 return
@@ -422,7 +450,7 @@ class BaseController:
         request = active.tracker.request(self._odom.pose)
         if request is None:
             if self._v == 0.0 and self._w == 0.0 and all(abs(v) < c.settle_rev_s for v in self._wheels):
-                self._finish("done")
+                self._finish(active.outcome)
             return 0.0, 0.0
         return request
 

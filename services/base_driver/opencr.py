@@ -65,6 +65,16 @@ class OpenCRConfig(StrictModel):
                                       description="below the firmware's 500 ms timeout")
     bumpers: bool = Field(default=False, description="optional touch sensors on bumper_1/2 (front/back)")
     open_attempts: int = Field(default=3, ge=1, description="pings before giving up (noise, a booting board)")
+    write_attempts: int = Field(
+        default=3, ge=1,
+        description="tries of a write the board does not acknowledge in time before it is a fault: "
+                    "writes are idempotent (a velocity, a heartbeat, torque), and one late answer "
+                    "(a busy host, a USB hiccup) should not stop the robot")
+
+
+# dynamixel_sdk's result codes (imported lazily with the SDK, so named here)
+_RX_TIMEOUT = -3001  # COMM_RX_TIMEOUT: no (complete) status packet in time
+_RX_CORRUPT = -3002  # COMM_RX_CORRUPT: bad CRC, partial packet
 
 
 def _i32(data: list[int] | bytes, offset: int) -> int:
@@ -172,9 +182,9 @@ class OpenCRHardware:
             raise HardwareError(f"serial port {self.config.port} lost (unplugged?): {exc}") from None
 
     def _count_result(self, result: int) -> None:
-        if result == -3001:        # COMM_RX_TIMEOUT
+        if result == _RX_TIMEOUT:
             self._counts["rx_timeouts"] += 1
-        elif result == -3002:      # COMM_RX_CORRUPT: bad CRC, partial packet
+        elif result == _RX_CORRUPT:
             self._counts["rx_corrupt"] += 1
 
     def _read(self, addr: int, length: int) -> list[int]:
@@ -190,10 +200,15 @@ class OpenCRHardware:
         return list(data)
 
     def _write(self, addr: int, data: bytes) -> None:
-        result, error = self._guard(
-            lambda: self._ph.writeTxRx(self._port, self.config.device_id, addr, len(data), list(data)))
-        if result != 0:
+        for _ in range(self.config.write_attempts):
+            result, error = self._guard(
+                lambda: self._ph.writeTxRx(self._port, self.config.device_id, addr, len(data), list(data)))
+            if result == 0:
+                break
             self._count_result(result)
+            if result != _RX_TIMEOUT:  # only an answer that did not come is worth asking again
+                break
+        if result != 0:
             raise HardwareError(f"OpenCR write {addr}+{len(data)}: {self._ph.getTxRxResult(result)}")
         if error:
             self._counts["device_errors"] += 1

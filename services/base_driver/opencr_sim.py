@@ -12,6 +12,7 @@ limits, the wheel motors' goal-velocity quantisation, and integration of the
 wheel positions (4096 ticks per revolution) and velocities.
 
 Fault injection: ``silent`` (reads packets, answers nothing: stale feedback),
+``drop_answers`` (swallows the next n answers: a late or lost status packet),
 ``inject_noise`` (garbage before the next answer), ``corrupt_replies`` (the
 next answers carry a wrong CRC), ``unplug`` / ``replug`` (the pty disappears;
 with ``link`` the replugged device reappears at the same path, like a udev
@@ -74,6 +75,7 @@ class SimOpenCR:
         self.connected_to_host = False
         # faults
         self.silent = False
+        self.drop_answers = 0  # answers still to swallow (a late or lost status packet)
         self._noise = bytearray()
         self._corrupt = 0
         self.bumpers = [False, False]
@@ -283,7 +285,8 @@ class SimOpenCR:
                 answer = self._handle(pkt, now)
                 if answer is None:
                     continue
-                if self.silent:
+                if self.silent or self.drop_answers > 0:
+                    self.drop_answers -= 0 if self.silent else 1
                     self.unanswered += 1
                     continue
                 try:

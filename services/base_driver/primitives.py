@@ -7,7 +7,8 @@ tick (a slow host) overshoots by millimetres, and never below a creep speed so
 the goal is reached rather than approached forever. Within tolerance it asks
 for zero; the driver reports the primitive done once the wheels are at rest
 there, so the reported pose is final. An overshoot past the tolerance is
-driven back.
+driven back. A forward move's goal may be another distance along its start heading (0: back to
+the start, for a blocked move that backs off).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ class PrimitiveTracker:
     action: Action
     start: Pose
     config: DriverConfig
+    distance_m: float | None = None  # MOVE_FORWARD's goal along the start heading; None: forward_m
 
     @property
     def goal_yaw(self) -> float:
@@ -47,7 +49,7 @@ class PrimitiveTracker:
         if self.action is Action.MOVE_FORWARD:
             done = ((pose.x - self.start.x) * math.cos(self.start.yaw)
                     + (pose.y - self.start.y) * math.sin(self.start.yaw))
-            return self.config.forward_m - done
+            return (self.config.forward_m if self.distance_m is None else self.distance_m) - done
         if self.action in (Action.TURN_LEFT, Action.TURN_RIGHT):
             return wrap_angle(self.goal_yaw - pose.yaw)
         return 0.0

@@ -50,7 +50,7 @@ class _WheelDriven(ABC):
             if not moved:
                 self.robot.pose = before
         if not moved:
-            self.driver.bump()
+            self.driver.bump(backward=left_rad_s + right_rad_s < 0)
         return moved
 
     def __enter__(self) -> _WheelDriven:
