@@ -144,6 +144,12 @@ class BusCore:
         """Call ``on_payload(key, read_payload)`` per sample; return the undeclare function."""
         raise NotImplementedError
 
+    def _listen_buffered(self, key_expr: str, on_payload: Callable[[str, Callable[[], bytes]], None],
+                         backlog: int) -> Callable[[], None]:
+        """:meth:`_listen`, with up to ``backlog`` samples held by the transport until taken
+        (a transport without such a buffer delivers at once)."""
+        return self._listen(key_expr, on_payload)
+
     def _answer(self, key: str, on_query: Callable[[Callable[[bytes | bytearray], None],
                                                     Callable[[], None]], None]) -> Callable[[], None]:
         """Call ``on_query(reply, finish)`` per query; return the undeclare function."""
@@ -193,12 +199,15 @@ class BusCore:
         self._declared.append(sub)
         return sub
 
-    def tap(self, key_expr: str, handler: Callable[[str, bytes], None]) -> Subscription:
-        """Call ``handler(key, payload)`` on the transport's thread for every sample under
-        ``key_expr``, past the inbox (counted as received; exceptions counted as errors).
+    def tap(self, key_expr: str, handler: Callable[[str, bytes], None], *, backlog: int = 16) -> Subscription:
+        """Call ``handler(key, payload)`` for every sample under ``key_expr``, past the inbox
+        (counted as received; exceptions counted as errors), on a thread of the subscription.
 
         For a recorder that bounds its own queue by bytes: the inbox bounds events by count,
-        and 10,000 RGB-D frames are 20 GB. The handler must only enqueue, never block.
+        and 10,000 RGB-D frames are 20 GB. The handler must only enqueue, never block. Up to
+        ``backlog`` samples wait in the transport while this process is busy (a thread holding
+        the GIL while it compresses a chunk), where a callback would stall the link and make the
+        router drop what it cannot queue.
         """
         guarded = self._guard(lambda sample: handler(*sample), key_expr)
 
@@ -206,7 +215,7 @@ class BusCore:
             self.counters.bump(key, "received")
             guarded((key, read()))
 
-        sub = Subscription(self._listen(key_expr, on_payload))
+        sub = Subscription(self._listen_buffered(key_expr, on_payload, backlog))
         self._declared.append(sub)
         return sub
 
@@ -360,6 +369,24 @@ class Bus(BusCore):
             on_payload(str(sample.key_expr), sample.payload.to_bytes)
 
         return self.session.declare_subscriber(key_expr, on_sample).undeclare
+
+    def _listen_buffered(self, key_expr: str, on_payload: Callable[[str, Callable[[], bytes]], None],
+                         backlog: int) -> Callable[[], None]:
+        # Samples wait in Zenoh's own queue (no GIL needed to receive); one thread takes them.
+        sub = self.session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(backlog))
+
+        def take() -> None:
+            for sample in sub:  # ends when the subscriber is undeclared
+                on_payload(str(sample.key_expr), sample.payload.to_bytes)
+
+        thread = threading.Thread(target=take, name=f"tap:{key_expr}", daemon=True)
+        thread.start()
+
+        def undeclare() -> None:
+            sub.undeclare()
+            thread.join(timeout=5)
+
+        return undeclare
 
     def _answer(self, key: str, on_query: Callable[[Callable[[bytes | bytearray], None],
                                                     Callable[[], None]], None]) -> Callable[[], None]:

@@ -17,6 +17,9 @@ left); images in ``camera``.
   length and POUCT's Q and visits; the frontier weighed), ``/planner/goal`` (SceneUpdate);
 * ``/log`` (Log): task events and the planner's decisions as log lines.
 
+Images and grids are only made for channels someone takes (an MCAP file always does; a live
+view's WebSocket client once it subscribes), so an idle ``ovamos view`` costs little.
+
 :class:`ViewPump` runs a builder on a thread of its own behind an
 :class:`~shared.inbox.Inbox`: frames and maps keep only their newest sample while it is
 busy (a view may skip frames; the raw channels never do), the rest queue in order.
@@ -138,15 +141,18 @@ class ViewBuilder:
     def _frame(self, f: RgbdFrame, ns: int) -> None:
         h, w = f.depth.shape
         t = _stamp(ns)
+        if self._depth.has_sinks():
+            encoding = "32FC1" if f.depth.dtype == np.float32 else "16UC1"
+            self._depth.log(RawImage(timestamp=t, frame_id=CAMERA, width=w, height=h, encoding=encoding,
+                                     step=w * f.depth.itemsize, data=f.depth.tobytes()), log_time=ns)
+        if not self._color.has_sinks():
+            return
         ok, jpeg = cv2.imencode(".jpg", cv2.cvtColor(f.rgb, cv2.COLOR_RGB2BGR),
                                 [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
         if not ok:
             raise ValueError(f"frame {f.seq}: JPEG encoding failed")
         self._color.log(CompressedImage(timestamp=t, frame_id=CAMERA, format="jpeg", data=jpeg.tobytes()),
                         log_time=ns)
-        encoding = "32FC1" if f.depth.dtype == np.float32 else "16UC1"
-        self._depth.log(RawImage(timestamp=t, frame_id=CAMERA, width=w, height=h, encoding=encoding,
-                                 step=w * f.depth.itemsize, data=f.depth.tobytes()), log_time=ns)
 
     # -- map -----------------------------------------------------------------------------------
     def _grid(self, s: MapSnapshot, ns: int, cells: np.ndarray, kind: PackedElementFieldNumericType,
@@ -161,14 +167,18 @@ class ViewBuilder:
 
     def _map(self, s: MapSnapshot, ns: int) -> None:
         u8 = PackedElementFieldNumericType.Uint8
-        self._obstacle.log(self._grid(s, ns, s.obstacle.astype(np.uint8), u8, "obstacle"), log_time=ns)
-        self._explored.log(self._grid(s, ns, s.explored.astype(np.uint8), u8, "explored"), log_time=ns)
+        if self._obstacle.has_sinks():
+            self._obstacle.log(self._grid(s, ns, s.obstacle.astype(np.uint8), u8, "obstacle"), log_time=ns)
+        if self._explored.has_sinks():
+            self._explored.log(self._grid(s, ns, s.explored.astype(np.uint8), u8, "explored"), log_time=ns)
         for layer in s.layers:
-            values = value_map(s, (layer,))
-            assert values is not None  # the layer is one of the snapshot's
             channel = self._values.get(layer)
             if channel is None:
                 channel = self._values[layer] = GridChannel(f"/map/value/{layer}", context=self._context)
+            if not channel.has_sinks():
+                continue
+            values = value_map(s, (layer,))
+            assert values is not None  # the layer is one of the snapshot's
             channel.log(self._grid(s, ns, values.astype(np.float32), PackedElementFieldNumericType.Float32,
                                    "value"), log_time=ns)
         frontiers = [_sphere(float(x), float(y), 0.15, MAGENTA) for x, y in s.frontiers]
