@@ -273,6 +273,8 @@ def record(out: Annotated[Path, typer.Option("--out", help="MCAP file to write."
     dropped = sum(stats["dropped"].values())
     err.print(f"recorded {written} messages ({stats['bytes'] / 2 ** 20:.1f} MB raw, {dropped} dropped) "
               f"-> {', '.join(stats['files'])}")
+    if stats["failed"]:
+        raise _fail(f"the recording stopped early: {stats['failed']}")
 
 
 @app.command()

@@ -89,3 +89,20 @@ def test_channels_of_other_versions_or_unknown_keys_are_skipped_and_listed(tmp_p
     assert [m.payload for m in read_raw(path, None, report)] == [_odom(1)]
     assert report.read == {"odom": 1} and len(report.skipped_channels) == 1
     assert "future" in report.skipped_channels[0]
+
+
+def test_a_writer_that_cannot_go_on_stops_taking_and_says_why(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    part_path(path, 1).mkdir()  # the second part cannot be created
+    config = RecorderConfig(split_bytes=1, flush_s=0.05, views=False, overwrite=True)
+    rec = Recorder(path, select(["odom"]), "r1", config)
+    assert rec.offer("odom", _odom(1))
+    deadline = time.monotonic() + 10
+    while not rec.failed and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert rec.failed and not rec.offer("odom", _odom(2))
+    rec.close()
+    stats = rec.stats()
+    assert stats["written"] == {"odom": 1} and stats["dropped"] == {"odom": 1} and stats["failed"] == rec.failed
+    with path.open("rb") as f:  # the first part was finished before the split failed
+        assert [m.data for _, _, m in make_reader(f).iter_messages()] == [_odom(1)]

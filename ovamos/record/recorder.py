@@ -15,6 +15,7 @@ the current one holds that many bytes, so a long run can be copied and opened in
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections import Counter, deque
@@ -30,6 +31,8 @@ from ovamos.record.channels import RawChannel
 from ovamos.record.views import ViewPump
 
 __all__ = ["RecorderConfig", "Recorder", "RecordingExistsError", "part_path"]
+
+log = logging.getLogger("ovamos.recorder")
 
 Compression = Literal["zstd", "lz4", "none"]
 _COMPRESSION = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4, "none": None}
@@ -75,8 +78,9 @@ class Recorder:
     def __init__(self, path: Path, ports: Mapping[str, type], robot_id: str,
                  config: RecorderConfig = RecorderConfig()) -> None:
         self.path, self.config = Path(path), config
-        if self.path.exists() and not config.overwrite:
-            raise RecordingExistsError(f"{self.path} exists (overwrite it with --overwrite)")
+        for part in (0, 1) if config.split_bytes else (0,):  # parts are numbered from 1 on, in order
+            if part_path(self.path, part).exists() and not config.overwrite:
+                raise RecordingExistsError(f"{part_path(self.path, part)} exists (overwrite it with --overwrite)")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.context = foxglove.Context()
         self._raw = {name: RawChannel(name, message, robot_id).open(self.context)
@@ -89,6 +93,8 @@ class Recorder:
         self.written: Counter[str] = Counter()
         self.dropped: Counter[str] = Counter()
         self.bytes_written = 0
+        self.failed = ""  # why the writer stopped early (a full disk), if it did
+        self._closing = False
         self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
         self._thread.start()
 
@@ -123,7 +129,8 @@ class Recorder:
     def stats(self) -> dict[str, object]:
         with self._lock:
             out: dict[str, object] = {"written": dict(self.written), "dropped": dict(self.dropped),
-                                      "bytes": self.bytes_written, "files": [str(p) for p in self.files]}
+                                      "bytes": self.bytes_written, "files": [str(p) for p in self.files],
+                                      "failed": self.failed}
         with self._queue.cond:
             out["queued_bytes"] = self._queue.held
         if self.views is not None:
@@ -143,6 +150,17 @@ class Recorder:
             return item
 
     def _run(self) -> None:
+        try:
+            self._write_until_closed()
+        except Exception as exc:  # a full disk, a split file that cannot be created: stop taking
+            with self._queue.cond:
+                self._queue.closed = True
+                self._queue.items.clear()
+                self._queue.held = 0
+            self.failed = f"{type(exc).__name__}: {exc}"
+            log.exception("the recording stopped: %s", self.failed)
+
+    def _write_until_closed(self) -> None:
         next_flush = time.monotonic() + self.config.flush_s
         while True:
             item = self._take(max(0.0, next_flush - time.monotonic()))
@@ -169,12 +187,17 @@ class Recorder:
 
     def close(self) -> None:
         """Write what is queued, the views' last drawings, and finish the file (idempotent)."""
+        if self._closing:
+            return
+        self._closing = True
         with self._queue.cond:
-            if self._queue.closed:
-                return
             self._queue.closed = True
             self._queue.cond.notify_all()
         self._thread.join()
         if self.views is not None:
             self.views.close()
-        self._writer.close()
+        try:
+            self._writer.close()
+        except Exception as exc:  # a full disk: the chunks written so far stay readable
+            self.failed = self.failed or f"{type(exc).__name__}: {exc}"
+            log.exception("finishing %s failed", self.files[-1])

@@ -17,7 +17,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
 
-from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.records import Channel
 
@@ -51,7 +50,7 @@ class ReadReport:
 def _reader_messages(stream: BinaryIO) -> Iterator[tuple[Channel, bytes, int]]:
     try:
         summary = make_reader(stream).get_summary()
-    except McapError:
+    except Exception:  # no summary or a damaged one: read record by record below
         summary = None
     stream.seek(0)
     if summary is not None and summary.chunk_indexes:
@@ -90,7 +89,8 @@ def read_raw(path: Path, names: Sequence[str] | None = None, report: ReadReport 
                 channel, data, log_time = next(messages)
             except StopIteration:
                 return
-            except (McapError, EOFError, ValueError, OSError) as exc:
+            except Exception as exc:  # the reader's errors on a damaged file are of many types
+                # (McapError, struct.error, EOFError, a decompressor's): all mean "cannot read on"
                 if count == 0 and not channels:
                     raise RecordingError(f"{path} is not a readable MCAP recording: {exc}") from None
                 report.truncated = f"stopped after {count} messages: {type(exc).__name__}: {exc}"
