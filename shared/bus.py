@@ -71,9 +71,9 @@ class Counters:
 class Publisher(Generic[M]):
     """Publishes messages of one type on one key."""
 
-    def __init__(self, bus: BusCore, key: str, msg_type: type[M]) -> None:
+    def __init__(self, bus: BusCore, key: str, msg_type: type[M], *, block: bool = False) -> None:
         self.key, self.msg_type, self._bus = key, msg_type, bus
-        self._put, self.undeclare = bus._publish(key)
+        self._put, self.undeclare = bus._publish(key, block)
         self._lock = threading.Lock()
         # The transport copies the payload during put(), so one buffer serves every message.
         self._buffer = bytearray()
@@ -135,8 +135,10 @@ class BusCore:
         self._closed = False
 
     # -- transport (subclasses) -----------------------------------------------------------
-    def _publish(self, key: str) -> tuple[Callable[[bytes | bytearray], None], Callable[[], None]]:
-        """The put and undeclare functions of a publisher on ``key``."""
+    def _publish(self, key: str, block: bool = False
+                 ) -> tuple[Callable[[bytes | bytearray], None], Callable[[], None]]:
+        """The put and undeclare functions of a publisher on ``key``; ``block``: a put waits
+        while the transport is congested (a slow subscriber) instead of dropping."""
         raise NotImplementedError
 
     def _listen(self, key_expr: str, on_payload: Callable[[str, Callable[[], bytes]], None]
@@ -169,8 +171,11 @@ class BusCore:
         raise NotImplementedError
 
     # -- declarations ---------------------------------------------------------------------
-    def publisher(self, key: str, msg_type: type[M]) -> Publisher[M]:
-        pub = Publisher(self, key, msg_type)
+    def publisher(self, key: str, msg_type: type[M], *, block: bool = False) -> Publisher[M]:
+        """A publisher of ``msg_type`` on ``key``. ``block=True`` is for tools that may go as slowly
+        as their subscribers (a replay at full speed): a put waits while a subscriber's link is
+        congested. Services never block: a stalled subscriber must not stall the robot."""
+        pub = Publisher(self, key, msg_type, block=block)
         self._declared.append(pub)
         return pub
 
@@ -359,8 +364,10 @@ class Bus(BusCore):
         _check_identity(robot_id, service, instance)  # first: opening may wait for a router
         return cls(open_session(cfg), robot_id, service, instance, dispatch=dispatch)
 
-    def _publish(self, key: str) -> tuple[Callable[[bytes | bytearray], None], Callable[[], None]]:
-        pub = self.session.declare_publisher(key)
+    def _publish(self, key: str, block: bool = False
+                 ) -> tuple[Callable[[bytes | bytearray], None], Callable[[], None]]:
+        congestion = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+        pub = self.session.declare_publisher(key, congestion_control=congestion)
         return pub.put, pub.undeclare
 
     def _listen(self, key_expr: str, on_payload: Callable[[str, Callable[[], bytes]], None]

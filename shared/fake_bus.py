@@ -82,7 +82,8 @@ class FakeBus(BusCore):
         super().__init__(robot_id, service, instance)
         self.network = network
 
-    def _publish(self, key: str) -> tuple[Callable[[bytes | bytearray], None], Callable[[], None]]:
+    def _publish(self, key: str, block: bool = False
+                 ) -> tuple[Callable[[bytes | bytearray], None], Callable[[], None]]:
         return (lambda payload: self.network._deliver(key, bytes(payload))), (lambda: None)
 
     def _listen(self, key_expr: str, on_payload: Callable[[str, Callable[[], bytes]], None]

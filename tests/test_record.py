@@ -23,6 +23,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import foxglove
 import numpy as np
 import pytest
 import websockets
@@ -31,7 +32,7 @@ from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 
 from ovamos.demo import DEMO_EPISODE, DEMO_SEED, SERVICES, demo_entries, write_configs
-from ovamos.record.channels import META_KEY, recorded_ports
+from ovamos.record.channels import META_KEY, RawChannel, recorded_ports
 from ovamos.record.live import replay
 from ovamos.record.replay import RecordingError, read_raw
 from ovamos.record.views import TOPICS
@@ -290,3 +291,21 @@ def test_a_websocket_client_of_the_live_view_gets_every_view_of_a_running_demo(r
     targets = make_episode(DEMO_SEED, DEMO_EPISODE)[0].targets
     assert set(TOPICS) | {f"/map/value/{t}" for t in targets} <= recorded_run.advertised
     assert recorded_run.viewed == VIEWED
+
+
+def test_replay_at_max_speed_ignores_the_recorded_gaps_and_loses_nothing(tmp_path: Path, inproc_router: str) -> None:
+    path = tmp_path / "slow.mcap"
+    context = foxglove.Context()
+    writer = foxglove.open_mcap(path, context=context)
+    channel = RawChannel("odom", Odometry, ROBOT).open(context)
+    payloads = [Odometry(seq=i, stamp=float(i), x=0.0, y=0.0, yaw=0.0).to_bytes() for i in range(300)]
+    for i, payload in enumerate(payloads):
+        channel.log(payload, log_time=(1_000 + 60 * i) * 10**9)  # a minute apart: five hours at rate 1
+    writer.close()
+    zcfg = build_config(connect=[inproc_router])
+    got: list[bytes] = []
+    with Bus.open(zcfg, "desk", "test") as bus:
+        bus.tap(keys.odom("desk"), lambda key, payload: got.append(payload))
+        report = replay(zcfg, path, rate=None, names=None, robot_id="desk", stop=threading.Event())
+        wait_for(lambda: len(got) == len(payloads), timeout=20, what="every replayed message")
+    assert report.read == {"odom": 300} and got == payloads

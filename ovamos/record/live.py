@@ -80,7 +80,8 @@ def record(zenoh_config: zenoh.Config, robot_id: str, ports: Mapping[str, type],
 def replay(zenoh_config: zenoh.Config, path: Path, *, rate: float | None, names: Sequence[str] | None,
            robot_id: str | None, stop: threading.Event) -> ReadReport:
     """Publish the raw channels of ``path`` (those in ``names``) on ``robot_id``'s keys (the
-    recorded robot's when None) at ``rate`` times their recorded pace (None: at once)."""
+    recorded robot's when None) at ``rate`` times their recorded pace; None: as fast as the
+    subscribers' links take them (puts wait while one is congested instead of dropping)."""
     report = ReadReport()
     messages = read_raw(path, names, report)
     first = next(messages, None)  # a file that is not a recording fails before Zenoh is opened
@@ -94,7 +95,7 @@ def replay(zenoh_config: zenoh.Config, path: Path, *, rate: float | None, names:
             pub = publishers.get(msg.channel.name)
             if pub is None:
                 key = RawChannel(msg.channel.name, msg.channel.message, robot).key
-                pub = publishers[msg.channel.name] = bus.publisher(key, msg.channel.message)
+                pub = publishers[msg.channel.name] = bus.publisher(key, msg.channel.message, block=rate is None)
             pub.put_bytes(msg.payload)
     finally:
         bus.close()
