@@ -106,3 +106,15 @@ def test_a_writer_that_cannot_go_on_stops_taking_and_says_why(tmp_path: Path) ->
     assert stats["written"] == {"odom": 1} and stats["dropped"] == {"odom": 1} and stats["failed"] == rec.failed
     with path.open("rb") as f:  # the first part was finished before the split failed
         assert [m.data for _, _, m in make_reader(f).iter_messages()] == [_odom(1)]
+
+
+def test_the_shipped_foxglove_layout_is_current_and_shows_only_view_topics() -> None:
+    import json
+    import re
+
+    from ovamos.record.layout import LAYOUT_FILE, layout
+    from ovamos.record.views import TOPICS
+    shipped = LAYOUT_FILE.read_text()
+    assert shipped == layout().to_json() + "\n"  # regenerate: python -m ovamos.record.layout
+    shown = set(re.findall(r'"(/[a-z/_]+)"', json.dumps(json.loads(shipped))))
+    assert shown and shown <= set(TOPICS)
