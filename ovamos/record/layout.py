@@ -1,9 +1,10 @@
 """The Foxglove layout of the view channels, built with the SDK's layout model (so it stays a
 valid layout) and shipped as ``deploy/foxglove/ovamos.json``.
 
-Camera colour over depth on the left; the map (obstacles, explored area, the first target's
-value layer, frontiers, objects, the robot's path, the planner's candidates and goal) seen from
-above, following the robot; task events and decisions as a log under it. Regenerate the file
+Camera colour over depth on the left; the map (obstacles, explored area, frontiers, objects, the
+robot's path, the planner's candidates and goal) seen from above, following the robot, with the
+value layers (``/map/value/<target>``, named by the task) to switch on in the panel's topics;
+task events and decisions as a log under it. Regenerate the file
 with ``python -m ovamos.record.layout deploy/foxglove/ovamos.json`` (a test checks it is current).
 """
 
