@@ -93,7 +93,8 @@ def read_raw(path: Path, names: Sequence[str] | None = None, report: ReadReport 
                 # (McapError, struct.error, EOFError, a decompressor's): all mean "cannot read on"
                 if count == 0 and not channels:
                     raise RecordingError(f"{path} is not a readable MCAP recording: {exc}") from None
-                report.truncated = f"stopped after {count} messages of the file (views included): {type(exc).__name__}: {exc}"
+                report.truncated = (f"stopped after {count} messages of the file (views included): "
+                                    f"{type(exc).__name__}: {exc}")
                 log.warning("%s: %s", path, report.truncated)
                 return
             if channel.id not in channels:
