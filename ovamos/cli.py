@@ -262,7 +262,8 @@ def record(out: Annotated[Path, typer.Option("--out", help="MCAP file to write."
         raise _fail(f"--compression {compression!r}: one of zstd, lz4, none")
     try:
         ports = select(keys_)
-        config = RecorderConfig(budget_bytes=int(budget_mb * 2 ** 20), compression=compression,  # type: ignore[arg-type]
+        config = RecorderConfig(budget_bytes=int(budget_mb * 2 ** 20),
+                                compression=compression,  # type: ignore[arg-type]  # checked above
                                 split_bytes=None if split_mb is None else int(split_mb * 2 ** 20),
                                 views=views, overwrite=overwrite)
         zcfg = build_config(file=zenoh_file, connect=connect or ())

@@ -38,8 +38,8 @@ from typing import Any
 import cv2
 import numpy as np
 from foxglove import Context
-from foxglove.channels import (CompressedImageChannel, FrameTransformChannel, GridChannel, LogChannel, PoseInFrameChannel,
-                               PosesInFrameChannel, RawImageChannel, SceneUpdateChannel)
+from foxglove.channels import (CompressedImageChannel, FrameTransformChannel, GridChannel, LogChannel,
+                               PoseInFrameChannel, PosesInFrameChannel, RawImageChannel, SceneUpdateChannel)
 from foxglove.messages import (Color, CompressedImage, FrameTransform, Grid, Log, LogLevel, PackedElementField,
                                PackedElementFieldNumericType, Pose, PoseInFrame, PosesInFrame, Quaternion,
                                RawImage, SceneEntity, SceneEntityDeletion, SceneEntityDeletionType,

@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -224,10 +225,11 @@ def _options(cands: Candidates, frontier: np.ndarray | None, frontier_value: flo
              ) -> tuple[TraceOption, ...]:
     """The decision trace's options: the candidates (action i + 1) and the frontier (the last
     action), with path lengths from the robot (row 0 of ``distances``) and POUCT's ``q``."""
-    def option(kind: str, i: int, xy: np.ndarray, value: float, belief: float | None) -> TraceOption:
+    def option(kind: Literal["candidate", "frontier"], i: int, xy: np.ndarray, value: float,
+               belief: float | None) -> TraceOption:
         path = None if distances is None or not np.isfinite(distances[0, i]) else float(distances[0, i])
         qi, visits = (q or {}).get(i, (None, None))
-        return TraceOption(kind=kind, x=float(xy[0]), y=float(xy[1]), value=value, belief=belief,  # type: ignore[arg-type]
+        return TraceOption(kind=kind, x=float(xy[0]), y=float(xy[1]), value=value, belief=belief,
                            path_m=path, q=qi, visits=visits)
 
     out = [option("candidate", i + 1, xy, float(v), float(b))
