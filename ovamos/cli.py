@@ -25,6 +25,9 @@ bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks (results print as
 app.add_typer(bench_app, name="bench")
 sim_app = typer.Typer(no_args_is_help=True, help="The simulated world: scenes, renders.")
 app.add_typer(sim_app, name="sim")
+certs_app = typer.Typer(no_args_is_help=True,
+                        help="Certificates for the laptop-robot link (mTLS): a CA, then one per role.")
+app.add_typer(certs_app, name="certs")
 console = Console()
 err = Console(stderr=True)
 
@@ -54,24 +57,87 @@ def _main(version: Annotated[bool, typer.Option("--version", callback=_version, 
     """OVAMOS multi-object search over Zenoh."""
 
 
+Certs = Annotated[Optional[Path], typer.Option(
+    "--certs", help="Folder made by `ovamos certs` (ca.pem, NAME.pem, NAME.key) for tls/ links.")]
+CertName = Annotated[Optional[str], typer.Option(
+    "--cert", help="This host's certificate in --certs (its CN: laptop, robot, ...).")]
+
+
+def _tls(certs: Path | None, cert: str | None):
+    from shared.zconfig import TlsFiles
+    if (certs is None) != (cert is None):
+        raise _fail("--certs and --cert go together: the folder and this host's certificate name")
+    return None if certs is None or cert is None else TlsFiles.from_folder(certs, cert)
+
+
 @app.command()
 def router(config: Annotated[Optional[Path], typer.Option(help="Zenoh router config (json5).")] = None,
-           listen: Listen = None, connect: Connect = None,
+           listen: Listen = None, connect: Connect = None, certs: Certs = None, cert: CertName = None,
+           robot_id: Annotated[str, typer.Option(
+               "--robot-id", help="With access control: the robot whose keys carry the router's stats.")]
+           = "robot1",
            log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
-    """Run a Zenoh router (a Python session in router mode)."""
+    """Run a Zenoh router (a Python session in router mode).
+
+    With ``access_control`` enabled in its config, what the rules refuse is logged and counted:
+    the router then shows in ``ovamos status`` as service ``router`` (instance: --cert, else
+    ``0``) with a ``denied`` count per key.
+    """
+    from ovamos.router import run_router
     from shared.service import install_signal_handlers
     setup_logging(json_lines=log_json, level=log_level)
     try:
-        cfg = build_config("router", file=config, listen=listen or (), connect=connect or ())
-        session = open_session(cfg)
+        cfg = build_config("router", file=config, listen=listen or (), connect=connect or (),
+                           tls=_tls(certs, cert))
+        stop = threading.Event()
+        run_router(cfg, robot_id=robot_id, name=cert or "0", stop=stop,
+                   on_open=lambda: install_signal_handlers(stop))
     except ZenohConfigError as exc:
         raise _fail(str(exc)) from None
-    stop = threading.Event()
-    install_signal_handlers(stop)
-    logging.getLogger("ovamos.router").info("router %s listening on %s", session.zid(),
-                                            cfg.get_json("listen/endpoints"))
-    stop.wait()
-    session.close()
+
+
+@certs_app.command("init")
+def certs_init(folder: Annotated[Path, typer.Argument(help="Folder for ca.pem and ca.key (made if missing).")],
+               days: Annotated[int, typer.Option(help="Validity of the CA.")] = 3650) -> None:
+    """Create the certificate authority that signs the laptop's, the robot's and the tools' certificates."""
+    from shared.certs import CertError, init_ca
+    try:
+        path = init_ca(folder, days=days)
+    except CertError as exc:
+        raise _fail(str(exc)) from None
+    console.print(f"CA created: {path} (and {folder / 'ca.key'}, mode 0600: keep it off the robot)")
+
+
+@certs_app.command("issue")
+def certs_issue(folder: Annotated[Path, typer.Argument(help="The CA's folder (from `ovamos certs init`).")],
+                name: Annotated[str, typer.Argument(help="The role, written as the certificate's CN: laptop, "
+                                                         "robot, operator, ...")],
+                host: Annotated[Optional[list[str]], typer.Option(
+                    "--host", help="An address (IP or DNS name) the holder is reached at (repeatable); "
+                                   "needed on the router that listens on the link.")] = None,
+                days: Annotated[int, typer.Option(help="Validity (at most the CA's).")] = 825,
+                force: Annotated[bool, typer.Option(help="Replace an existing NAME.pem / NAME.key.")] = False
+                ) -> None:
+    """Make NAME.key (mode 0600) and NAME.pem, signed by the CA, with CN = NAME."""
+    from shared.certs import CertError, check_certificate, issue
+    try:
+        cert, key = issue(folder, name, hosts=host or (), days=days, force=force)
+        info = check_certificate(cert)
+    except CertError as exc:
+        raise _fail(str(exc)) from None
+    console.print(f"issued {info.describe()}; key {key} (mode 0600)")
+
+
+@certs_app.command("show")
+def certs_show(folder: Annotated[Path, typer.Argument(help="A certificate folder.")]) -> None:
+    """Each certificate in the folder: its CN, hosts and expiry (exit 1 when one is not valid now)."""
+    from shared.certs import CertError, list_certificates
+    found = list_certificates(folder)
+    if not found:
+        raise _fail(f"no certificates (*.pem) in {folder}")
+    for item in found:
+        console.print(f"[red]invalid:[/red] {item}" if isinstance(item, CertError) else item.describe())
+    raise typer.Exit(1 if any(isinstance(i, CertError) for i in found) else 0)
 
 
 @app.command()
@@ -156,13 +222,13 @@ def status(robot_id: RobotId = "*", zenoh_file: ZenohFile = None, connect: Conne
                            "stats": s.stats.model_dump() if s.stats else None} for s in services]))
         return
     table = Table("robot", "service", "instance", "pid", "received", "dropped", "malformed",
-                  "errors", "published", title=f"{len(services)} live service instance(s)")
+                  "errors", "published", "denied", title=f"{len(services)} live service instance(s)")
     for s in services:
-        totals = [0] * 5
+        totals = [0] * 6
         if s.stats:
             for c in s.stats.counters.values():
                 totals = [a + b for a, b in zip(totals, (c.received, c.dropped, c.malformed,
-                                                          c.errors, c.published))]
+                                                          c.errors, c.published, c.denied))]
         table.add_row(s.robot_id, s.service, s.instance, str(s.stats.pid) if s.stats else "?",
                       *map(str, totals))
     console.print(table)

@@ -329,6 +329,7 @@ class CounterSet(BaseModel):
     malformed: int = 0
     errors: int = 0
     published: int = 0
+    denied: int = 0  # a router's: messages on this key its access control refused
 
 
 class ServiceStats(JsonMessage):

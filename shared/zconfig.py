@@ -5,16 +5,26 @@ services are clients of a router on loopback, wait for it forever and reconnect
 quickly after a router restart, and notice a hung peer within ~3 s. Multicast
 scouting is always off: on a shared network it would make a robot join
 strangers' Zenoh traffic, so a config file that turns it on is refused.
+
+TLS (the link between the laptop's and the robot's routers): ``tls=`` a
+:class:`TlsFiles` (a certificate folder made by ``ovamos certs`` and this host's
+role) fills ``transport.link.tls`` for mutual authentication. Whatever the
+source of a TLS setting (that argument or a config file), the certificates it
+names are checked before Zenoh sees them: a missing or expired one is a
+:class:`ZenohConfigError` with the date, not a link that silently never comes up.
 """
 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 from collections.abc import Sequence
 
 import zenoh
+
+from shared.certs import CA_CERT, CertError, check_certificate, check_key
 
 Mode = Literal["client", "peer", "router"]
 DEFAULT_PORT = 7447
@@ -29,6 +39,59 @@ class ZenohConfigError(ValueError):
     """A Zenoh config file or override this project will not run with."""
 
 
+@dataclass(frozen=True)
+class TlsFiles:
+    """This host's side of the mTLS link: the CA that signs every peer, and its own pair."""
+
+    ca: Path
+    cert: Path
+    key: Path
+
+    @classmethod
+    def from_folder(cls, folder: str | Path, name: str) -> TlsFiles:
+        """The files ``ovamos certs`` writes: ``ca.pem``, ``NAME.pem`` and ``NAME.key``."""
+        folder = Path(folder).resolve()
+        return cls(folder / CA_CERT, folder / f"{name}.pem", folder / f"{name}.key")
+
+    def settings(self) -> dict[str, object]:
+        """``transport.link.tls``: the same pair for accepting and opening links, both ends
+        authenticated, and a link closed when a certificate on it expires."""
+        return {"root_ca_certificate": str(self.ca),
+                "listen_certificate": str(self.cert), "listen_private_key": str(self.key),
+                "connect_certificate": str(self.cert), "connect_private_key": str(self.key),
+                "enable_mtls": True, "close_link_on_expiration": True}
+
+
+_TLS_CERTS = ("root_ca_certificate", "listen_certificate", "connect_certificate")
+_TLS_KEYS = ("listen_private_key", "connect_private_key")
+
+
+def check_tls(cfg: zenoh.Config) -> list[str]:
+    """Check every certificate and key ``transport.link.tls`` names (existing, valid now);
+    returns the certificates' descriptions. Raises :class:`ZenohConfigError`."""
+    tls = _get(cfg, "transport/link/tls") or {}
+    found = []
+    try:
+        for field in _TLS_CERTS:
+            if tls.get(field) and (info := check_certificate(tls[field]).describe()) not in found:
+                found.append(info)
+        for field in _TLS_KEYS:
+            if tls.get(field):
+                check_key(tls[field])
+    except CertError as exc:
+        raise ZenohConfigError(str(exc)) from None
+    return found
+
+
+def uses_tls(cfg: zenoh.Config) -> bool:
+    """Whether the config listens on or connects to a ``tls/`` endpoint."""
+    endpoints = []
+    for kind in ("listen", "connect"):
+        value = _get(cfg, f"{kind}/endpoints")
+        endpoints += [e for v in value.values() for e in v] if isinstance(value, dict) else list(value or [])
+    return any(str(e).startswith("tls/") for e in endpoints)
+
+
 def _get(cfg: zenoh.Config, key: str) -> object:
     return json.loads(cfg.get_json(key))
 
@@ -38,12 +101,14 @@ def _set(cfg: zenoh.Config, key: str, value: object) -> None:
 
 
 def build_config(mode: Mode | None = None, *, file: str | Path | None = None,
-                 connect: Sequence[str] = (), listen: Sequence[str] = ()) -> zenoh.Config:
+                 connect: Sequence[str] = (), listen: Sequence[str] = (),
+                 tls: TlsFiles | None = None) -> zenoh.Config:
     """A Zenoh config: ``file`` (json5) if given, our defaults, then explicit overrides.
 
     Without a file the result is a client of a router on ``tcp/127.0.0.1:7447``.
     ``connect`` / ``listen`` replace the file's endpoints, so one shipped file
-    serves any port (tests use free ports).
+    serves any port (tests use free ports). ``tls`` sets the TLS files (see
+    :class:`TlsFiles`); the certificates named, from here or the file, are checked.
     """
     if file is not None:
         try:
@@ -78,6 +143,13 @@ def build_config(mode: Mode | None = None, *, file: str | Path | None = None,
         _set(cfg, "connect/retry", RETRY)
     if _get(cfg, "transport/link/tx/lease") == _ZENOH_DEFAULT_LEASE_MS:
         _set(cfg, "transport/link/tx/lease", LEASE_MS)
+    if tls is not None:
+        for field, value in tls.settings().items():
+            _set(cfg, f"transport/link/tls/{field}", value)
+    check_tls(cfg)
+    if uses_tls(cfg) and not (_get(cfg, "transport/link/tls") or {}).get("root_ca_certificate"):
+        raise ZenohConfigError("a tls/ endpoint needs certificates: give the folder made by "
+                               "`ovamos certs` (--certs DIR --cert NAME)")
     return cfg
 
 
