@@ -162,19 +162,28 @@ def run(service: Annotated[str, typer.Argument(help="Service to run.")],
 
 
 @app.command()
-def up(profile: Annotated[str, typer.Argument(help="all | laptop | robot, or a profile .toml file.")],
+def up(profile: Annotated[str, typer.Argument(
+        help="all | laptop | robot | laptop-secure | robot-secure, or a profile .toml file.")],
        log_dir: Annotated[Path, typer.Option(help="Each process's output goes to LOG_DIR/NAME.log.")]
        = Path("state/logs"),
        connect_laptop: Annotated[Optional[str], typer.Option(
-           "--connect-laptop", help="HOST:PORT of the laptop's router (the robot profile links to it).")]
+           "--connect-laptop", help="HOST:PORT of the laptop's router (the robot profile links to it; "
+                                    "over TLS for a secure profile).")]
        = None,
+       certs: Annotated[Path, typer.Option(
+           help="Secure profiles: the folder with ca.pem and this host's NAME.pem / NAME.key.")]
+       = Path("state/certs"),
+       listen_link: Annotated[Optional[str], typer.Option(
+           "--listen-link", help="Secure profiles: HOST:PORT of the router's TLS listener (this host's "
+                                 "address on the robot network).")] = None,
        log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Run a deployment profile: its router, then its services; restart crashed ones; Ctrl-C stops all."""
     from ovamos.profiles import ProfileError, supervisor_for
     from ovamos.supervisor import SupervisorError, status_table
     setup_logging(json_lines=log_json, level=log_level)
     try:
-        sup = supervisor_for(profile, log_dir=log_dir, connect_laptop=connect_laptop)
+        sup = supervisor_for(profile, log_dir=log_dir, connect_laptop=connect_laptop, certs=certs,
+                             listen_link=listen_link)
         code = sup.run_forever(on_started=lambda s: console.print(status_table(s.status(), title=profile)))
     except (ProfileError, SupervisorError) as exc:
         raise _fail(str(exc)) from None

@@ -25,6 +25,7 @@ from shared.config import StrictModel
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PROFILE_DIR = REPO_ROOT / "deploy" / "profiles"
+DEFAULT_CERTS = Path("state/certs")  # relative to the working directory, like the logs
 
 
 class ProfileError(ValueError):
@@ -38,6 +39,9 @@ class RouterSpec(StrictModel):
     config: Path | None = None
     listen: list[str] = Field(default_factory=list, description="replace the config's listen endpoints")
     connect: list[str] = Field(default_factory=list, description="replace the config's connect endpoints")
+    cert: str | None = Field(default=None, description="this host's certificate (its CN: laptop, robot) "
+                                                       "in the folder `ovamos up --certs` names: the "
+                                                       "router's tls/ links use it")
 
 
 class ServiceSpec(StrictModel):
@@ -74,37 +78,59 @@ class Profile(StrictModel):
         return self._source
 
     def entries(self, router_connect: Sequence[str] | None = None,
-                endpoint: str | None = None) -> list[Entry]:
+                endpoint: str | None = None, *, certs: Path | None = None,
+                listen_link: str | None = None) -> list[Entry]:
         """The processes to supervise.
 
         ``router_connect`` replaces the router's connect endpoints (``--connect-laptop``
-        on the robot); ``endpoint`` moves the router there and connects every service
-        to it (tests and the demo use a free port rather than the shipped one).
+        on the robot); ``endpoint`` moves the router's plain TCP listener there and
+        connects every service to it (tests and the demo use a free port rather than the
+        shipped one); ``listen_link`` replaces its ``tls/`` listener (``--listen-link``).
+        ``certs`` is the certificate folder of a router with a ``cert``.
         """
-        found = [self._router_entry(router_connect, endpoint)] if self.router is not None else []
+        found = [self._router_entry(router_connect, endpoint, certs, listen_link)] if self.router else []
         return found + [self._service_entry(s, endpoint) for s in self.services]
 
-    def _router_entry(self, connect: Sequence[str] | None, endpoint: str | None) -> Entry:
+    def _router_entry(self, connect: Sequence[str] | None, endpoint: str | None, certs: Path | None,
+                      listen_link: str | None) -> Entry:
         assert self.router is not None
         router = self.router
-        listen = [endpoint] if endpoint else router.listen
+        listen = router.listen
+        if endpoint or listen_link:
+            base = listen or self._config_listen()
+            plain = [e for e in base if not e.startswith("tls/")]
+            link = [e for e in base if e.startswith("tls/")]
+            listen = ([endpoint] if endpoint else plain) + ([listen_link] if listen_link else link)
         connect = list(connect) if connect is not None else router.connect
         argv = ["router", *_opt("--config", router.config), *_repeat("--listen", listen),
                 *_repeat("--connect", connect)]
+        if router.cert is not None:
+            folder = (certs or DEFAULT_CERTS).resolve()
+            argv += ["--certs", str(folder), "--cert", router.cert, "--robot-id", self.robot_id]
         return Entry(router.name, tuple(argv), ready=self._router_address(listen))
 
-    def _router_address(self, listen: list[str]) -> tuple[str, int]:
-        """Where the router listens, from its config and overrides: what the services wait for."""
+    def _config_listen(self) -> list[str]:
+        return _flat_endpoints(self._router_config([]).get_json("listen/endpoints"))
+
+    def _router_config(self, listen: list[str]) -> Any:
         from shared.zconfig import ZenohConfigError, build_config
         assert self.router is not None
         try:
-            cfg = build_config("router", file=self.router.config, listen=listen)
+            return build_config("router", file=self.router.config, listen=listen, require_certs=False)
         except ZenohConfigError as exc:
             raise ProfileError(f"{self.source}: router: {exc}") from None
-        for address in map(tcp_address, _flat_endpoints(cfg.get_json("listen/endpoints"))):
+
+    def _router_address(self, listen: list[str]) -> tuple[str, int]:
+        """Where the router listens, from its config and overrides: what the services wait for."""
+        for address in map(tcp_address, _flat_endpoints(self._router_config(listen).get_json("listen/endpoints"))):
             if address is not None:
                 return address
         raise ProfileError(f"{self.source}: router: no tcp listen endpoint to wait for")
+
+    @property
+    def secure(self) -> bool:
+        """Whether the router's links to other hosts are TLS (it has a certificate)."""
+        return self.router is not None and self.router.cert is not None
 
     def _service_entry(self, spec: ServiceSpec, endpoint: str | None) -> Entry:
         argv = ["run", spec.service, "--robot-id", spec.robot_id or self.robot_id,
@@ -140,12 +166,13 @@ def tcp_address(endpoint: str) -> tuple[str, int] | None:
     return ("127.0.0.1" if host in ("0.0.0.0", "::") else host), int(port)
 
 
-def laptop_endpoint(address: str) -> str:
+def laptop_endpoint(address: str, protocol: str = "tcp", option: str = "--connect-laptop") -> str:
     """``HOST:PORT`` (from ``--connect-laptop``) as a Zenoh endpoint, or a clear error."""
     host, _, port = address.rpartition(":")
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise ProfileError(f"--connect-laptop wants HOST:PORT (e.g. 192.168.1.10:7447), not {address!r}")
-    return f"tcp/{host}:{port}"
+        example = "7450" if protocol == "tls" else "7447"
+        raise ProfileError(f"{option} wants HOST:PORT (e.g. 192.168.1.10:{example}), not {address!r}")
+    return f"{protocol}/{host}:{port}"
 
 
 def resolve_profile(name_or_path: str | Path) -> Path:
@@ -250,17 +277,41 @@ def check_service_configs(profile: Profile) -> None:
         raise ProfileError(f"{profile.source}: " + "; ".join(problems))
 
 
+def check_certs(profile: Profile, certs: Path | None) -> None:
+    """A secure profile's certificate folder has the CA and this host's pair, valid now."""
+    if not profile.secure:
+        return
+    from shared.certs import CertError, check_certificate, check_key
+    from shared.zconfig import TlsFiles
+    assert profile.router is not None and profile.router.cert is not None
+    files = TlsFiles.from_folder(certs or DEFAULT_CERTS, profile.router.cert)
+    try:
+        check_certificate(files.ca)
+        check_certificate(files.cert)
+        check_key(files.key)
+    except CertError as exc:
+        raise ProfileError(f"{profile.source}: router: {exc} (--certs names the folder)") from None
+
+
 def supervisor_for(profile: str | Path, *, log_dir: Path = DEFAULT_LOG_DIR,
                    connect_laptop: str | None = None, endpoint: str | None = None,
-                   check_configs: bool = True) -> Supervisor:
+                   check_configs: bool = True, certs: Path | None = None,
+                   listen_link: str | None = None) -> Supervisor:
     """What ``ovamos up PROFILE`` runs: the profile loaded, checked and turned into a supervisor.
 
     ``endpoint`` runs the profile's router there instead of its shipped port (see
-    :meth:`Profile.entries`).
+    :meth:`Profile.entries`). A secure profile (its router has a ``cert``) links over TLS:
+    ``connect_laptop`` and ``listen_link`` are then ``tls/`` endpoints, and the certificates
+    in ``certs`` are checked before anything starts.
     """
     loaded = load_profile(resolve_profile(profile))
     if check_configs:
         check_service_configs(loaded)
-    connect = [laptop_endpoint(connect_laptop)] if connect_laptop else None
-    return Supervisor(loaded.entries(router_connect=connect, endpoint=endpoint), log_dir=log_dir,
-                      backoff=loaded.restart, stop_timeout_s=loaded.stop_timeout_s)
+    check_certs(loaded, certs)
+    protocol = "tls" if loaded.secure else "tcp"
+    connect = [laptop_endpoint(connect_laptop, protocol)] if connect_laptop else None
+    link = laptop_endpoint(listen_link, "tls", "--listen-link") if listen_link else None
+    if link and not loaded.secure:
+        raise ProfileError(f"{loaded.source}: --listen-link is for a secure profile (its router has a cert)")
+    return Supervisor(loaded.entries(router_connect=connect, endpoint=endpoint, certs=certs, listen_link=link),
+                      log_dir=log_dir, backoff=loaded.restart, stop_timeout_s=loaded.stop_timeout_s)

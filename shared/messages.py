@@ -434,6 +434,9 @@ class DriverState(JsonMessage):
     primitives: Primitives | None = Field(
         default=None, description="the primitive sizes this base executes (None: it does not say); "
                                   "a planner whose own differ refuses to plan")
+    warnings: tuple[str, ...] = Field(
+        default=(), description="what a person should know that does not stop the base by itself "
+                                "(\"planner unreachable\": the planner's liveliness token is gone)")
 
 
 class EStop(JsonMessage):

@@ -102,13 +102,14 @@ def _set(cfg: zenoh.Config, key: str, value: object) -> None:
 
 def build_config(mode: Mode | None = None, *, file: str | Path | None = None,
                  connect: Sequence[str] = (), listen: Sequence[str] = (),
-                 tls: TlsFiles | None = None) -> zenoh.Config:
+                 tls: TlsFiles | None = None, require_certs: bool = True) -> zenoh.Config:
     """A Zenoh config: ``file`` (json5) if given, our defaults, then explicit overrides.
 
     Without a file the result is a client of a router on ``tcp/127.0.0.1:7447``.
     ``connect`` / ``listen`` replace the file's endpoints, so one shipped file
     serves any port (tests use free ports). ``tls`` sets the TLS files (see
-    :class:`TlsFiles`); the certificates named, from here or the file, are checked.
+    :class:`TlsFiles`); the certificates named, from here or the file, are checked
+    (``require_certs=False``: not, for a config only read, never opened).
     """
     if file is not None:
         try:
@@ -146,6 +147,8 @@ def build_config(mode: Mode | None = None, *, file: str | Path | None = None,
     if tls is not None:
         for field, value in tls.settings().items():
             _set(cfg, f"transport/link/tls/{field}", value)
+    if not require_certs:
+        return cfg
     check_tls(cfg)
     if uses_tls(cfg) and not (_get(cfg, "transport/link/tls") or {}).get("root_ca_certificate"):
         raise ZenohConfigError("a tls/ endpoint needs certificates: give the folder made by "

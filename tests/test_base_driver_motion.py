@@ -111,3 +111,29 @@ def test_the_driver_advertises_its_primitive_sizes() -> None:
 
     assert BaseDriver(DriverConfig()).state().primitives == PRIMITIVES
     assert BaseDriver(DriverConfig(forward_m=0.3)).state().primitives == Primitives(forward_m=0.3)
+
+
+def test_a_primitive_runs_on_the_planners_keep_alive_and_stops_when_it_stops() -> None:
+    """command_timeout_s: copies of the active command (the planner re-sends it every resend_s)
+    keep a primitive going; without them (the link is down) it is aborted and the wheels stop."""
+    base = sim_base(command_timeout_s=0.5)
+    try:
+        d, cfg = base.driver, base.driver.config
+        kept = command(Action.MOVE_FORWARD)
+        assert d.submit(kept) == "accepted"
+        while d.state().last_completed < kept.action_id:
+            time.sleep(0.2)
+            d.submit(kept)  # the keep-alive: a duplicate, executed once
+        assert d.state().last_outcome == "done" and base.pose.x == pytest.approx(0.25, abs=0.01)
+        orphan = command(Action.MOVE_FORWARD)
+        sent = time.monotonic()
+        assert d.submit(orphan) == "accepted"
+        wait_for(lambda: d.state().last_completed >= orphan.action_id, 10, "the orphaned command ends")
+        wait_for(lambda: wheels_at_rest(d), 10, "wheels at rest")
+        stopped_after = time.monotonic() - sent
+        assert d.state().last_outcome == "aborted" and d.counters["command_timeouts"] == 1
+        ramp = cfg.max_linear_m_s / cfg.max_linear_accel_m_s2
+        assert stopped_after < cfg.command_timeout_s + ramp + 1.0  # generous for a loaded CI host
+        assert 0.26 < base.pose.x < 0.45                           # short of the second 0.25 m
+    finally:
+        base.stop()

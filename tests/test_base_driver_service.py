@@ -68,3 +68,15 @@ def test_estop_over_zenoh_latches_until_cleared(planner: Planner) -> None:
     estop.put(EStop(engage=False, source="gateway", stamp=0.0))
     wait_for(lambda: planner.state().mode is DriverMode.READY, 10, "ready after the clear")
     assert planner.execute(PlanCommand(action_id=2, stamp=0.0, action=Action.STOP)).last_outcome == "done"
+
+
+def test_the_planners_liveliness_gone_is_reported_in_driver_state(planner: Planner, inproc_router: str) -> None:
+    """Nothing is said before a planner was seen; its token gone = "planner unreachable"; back = cleared."""
+    assert planner.state().warnings == ()
+    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "planner"):
+        wait_for(lambda: service_stats(planner.bus, "base_driver").info.get("planner_reachable") is True
+                 and planner.state().warnings == (), 10, "the planner seen")
+    wait_for(lambda: planner.state().warnings == ("planner unreachable",), 10, "planner unreachable")
+    assert planner.state().mode is DriverMode.READY  # a warning: the base itself is fine
+    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "planner", "1"):
+        wait_for(lambda: planner.state().warnings == (), 10, "the warning cleared")

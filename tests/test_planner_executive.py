@@ -75,7 +75,9 @@ def test_lock_step_resends_until_acknowledged_and_waits_for_the_next_frame(ex: E
     assert commands(ex.poll(0.1)) == []                       # not yet due for a re-send
     assert [c.action_id for c in commands(ex.poll(0.4))] == [1]  # lost? sent again, same id
     ex.on_driver(driver(active=1))
-    assert commands(ex.poll(1.0)) == []                       # being executed: no re-send
+    assert commands(ex.poll(0.5)) == []                       # being executed, not due yet
+    # while the driver executes it, the copies are its keep-alive (the link is up)
+    assert [c.action_id for c in commands(ex.poll(1.0))] == [1]
     ex.on_driver(driver(completed=1))
     ex.on_odom(odom(after=1))
     assert commands(ex.poll(1.1)) == []
@@ -276,3 +278,22 @@ def test_each_decision_goes_out_as_a_trace_and_a_kept_goal_sends_none() -> None:
     ex.on_snapshot(snapshot(1, (cup,)))
     out = ex.poll(0.1)
     assert commands(out) and not [m for m in out if isinstance(m, DecisionTrace)]  # same goal: no decision
+
+
+def test_the_robot_unreachable_pauses_the_task_with_the_reason_and_it_resumes_by_itself(ex: Executive) -> None:
+    ex.on_driver(driver())
+    ex.on_snapshot(snapshot(0))
+    ex.on_odom(odom())
+    assert [c.action_id for c in commands(ex.poll(0.0))] == [1]
+    ex.on_driver(driver(active=1))
+    ex.on_robot_link(False)                                   # the driver's liveliness is gone
+    out = ex.poll(0.5)
+    assert commands(out) == [] and events(out)[-1].message == "robot unreachable"
+    assert commands(ex.poll(5.0)) == [] and ex.waiting == "robot unreachable"
+    ex.on_robot_link(True)                                    # back: its state before the loss is stale
+    assert commands(ex.poll(5.1)) == [] and "driver" in ex.waiting
+    ex.on_driver(driver(completed=1, outcome="aborted"))      # it stopped the command meanwhile
+    ex.on_odom(odom(x=1.1, after=1))
+    ex.on_snapshot(snapshot(1))
+    out = ex.poll(5.2)
+    assert [c.action_id for c in commands(out)] == [2] and ex.task.steps == 1 and ex.waiting == ""

@@ -330,16 +330,18 @@ def test_a_service_config_that_does_not_fit_its_service_is_refused(tmp_path: Pat
 
 def test_unknown_profile_names_list_the_shipped_ones() -> None:
     assert resolve_profile("all") == PROFILE_DIR / "all.toml"
-    with pytest.raises(ProfileError, match="all, laptop, robot"):
+    with pytest.raises(ProfileError, match="all, laptop, laptop-secure, robot, robot-secure"):
         resolve_profile("everything")
 
 
 def test_shipped_profiles_are_complete_and_valid() -> None:
-    """all / laptop / robot parse, reference existing files, and say what the design asks."""
-    assert [p.stem for p in SHIPPED] == ["all", "laptop", "robot"]
+    """all / laptop / robot (and the secure two) parse, reference existing files, and say what the
+    design asks."""
+    assert [p.stem for p in SHIPPED] == ["all", "laptop-secure", "laptop", "robot-secure", "robot"]
     wanted = {"all": {"gateway", "perception", "mapping", "planner", "sim"},
               "laptop": {"gateway", "perception", "mapping", "planner"},
               "robot": {"base_driver", "camera"}}
+    wanted |= {"laptop-secure": wanted["laptop"], "robot-secure": wanted["robot"]}
     for path in SHIPPED:
         profile = load_profile(path)  # also checks that every referenced file exists
         check_service_configs(profile)  # registered services: configs fit their models

@@ -82,6 +82,11 @@ class DriverConfig(StrictModel):
     feedback_timeout_s: float = Field(default=0.3, gt=0,
                                       description="older feedback (ODrive: heartbeat, encoder) = fault")
     deadman_s: float = Field(default=0.5, gt=0, description="no command for this long: ramp to zero")
+    command_timeout_s: float | None = Field(
+        default=None, gt=0, description="a primitive whose command stops being re-sent (the planner's "
+                                        "keep-alive, every resend_s) for this long is aborted and the "
+                                        "wheels ramp to zero: a lost link stops the robot mid-primitive; "
+                                        "None = a primitive runs to its goal")
     enable_timeout_s: float = Field(default=2.0, gt=0,
                                     description="after open(), healthy feedback must come within this")
     recover_every_s: float = Field(default=1.0, gt=0, description="retry after a fault this often")

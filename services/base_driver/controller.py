@@ -34,7 +34,10 @@ Safety, in order of precedence:
 * limits: body speed and acceleration are clamped, and a wheel never exceeds
   the top linear speed (both wheels scale, keeping the curvature);
 * deadman: a velocity command not renewed within ``deadman_s`` ramps to zero.
-  Primitives are bounded by their own goal and ``primitive_timeout_s``.
+  Primitives are bounded by their own goal and ``primitive_timeout_s``, and with
+  ``command_timeout_s`` by the planner's keep-alive: a copy of the active command
+  (re-sent every ``resend_s``) must come within that time, or the primitive is
+  aborted (the link to the planner is down).
 """
 
 from __future__ import annotations
@@ -213,6 +216,8 @@ class BaseController:
             now = self.clock()
             if not self._action_ids.take(command.action_id):
                 self._counters["duplicates"] += 1
+                if self._active is not None and self._active.command.action_id == command.action_id:
+                    self._last_command_at = now  # the sender's keep-alive
                 return "duplicate"
             if self._estop is not None or self._phase == "fault":
                 self._counters["rejected"] += 1
@@ -445,6 +450,12 @@ class BaseController:
                 return 0.0, 0.0
             return cmd.linear, cmd.angular
         if now - active.started > c.primitive_timeout_s:
+            self._finish("aborted")
+            return 0.0, 0.0
+        if c.command_timeout_s is not None and now - self._last_command_at > c.command_timeout_s:
+            self._counters["command_timeouts"] += 1
+            log.warning("command %d aborted: no copy of it for %.2f s (the link to the planner is down?)",
+                        cmd.action_id, now - self._last_command_at)
             self._finish("aborted")
             return 0.0, 0.0
         request = active.tracker.request(self._odom.pose)

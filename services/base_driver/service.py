@@ -8,6 +8,14 @@ tick publishes odometry at ``odom_hz`` and the driver state at ``state_hz`` and
 whenever it changes (odometry first, so a planner that sees a command completed
 already has the pose it ended at).
 
+It follows the planner's liveliness: once every planner token it saw is gone
+(the link to the laptop is down, or the planner died), ``driver/state`` says
+"planner unreachable" in its ``warnings`` until one is back. The wheels do not
+wait for that (a token is declared lost only after the link's lease, ~3 s): a
+velocity command stops after ``deadman_s`` without renewal, and with
+``driver.command_timeout_s`` a primitive stops too once the planner's copies of
+it (its keep-alive) stop coming.
+
 ``simulated_axes`` runs simulated ODrives on the ``odrive_can`` hardware's virtual CAN
 channel in this process: the whole driver, CAN frames included, without hardware.
 """
@@ -23,10 +31,14 @@ from services.base_driver.config import DriverConfig
 from services.base_driver.controller import BaseController
 from services.base_driver.odrive_can import ODriveCanHardware
 from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
+from shared import keys
 from shared.bus import BusCore
 from shared.messages import DriverState, EStop, Odometry, PlanCommand
 from shared.config import ServiceConfig
 from shared.service import Service
+
+
+PLANNER_UNREACHABLE = "planner unreachable"
 
 
 class Base(Protocol):
@@ -90,6 +102,8 @@ class BaseDriverService(Service):
         self.tick_hz = config.tick_hz
         self._last_state: DriverState | None = None
         self._state_at = self._odom_at = -float("inf")
+        self._planners: set[str] = set()   # live planner tokens
+        self._planner_seen = False
 
     def make_base(self) -> Base:
         config = self.config
@@ -101,6 +115,23 @@ class BaseDriverService(Service):
     def start(self) -> None:
         self.base = self.make_base()
         self.wire({"plan_command": self._on_command, "estop": self._on_estop})
+        self.bus.watch_liveliness(keys.alive(self.bus.robot_id, "planner"), self._on_planner_token)
+
+    def _on_planner_token(self, key: str, alive: bool) -> None:
+        was = self.planner_unreachable
+        (self._planners.add if alive else self._planners.discard)(key)
+        self._planner_seen = self._planner_seen or alive
+        if self.planner_unreachable != was:
+            if self.planner_unreachable:
+                self.log.warning("planner unreachable: %s gone (the link to the laptop is down, or the "
+                                 "planner stopped)", key)
+            else:
+                self.log.info("planner reachable again (%s)", ", ".join(sorted(self._planners)))
+
+    @property
+    def planner_unreachable(self) -> bool:
+        """A planner was alive and none is now."""
+        return self._planner_seen and not self._planners
 
     def _on_command(self, command: PlanCommand) -> None:
         outcome = self.base.submit(command)
@@ -119,6 +150,8 @@ class BaseDriverService(Service):
 
     def publish(self, state: DriverState) -> None:
         """Odometry at its rate; the state at its rate and whenever it changed (odometry first)."""
+        if self.planner_unreachable:
+            state = state.model_copy(update={"warnings": (*state.warnings, PLANNER_UNREACHABLE)})
         now = time.monotonic()
         changed = self._last_state is None or _content(state) != _content(self._last_state)
         state_due = changed or now - self._state_at >= 1.0 / self.config.state_hz
@@ -130,7 +163,9 @@ class BaseDriverService(Service):
             self._last_state, self._state_at = state, now
 
     def info(self) -> dict[str, Any]:
-        return self.base.info() if hasattr(self, "base") else {}
+        info = dict(self.base.info()) if hasattr(self, "base") else {}
+        info["planner_reachable"] = not self.planner_unreachable
+        return info
 
     def stop(self) -> None:
         if hasattr(self, "base"):

@@ -6,8 +6,14 @@ messages to publish. Keeping this apart from the adapter lets the lock-step
 rules be tested message by message:
 
 * one command in flight at a time, identified by ``action_id``; it is re-sent
-  until the driver reports it active or completed (a put can be lost), and the
+  every ``resend_s`` until the driver reports it completed (a put can be lost,
+  and while the driver runs it the copies are its keep-alive: a driver with
+  ``command_timeout_s`` stops a primitive whose copies stop coming), and the
   driver executes an id once;
+* the robot unreachable (the liveliness of every service that drives it gone:
+  the link is down, or the driver died): no command goes out, the task waits
+  with the reason ``robot unreachable``, and resumes by itself when the robot is
+  back, from the driver's first state after it (the one from before is stale);
 * lock-step, causal: after command N completes, the step is booked with an
   odometry measured after it (``Odometry.after_action >= N``) and the next
   decision waits for a map that fused a frame captured after it
@@ -74,6 +80,7 @@ class Executive:
         self.snapshot: MapSnapshot | None = None
         self.in_flight: _InFlight | None = None
         self.waiting = ""           # why no command is going out, for status and events
+        self.robot_reachable = True  # False once every driver's liveliness token is gone
         self._next_id = 1
         self._decided_on = -2       # snapshot seq of the last decision (free-running mode)
         self._event_due = True
@@ -114,6 +121,12 @@ class Executive:
         newest = max(state.last_completed, state.active_action or 0)
         if newest >= self._next_id:  # ids continue after the driver's (a planner restart)
             self._next_id = newest + 1
+
+    def on_robot_link(self, reachable: bool) -> None:
+        """Whether a service driving the robot is alive (its liveliness token is seen)."""
+        if reachable != self.robot_reachable and not reachable:
+            self.driver = None  # whatever it said before the loss may be stale when it returns
+        self.robot_reachable = reachable
 
     def on_camera(self, state: CameraState) -> None:
         self.camera = state
@@ -170,6 +183,8 @@ class Executive:
 
     # -- the loop ------------------------------------------------------------------------------
     def _drive(self, now: float) -> list[JsonMessage]:
+        if not self.robot_reachable:
+            return self._wait("robot unreachable")
         d = self.driver
         if d is None:
             return self._wait("no driver state yet")
@@ -202,7 +217,7 @@ class Executive:
             self.agent.executed(flight.step, moved, d.last_outcome == "blocked", flight.pose)
             self._event_due = True
             return self._decide(now, d) if self.task and self.task.state is TaskStatus.SEARCHING else []
-        if d.active_action != action_id and now - flight.sent >= self.config.resend_s:
+        if now - flight.sent >= self.config.resend_s:  # lost, or running: the driver's keep-alive
             flight.sent = now
             return [flight.command]
         return []

@@ -6,6 +6,11 @@ lock-step mode a decision waits for a map that fused a frame taken after the
 last command; rather than wait for the mapping service's next periodic
 snapshot, the planner asks its queryable for one (without blocking: the reply
 arrives as an event like any message).
+
+The robot is reachable while the liveliness token of a service that drives it
+(one whose outputs include ``driver/state``: ``base_driver``, ``sim``) is seen;
+once every one has gone (the link to the robot is down), the executive waits
+with the reason "robot unreachable" and resumes when one is back.
 """
 
 from __future__ import annotations
@@ -16,11 +21,16 @@ from typing import Any
 from pydantic import Field
 
 from services.planner.executive import Executive, ExecutiveConfig
+from shared import keys
 from shared.bus import BusCore
 from shared.config import ServiceConfig
 from shared.messages import DecisionTrace, MapSnapshot, PlanCommand, TaskEvent
 from shared.service import Service
 from shared.topology import TOPOLOGY
+
+#: the services that drive a robot: their liveliness says whether it is reachable
+DRIVERS = tuple(name for name, node in TOPOLOGY.items()
+                if any(p.name == "driver_state" for p in node.outputs))
 
 
 _PORTS = {PlanCommand: "plan_command", TaskEvent: "task_events", DecisionTrace: "plan_trace"}
@@ -44,11 +54,25 @@ class PlannerService(Service):
             config.model_dump(include=set(ExecutiveConfig.model_fields))))
         self._asked_for: int | None = None  # the command a map request in flight is for
         self._map_key = TOPOLOGY[self.name].port("queries", "map_snapshot").key(bus.robot_id)
+        self._drivers: set[str] = set()  # the live tokens of services driving the robot
 
     def start(self) -> None:
         ex = self.executive
         self.wire({"task_current": ex.on_task, "driver_state": ex.on_driver, "camera_state": ex.on_camera,
                    "odom": ex.on_odom, "map_snapshot": ex.on_snapshot})
+        for service in DRIVERS:
+            self.bus.watch_liveliness(keys.alive(self.bus.robot_id, service), self._on_driver_token)
+
+    def _on_driver_token(self, key: str, alive: bool) -> None:
+        was = bool(self._drivers)
+        (self._drivers.add if alive else self._drivers.discard)(key)
+        if bool(self._drivers) != was:
+            if self._drivers:
+                self.log.info("robot reachable (%s alive)", ", ".join(sorted(self._drivers)))
+            else:
+                self.log.warning("robot unreachable: %s gone (the link to the robot is down, or its "
+                                 "driver stopped); waiting for it", key)
+            self.executive.on_robot_link(bool(self._drivers))
 
     def tick(self) -> None:
         wanted = self.executive.map_wanted()
@@ -70,5 +94,5 @@ class PlannerService(Service):
                 "state": None if task is None else task.state.value,
                 "steps": 0 if task is None else task.steps,
                 "found": [] if task is None else list(task.found),
-                "waiting": ex.waiting,
+                "waiting": ex.waiting, "robot_reachable": ex.robot_reachable,
                 "in_flight": None if ex.in_flight is None else ex.in_flight.command.action_id}
