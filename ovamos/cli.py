@@ -448,9 +448,18 @@ def bench_transport(
         frames: Annotated[int, typer.Option(help="Round trips per run.")] = 200,
         runs: Annotated[int, typer.Option(help="Runs (the median of run medians is reported).")] = 5,
         gap_ms: Annotated[float, typer.Option(help="Pause before each round trip.")] = 5.0,
+        tls: Annotated[bool, typer.Option(
+            "--tls", help="Instead: the frame over the link between two routers, plain TCP vs mTLS "
+                          "(and mTLS with the secure profiles' access control).")] = False,
         as_json: AsJson = False
 ) -> None:
-    """Latency of a 640x480 RGB-D frame through a router: raw Zenoh vs. the ovamos bus."""
+    """Latency of a 640x480 RGB-D frame through a router: raw Zenoh vs. the ovamos bus (--tls: over
+    the laptop-robot link, plain TCP vs mTLS)."""
+    if tls:
+        from bench.transport_tls import print_table as print_tls, run_tls_benchmark
+        result = run_tls_benchmark(frames=frames, runs=runs, gap_ms=gap_ms, progress=None if as_json else err)
+        _report(result, as_json, print_tls)
+        return
     from bench.transport import print_table, run_benchmark
     result = run_benchmark(frames=frames, runs=runs, gap_ms=gap_ms, progress=None if as_json else err)
     _report(result, as_json, print_table)

@@ -110,6 +110,13 @@ def test_transport_benchmark_reports_both_paths() -> None:
     assert result["overhead_ratio"] == round(result["ovamos_median_us"] / result["raw_median_us"], 3)
 
 
+def test_tls_transport_benchmark_compares_the_links() -> None:
+    from bench.transport_tls import run_tls_benchmark
+    result = run_tls_benchmark(frames=5, runs=1, gap_ms=1.0)
+    assert result["tcp_median_us"] > 0 and result["tls_median_us"] > 0 and result["tls_acl_median_us"] > 0
+    assert result["tls_overhead_ratio"] == round(result["tls_median_us"] / result["tcp_median_us"], 3)
+
+
 def test_sim_benchmark_reports_both_resolutions() -> None:
     from bench.sim import run_benchmark as run_sim_benchmark
     result = run_sim_benchmark(frames=3, runs=1)

@@ -1,0 +1,171 @@
+"""Transport benchmark over the inter-host link (``ovamos bench transport --tls``): what mTLS costs.
+
+The laptop + robot deployment: a router per host, linked; a frame goes from a client of the
+robot's router, over the link, to a client of the laptop's router, which acknowledges it back the
+same way. Three links, up at once on this machine and measured in the same run, round trips
+interleaved so drift hits all alike:
+
+* ``tcp``: the routers linked over plain TCP (the ``laptop`` / ``robot`` profiles);
+* ``tls``: the same link over TLS with mutual authentication (certificates from ``ovamos certs``);
+* ``tls+acl``: the secure profiles' routers as shipped (``*-router-secure.json5``): mTLS and
+  access control, whose refusals the router reads from Zenoh's trace (:mod:`shared.acl`).
+
+Shared memory is off in the clients: between two hosts there is none, so the frame's bytes
+cross the link. The frame is the 640x480 RGB-D test pattern on ``sensors/rgbd`` (the robot's
+key, allowed over the secure link), the acknowledgement a small put on ``task/events``.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import statistics
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from services.diag.testpattern import pattern_frame
+from shared import keys
+from shared.certs import init_ca, issue
+from shared.procs import free_port, start_cli, stop
+from shared.zconfig import build_config, open_session
+
+ROBOT = "bench"
+FRAME, ACK = keys.rgbd(ROBOT), keys.task_events(ROBOT)
+VARIANTS = ("tcp", "tls", "tls+acl")
+WARMUP = 20
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _client_config(endpoint: str) -> Any:
+    cfg = build_config("client", connect=[endpoint])
+    cfg.insert_json5("transport/shared_memory/enabled", "false")  # two hosts share no memory
+    return cfg
+
+
+def _echo(endpoint: str, ready: Any, stop_event: Any) -> None:
+    """On the laptop: acknowledge every frame."""
+    session = open_session(_client_config(endpoint))
+    ack = session.declare_publisher(ACK)
+    sub = session.declare_subscriber(FRAME, lambda s: ack.put(len(s.payload.to_bytes()).to_bytes(8, "little")))
+    ready.set()
+    stop_event.wait()
+    sub.undeclare()
+    session.close()
+
+
+class _Link:
+    """Two routers linked one way (``variant``), an echo on the laptop's, a pinger on the robot's."""
+
+    def __init__(self, variant: str, certs: Path, frame: bytes, ctx: Any, stop_event: Any) -> None:
+        self.variant = variant
+        laptop, link, robot = free_port(), free_port(), free_port()
+        proto = "tcp" if variant == "tcp" else "tls"
+        lap_args = ["router", "--listen", f"tcp/127.0.0.1:{laptop}", "--listen", f"{proto}/127.0.0.1:{link}",
+                    "--log-level", "WARNING"]
+        rob_args = ["router", "--listen", f"tcp/127.0.0.1:{robot}", "--connect", f"{proto}/127.0.0.1:{link}",
+                    "--log-level", "WARNING"]
+        if variant != "tcp":
+            lap_args += ["--certs", str(certs), "--cert", "laptop", "--robot-id", ROBOT]
+            rob_args += ["--certs", str(certs), "--cert", "robot", "--robot-id", ROBOT]
+        if variant == "tls+acl":
+            lap_args += ["--config", str(REPO / "deploy" / "zenoh" / "laptop-router-secure.json5")]
+            rob_args += ["--config", str(REPO / "deploy" / "zenoh" / "robot-router-secure.json5")]
+        self.routers = [start_cli(lap_args), start_cli(rob_args)]
+        ready = ctx.Event()
+        self.echo = ctx.Process(target=_echo, args=(f"tcp/127.0.0.1:{laptop}", ready, stop_event))
+        self.echo.start()
+        if not ready.wait(60):
+            raise TimeoutError(f"{variant}: the echo process did not start")
+        self.acked = threading.Event()
+        self.session = open_session(_client_config(f"tcp/127.0.0.1:{robot}"))
+        self.pub = self.session.declare_publisher(FRAME)
+        self.sub = self.session.declare_subscriber(ACK, lambda _s: self.acked.set())
+        self.frame = frame
+
+    def round_trip(self, timeout: float) -> float | None:
+        self.acked.clear()
+        start = time.perf_counter()
+        self.pub.put(self.frame)
+        if not self.acked.wait(timeout):
+            return None
+        return time.perf_counter() - start
+
+    def wait_ready(self, timeout: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout
+        while self.round_trip(0.3) is None:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{self.variant}: no frame crossed the link within {timeout:.0f} s")
+
+    def close(self) -> None:
+        self.session.close()
+        self.echo.join(10)
+        if self.echo.is_alive():
+            self.echo.kill()
+        for router in self.routers:
+            stop(router)
+
+
+def run_tls_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
+                      progress: Console | None = None) -> dict[str, Any]:
+    frame = bytes(pattern_frame(0, time.time()).to_bytes())
+    ctx = mp.get_context("spawn")
+    stop_echo = ctx.Event()
+    links: dict[str, _Link] = {}
+    medians: dict[str, list[float]] = {v: [] for v in VARIANTS}
+    with tempfile.TemporaryDirectory(prefix="ovamos-bench-tls-") as tmp:
+        certs = Path(tmp)
+        init_ca(certs)
+        issue(certs, "laptop", hosts=["127.0.0.1"])
+        issue(certs, "robot", hosts=["127.0.0.1"])
+        try:
+            for variant in VARIANTS:
+                links[variant] = _Link(variant, certs, frame, ctx, stop_echo)
+            for link in links.values():
+                link.wait_ready()
+            for run in range(runs):
+                samples: dict[str, list[float]] = {v: [] for v in VARIANTS}
+                for i in range(WARMUP + frames):
+                    for variant, link in links.items():
+                        time.sleep(gap_ms / 1e3)
+                        rtt = link.round_trip(5.0)
+                        if rtt is None:
+                            raise RuntimeError(f"{variant}: a frame was not acknowledged within 5 s")
+                        if i >= WARMUP:
+                            samples[variant].append(rtt)
+                for variant, s in samples.items():
+                    medians[variant].append(statistics.median(s))
+                if progress:
+                    progress.print(f"run {run + 1}/{runs}: " + ", ".join(
+                        f"{v} {m[-1] * 1e3:.2f} ms" for v, m in medians.items()))
+        finally:
+            stop_echo.set()
+            for link in links.values():
+                link.close()
+    us = {v: round(statistics.median(m) * 1e6, 1) for v, m in medians.items()}
+    return {
+        "frame_bytes": len(frame), "frames_per_run": frames, "runs": runs, "gap_ms": gap_ms,
+        **{f"{v.replace('+', '_')}_median_us": us[v] for v in VARIANTS},
+        # from the printed medians, so dividing the table's cells gives the same ratios
+        "tls_overhead_ratio": round(us["tls"] / us["tcp"], 3),
+        "tls_acl_overhead_ratio": round(us["tls+acl"] / us["tcp"], 3),
+        "run_medians_us": {v: [round(m * 1e6, 1) for m in ms] for v, ms in medians.items()},
+    }
+
+
+def print_table(console: Console, result: dict[str, Any]) -> None:
+    table = Table("link between the routers", "median round trip (ms)", "vs plain TCP",
+                  title=f"RGB-D frame {result['frame_bytes']} B robot -> laptop and an ack back, over the "
+                        f"link between two routers, median of {result['runs']} runs x "
+                        f"{result['frames_per_run']} frames, {result['gap_ms']:g} ms apart")
+    tcp = result["tcp_median_us"]
+    for v in VARIANTS:
+        value = result[f"{v.replace('+', '_')}_median_us"]
+        table.add_row(v, f"{value / 1e3:.2f}", f"{value / tcp:.3f}")
+    console.print(table)
+    console.print(f"TLS overhead ratio (tls / tcp): {result['tls_overhead_ratio']:.3f}; with access control: "
+                  f"{result['tls_acl_overhead_ratio']:.3f}")
