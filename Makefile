@@ -42,6 +42,7 @@ demo: $(VENV)/.installed
 
 bench: $(VENV)/.installed syslibs
 	$(VENV)/bin/ovamos bench transport
+	$(VENV)/bin/ovamos bench transport --tls
 	$(VENV)/bin/ovamos bench sim
 	$(VENV)/bin/ovamos bench mapping
 	$(VENV)/bin/ovamos bench planner

@@ -38,6 +38,7 @@ ROBOT = "bench"
 FRAME, ACK = keys.rgbd(ROBOT), keys.task_events(ROBOT)
 VARIANTS = ("tcp", "tls", "tls+acl")
 WARMUP = 20
+LOST_AFTER_S = 2.0
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -117,6 +118,7 @@ def run_tls_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
     stop_echo = ctx.Event()
     links: dict[str, _Link] = {}
     medians: dict[str, list[float]] = {v: [] for v in VARIANTS}
+    lost = {v: 0 for v in VARIANTS}
     with tempfile.TemporaryDirectory(prefix="ovamos-bench-tls-") as tmp:
         certs = Path(tmp)
         init_ca(certs)
@@ -132,10 +134,12 @@ def run_tls_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
                 for i in range(WARMUP + frames):
                     for variant, link in links.items():
                         time.sleep(gap_ms / 1e3)
-                        rtt = link.round_trip(5.0)
-                        if rtt is None:
-                            raise RuntimeError(f"{variant}: a frame was not acknowledged within 5 s")
-                        if i >= WARMUP:
+                        rtt = link.round_trip(LOST_AFTER_S)
+                        if rtt is None:  # dropped on the way (a full queue drops a frame): counted
+                            lost[variant] += 1
+                            if lost[variant] > frames * runs // 10:
+                                raise RuntimeError(f"{variant}: over 10 % of the frames lost")
+                        elif i >= WARMUP:
                             samples[variant].append(rtt)
                 for variant, s in samples.items():
                     medians[variant].append(statistics.median(s))
@@ -154,6 +158,7 @@ def run_tls_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
         "tls_overhead_ratio": round(us["tls"] / us["tcp"], 3),
         "tls_acl_overhead_ratio": round(us["tls+acl"] / us["tcp"], 3),
         "run_medians_us": {v: [round(m * 1e6, 1) for m in ms] for v, ms in medians.items()},
+        "lost": lost,
     }
 
 
@@ -167,5 +172,7 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
         value = result[f"{v.replace('+', '_')}_median_us"]
         table.add_row(v, f"{value / 1e3:.2f}", f"{value / tcp:.3f}")
     console.print(table)
+    if any(result["lost"].values()):
+        console.print(f"frames lost (no ack within {LOST_AFTER_S:g} s, not in the medians): {result['lost']}")
     console.print(f"TLS overhead ratio (tls / tcp): {result['tls_overhead_ratio']:.3f}; with access control: "
                   f"{result['tls_acl_overhead_ratio']:.3f}")
