@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import threading
 from collections import Counter
 from collections.abc import Callable
@@ -24,6 +25,7 @@ from shared.log import fields, sampled
 from shared.zconfig import check_tls, open_session
 
 log = logging.getLogger("ovamos.router")
+_AFTER_THREAD = re.compile(r"ThreadId\(\d+\)\s+(.*)$")
 
 
 class DenialLog:
@@ -54,14 +56,21 @@ class DenialLog:
             with self._lock:
                 self.tls_refused += 1
                 self._publish_info()
-        log.log(logging.WARNING if level in ("WARN", "ERROR") else logging.INFO, "zenoh: %s",
-                text.split(" zenoh", 1)[-1].strip() if " zenoh" in text else text)
+        log.log(logging.WARNING if level in ("WARN", "ERROR") else logging.INFO, "zenoh: %s", _notice(text))
 
     def _publish_info(self) -> None:
         if self.bus is not None:
             self.bus.info = {"access_control": {"denied": sum(self.by_sender.values()),
                                                 "by": dict(self.by_sender.most_common(50)),
                                                 "tls_refused": self.tls_refused}}
+
+
+def _notice(text: str) -> str:
+    """``zenoh_link_tls::unicast: invalid peer certificate: UnknownIssuer`` from a whole log line
+    (without its time, thread, and the hint about file limits Zenoh adds to every link error)."""
+    match = _AFTER_THREAD.search(text)
+    text = match.group(1) if match else text
+    return text.replace(" Hint: increase the system open file limit.", "").strip()
 
 
 def run_router(cfg: zenoh.Config, *, robot_id: str, name: str, stop: threading.Event,

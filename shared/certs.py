@@ -202,7 +202,8 @@ def check_certificate(path: str | Path, *, now: dt.datetime | None = None) -> Ce
     try:
         cert = x509.load_pem_x509_certificate(path.read_bytes())
     except FileNotFoundError:
-        raise CertError(f"certificate {path} does not exist (make one with `ovamos certs issue`)") from None
+        how = "`ovamos certs init DIR`" if path.name == CA_CERT else "`ovamos certs issue DIR NAME`"
+        raise CertError(f"certificate {path} does not exist (make it with {how}, or copy it here)") from None
     except (OSError, ValueError) as exc:
         raise CertError(f"cannot read certificate {path}: {exc}") from None
     attrs = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
