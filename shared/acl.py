@@ -135,12 +135,9 @@ class AclMonitor:
         if denial is not None:
             self.on_denial(denial)
             return
-        if TRACE_TARGET in line and "access_control:" not in line:
-            return  # the interceptor's own trace
         level = is_zenoh_notice(line) if "zenoh" in line else None
-        if level is not None and self.on_notice is not None:
-            self.on_notice(level, _ANSI.sub("", line).strip())
-        elif level is None and TRACE_TARGET in line:
-            return  # an authorization verdict: thousands a minute, only the refusals matter
-        else:
+        if level is not None:  # a warning, or the access control's own notes (a peer matching no subject)
+            if self.on_notice is not None:
+                self.on_notice(level, _ANSI.sub("", line).strip())
+        elif TRACE_TARGET not in line:  # the verdicts are thousands a minute: only refusals matter
             self._out.write(line)
