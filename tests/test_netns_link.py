@@ -385,7 +385,8 @@ def test_netns_a_link_cut_stops_the_wheels_and_the_task_completes_when_it_return
     final, t0, rest, starts = _interrupted_task(dep, dep.hosts.cut, dep.hosts.restore, ("floor_lamp", "armchair"))
     bound = COMMAND_TIMEOUT_S + _ramp(DriverConfig()) + 0.3  # 0.3 s: odometry period, scheduling
     print(f"link cut: wheels at rest {None if rest is None else round(rest - t0, 2)} s after it (bound {bound:.2f} s)")
-    assert rest is not None and rest - t0 <= bound, f"wheels at rest {None if rest is None else rest - t0} s after the cut"
+    assert rest is not None and rest - t0 <= bound, \
+        f"wheels at rest {None if rest is None else rest - t0} s after the cut"
     # each side said what was wrong while the link was down
     warned = [s for s in dep.watchers["robot"].snapshot("driver_state", t0)
               if s["t"] < t0 + 5.5 and "planner unreachable" in s["msg"].get("warnings", [])]
@@ -407,7 +408,8 @@ def test_netns_the_laptop_router_killed_and_restarted_mid_task(deployment: Deplo
     final, t0, rest, starts = _interrupted_task(dep, kill_router, lambda: None, ("stool",))
     bound = COMMAND_TIMEOUT_S + _ramp(DriverConfig()) + 0.3
     print(f"router killed: wheels at rest {None if rest is None else round(rest - t0, 2)} s after it")
-    assert rest is not None and rest - t0 <= bound, f"wheels at rest {None if rest is None else rest - t0} s after the kill"
+    assert rest is not None and rest - t0 <= bound, \
+        f"wheels at rest {None if rest is None else rest - t0} s after the kill"
     after = dep.starts()
     assert after.pop("laptop/router") == starts.pop("laptop/router") + 1  # the supervisor restarted it
     assert after == starts, "a service was restarted"
