@@ -32,6 +32,7 @@ from ovamos.demo import write_configs
 from services.base_driver.config import DriverConfig
 from shared.certs import init_ca, issue
 from tests.netns import LINKS, Hosts, unavailable_reason
+from tests.polling import wait_for
 
 REPO = Path(__file__).resolve().parents[1]
 ROBOT = "robot1"
@@ -113,17 +114,6 @@ def _cmdline(pid: int) -> str:
         return ""
 
 
-def wait_until(predicate: Callable[[], Any], timeout: float, what: str, interval: float = 0.2) -> Any:
-    deadline = time.monotonic() + timeout
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout:.0f} s waiting for {what}")
-        time.sleep(interval)
-
-
 class Deployment:
     def __init__(self, hosts: Hosts, root: Path) -> None:
         self.hosts, self.root = hosts, root
@@ -182,9 +172,9 @@ class Deployment:
 
     def wait_ready(self) -> None:
         wanted = {"mapping", "perception", "planner", "gateway", "sim"}
-        wait_until(lambda: wanted <= {s["service"] for s in self.status("laptop")}, 120,
+        wait_for(lambda: wanted <= {s["service"] for s in self.status("laptop")}, 120,
                    "every service alive, seen from the laptop (the robot's over the TLS link)")
-        wait_until(lambda: self.watchers["laptop"].snapshot("driver_state"), 30,
+        wait_for(lambda: self.watchers["laptop"].snapshot("driver_state"), 30,
                    "the robot's driver state on the laptop")
 
     def stop(self) -> None:
@@ -227,10 +217,10 @@ class Deployment:
         def final() -> dict[str, Any] | None:
             done = [e for e in self.events(task_id) if e["status"] in ("done", "failed", "cancelled")]
             return done[-1] if done else None
-        return wait_until(final, timeout, f"task {task_id} to end")
+        return wait_for(final, timeout, f"task {task_id} to end")
 
     def wait_steps(self, task_id: str, steps: int, timeout: float = 120) -> None:
-        wait_until(lambda: any(e["steps"] >= steps for e in self.events(task_id)), timeout, f"{steps} steps")
+        wait_for(lambda: any(e["steps"] >= steps for e in self.events(task_id)), timeout, f"{steps} steps")
 
     def wait_moving(self, timeout: float = 30) -> float:
         """Until the wheels turn (a primitive under way); the odometry's time."""
@@ -238,7 +228,7 @@ class Deployment:
             last = self.watchers["robot"].snapshot("odom", time.monotonic() - 0.2)
             fast = [o for o in last if abs(o["msg"]["linear"]) > 0.05 or abs(o["msg"]["angular"]) > 0.3]
             return fast[-1]["t"] if fast else None
-        return wait_until(moving, timeout, "the wheels turning", interval=0.02)
+        return wait_for(moving, timeout, "the wheels turning", interval=0.02)
 
     def stopped_at(self, since: float, until: float, hold_s: float = 0.25) -> float | None:
         """When the wheels first came to rest after ``since`` (still for ``hold_s``, by the odometry's
