@@ -63,8 +63,34 @@ def _echo(variant: str, endpoint: str, stop_event: Any) -> None:
             stop_event.wait()
 
 
-class _Pinger:
-    """The measuring side of one variant: ``send()`` one frame, then wait for its ack."""
+class AckedSender:
+    """The measuring side of a round trip: :meth:`send` one frame, then wait for ``acked``
+    (set by the subclass's ack subscriber)."""
+
+    acked: threading.Event
+
+    def send(self) -> None:
+        raise NotImplementedError
+
+    def round_trip(self, timeout: float) -> float | None:
+        """Seconds from sending a frame to its ack; None when no ack came within ``timeout``."""
+        self.acked.clear()
+        start = time.perf_counter()
+        self.send()
+        if not self.acked.wait(timeout):
+            return None
+        return time.perf_counter() - start
+
+    def wait_ready(self, timeout: float, probe_s: float, failure: str) -> None:
+        """Probe until a round trip succeeds (routes and the echo are up); TimeoutError(failure)."""
+        deadline = time.monotonic() + timeout
+        while self.round_trip(probe_s) is None:
+            if time.monotonic() > deadline:
+                raise TimeoutError(failure)
+
+
+class _Pinger(AckedSender):
+    """One variant of this benchmark (raw Zenoh or through the Bus)."""
 
     def __init__(self, variant: str, endpoint: str, frame: RgbdFrame) -> None:
         self.acked = threading.Event()
@@ -74,28 +100,14 @@ class _Pinger:
             payload = bytes(frame.to_bytes())
             pub = self._session.declare_publisher(RAW_FRAME)
             self._sub = self._session.declare_subscriber(RAW_ACK, lambda _s: self.acked.set())
-            self.send: Callable[[], None] = lambda: pub.put(payload)
+            self.send = lambda: pub.put(payload)  # type: ignore[method-assign]
             self.close: Callable[[], None] = self._session.close
         else:
             bus = Bus.open(cfg, ROBOT, "bench-client")
             pub = bus.publisher(OVAMOS_FRAME, RgbdFrame)
             bus.subscribe(OVAMOS_ACK, Ack, lambda _a: self.acked.set())
-            self.send = lambda: pub.put(frame)
+            self.send = lambda: pub.put(frame)  # type: ignore[method-assign]
             self.close = bus.close
-
-    def round_trip(self, timeout: float) -> float | None:
-        self.acked.clear()
-        start = time.perf_counter()
-        self.send()
-        if not self.acked.wait(timeout):
-            return None
-        return time.perf_counter() - start
-
-    def wait_ready(self, timeout: float = 30.0) -> None:
-        deadline = time.monotonic() + timeout
-        while self.round_trip(0.2) is None:
-            if time.monotonic() > deadline:
-                raise TimeoutError("the echo process never answered")
 
 
 
@@ -128,7 +140,7 @@ def run_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
             proc.start()
         pingers = {v: _Pinger(v, endpoint, frame) for v in VARIANTS}
         for pinger in pingers.values():
-            pinger.wait_ready()
+            pinger.wait_ready(30.0, 0.2, "the echo process never answered")
         for run in range(runs):
             for variant, median in _measure(pingers, frames, gap_ms / 1e3).items():
                 medians[variant].append(median)

@@ -28,6 +28,7 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
+from bench.transport import AckedSender
 from services.diag.testpattern import pattern_frame
 from shared import keys
 from shared.certs import init_ca, issue
@@ -59,7 +60,7 @@ def _echo(endpoint: str, ready: Any, stop_event: Any) -> None:
     session.close()
 
 
-class _Link:
+class _Link(AckedSender):
     """Two routers linked one way (``variant``), an echo on the laptop's, a pinger on the robot's."""
 
     def __init__(self, variant: str, certs: Path, frame: bytes, ctx: Any, stop_event: Any) -> None:
@@ -88,19 +89,8 @@ class _Link:
         self.sub = self.session.declare_subscriber(ACK, lambda _s: self.acked.set())
         self.frame = frame
 
-    def round_trip(self, timeout: float) -> float | None:
-        self.acked.clear()
-        start = time.perf_counter()
+    def send(self) -> None:
         self.pub.put(self.frame)
-        if not self.acked.wait(timeout):
-            return None
-        return time.perf_counter() - start
-
-    def wait_ready(self, timeout: float = 60.0) -> None:
-        deadline = time.monotonic() + timeout
-        while self.round_trip(0.3) is None:
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"{self.variant}: no frame crossed the link within {timeout:.0f} s")
 
     def close(self) -> None:
         self.session.close()
@@ -128,7 +118,7 @@ def run_tls_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
             for variant in VARIANTS:
                 links[variant] = _Link(variant, certs, frame, ctx, stop_echo)
             for link in links.values():
-                link.wait_ready()
+                link.wait_ready(60.0, 0.3, f"{link.variant}: no frame crossed the link within 60 s")
             for run in range(runs):
                 samples: dict[str, list[float]] = {v: [] for v in VARIANTS}
                 for i in range(WARMUP + frames):
