@@ -283,8 +283,9 @@ def graph(as_json: AsJson = False) -> None:
 
 
 @app.command()
-def demo(seed: Annotated[int, typer.Option(help="Episode set seed.")] = 0,
-         episode: Annotated[int, typer.Option(help="Episode index (scene, start, targets).")] = 5,
+def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (default: the demo episode's).")] = None,
+         episode: Annotated[Optional[int], typer.Option(
+             help="Episode index: scene, start, targets (default: the demo episode).")] = None,
          targets: Annotated[Optional[list[str]], typer.Option("--target", help="Override the episode's "
                                                                               "targets (repeatable).")] = None,
          keep_running: Annotated[bool, typer.Option(help="Stay up afterwards; print the gateway URL.")] = False,
@@ -298,7 +299,9 @@ def demo(seed: Annotated[int, typer.Option(help="Episode set seed.")] = 0,
          = Path("out/demo"),
          record: Annotated[bool, typer.Option(help="Record the run to OUT/run.mcap.")] = True) -> None:
     """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
-    from ovamos.demo import BASES, run_demo
+    from ovamos.demo import BASES, DEMO_EPISODE, DEMO_SEED, run_demo
+    seed = DEMO_SEED if seed is None else seed
+    episode = DEMO_EPISODE if episode is None else episode
     if base not in BASES:
         raise _fail(f"--base {base!r}: one of {', '.join(BASES)}")
     try:
@@ -567,7 +570,7 @@ def bench_search(
                                                               "tests only (the paper's: 500).")] = None,
         perception: Annotated[str, typer.Option(help="Simulated perception preset: ideal, realistic or hard "
                                                      "(services/sim/perception_presets.py).")] = "ideal",
-        homes: Annotated[str, typer.Option(help="Home tier: default (40-150 m2, 5-8 rooms) or large "
+        homes: Annotated[str, typer.Option(help="Home tier: default (40-150 m2, 3-7 rooms) or large "
                                                 "(150-300 m2, 8-12 rooms).")] = "default",
         as_json: AsJson = False) -> None:
     """Search benchmark: SR and MSPL per policy (the paper's Tables I and II), or one episode's picture."""

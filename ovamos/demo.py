@@ -32,7 +32,7 @@ from services.sim.service import Motion
 from ovamos.supervisor import Entry, Supervisor, port_open
 from shared.procs import free_port, loopback
 
-DEMO_SEED, DEMO_EPISODE = 0, 5
+DEMO_SEED, DEMO_EPISODE = 0, 4
 STARTUP_TIMEOUT_S = 90.0
 SERVICES = ("mapping", "perception", "planner", "sim", "gateway")
 

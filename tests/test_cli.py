@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from bench.transport import run_benchmark
+from ovamos.demo import DEMO_EPISODE, DEMO_SEED
 from shared import __version__
 
 
@@ -97,7 +98,7 @@ def test_demo_finds_every_target_through_the_http_api_and_cleans_up(tmp_path: Pa
     # lock-step with the kinematic robot: the distributed run is the in-process episode, step by step
     from bench.episode import EpisodeConfig, run_episode
     from services.sim.episodes import make_episode
-    local = run_episode(*make_episode(0, 5), EpisodeConfig())
+    local = run_episode(*make_episode(DEMO_SEED, DEMO_EPISODE), EpisodeConfig())
     assert task["steps"] == local.steps
     assert task["distance_m"] == pytest.approx(local.path_m, abs=1e-6)
     assert [(f["label"], f["step"]) for f in task["found"]] == [(s.label, s.step) for s in local.stops]

@@ -51,7 +51,8 @@ def test_same_seed_renders_identical_frames(prior) -> None:
 def test_homes_have_the_promised_size_and_room_types(scenes) -> None:
     for scene in scenes:
         assert 40 <= scene.area <= 150
-        assert len({r.type for r in scene.rooms}) >= 5
+        assert {"living_room", "kitchen", "bathroom"} <= {r.type for r in scene.rooms}
+        assert 3 <= len(scene.rooms) <= 7
         assert sum(r.area for r in scene.rooms) == pytest.approx(scene.area)
 
 

@@ -35,20 +35,24 @@ _MIDDLE_ROOMS = ("kitchen", "bedroom", "office", "dining_room", "bedroom", "bath
 
 
 class GeneratorConfig(BaseModel):
-    """Every knob of the generator (defaults give 40-150 m2 homes of 5-8 rooms)."""
+    """Every knob of the generator. The defaults give 40-150 m2 homes of 3-7 rooms shaped like
+    ProcTHOR-10K's, the houses the object prior comes from (``ovamos bench homes``): about 4 rooms of
+    about 25 m2 (ProcTHOR-10K: 4.05 rooms, kitchen 26.5 m2, bedroom 28.1 m2 median), a piece of
+    furniture per 4 m2 (ProcTHOR: at most 7 floor placements in a 25 m2 room, 3.6 m2 each) and 3-6
+    small objects per room (ProcTHOR tries 3-17 on each large surface)."""
 
     model_config = ConfigDict(extra="forbid")
     min_area_m2: float = Field(default=40.0, gt=0)
     max_area_m2: float = Field(default=150.0, gt=0)
     min_room_side_m: float = Field(default=2.4, gt=1.0)
-    m2_per_room: float = Field(default=18.0, gt=0)
-    min_rooms: int = Field(default=5, ge=2, description="area / m2_per_room is clipped to this range")
-    max_rooms: int = Field(default=8, ge=2, le=2 + len(_MIDDLE_ROOMS))
+    m2_per_room: float = Field(default=26.0, gt=0)
+    min_rooms: int = Field(default=3, ge=2, description="area / m2_per_room is clipped to this range")
+    max_rooms: int = Field(default=7, ge=2, le=2 + len(_MIDDLE_ROOMS))
     door_width_m: float = Field(default=0.9, gt=0.5)
     door_clearance_m: float = Field(default=1.0, ge=0, description="kept free around doorways")
     extra_door_probability: float = Field(default=0.3, ge=0, le=1)
-    m2_per_furniture: float = Field(default=5.0, gt=0)
-    small_objects_per_room: tuple[int, int] = (2, 4)
+    m2_per_furniture: float = Field(default=4.0, gt=0)
+    small_objects_per_room: tuple[int, int] = (3, 6)
     tucked_fraction: float = Field(default=0.3, ge=0, le=1,
                                    description="share of small objects put on the floor beside furniture")
     placement_tries: int = Field(default=40, ge=1)
