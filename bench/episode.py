@@ -23,6 +23,7 @@ from collections.abc import Callable
 from pydantic import BaseModel, ConfigDict, Field
 
 from bench.funnel import FunnelRecorder, StopRecord, TargetFunnel
+from bench.policies import base_policy
 from services.mapping.config import MappingConfig
 from services.mapping.state import MapState
 from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
@@ -45,6 +46,8 @@ class EpisodeConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     policy: Policy = Policy.OVAMOS
+    name: str = Field(default="", description="the benchmark's name of the policy, when an ablation's "
+                                               "(bench/policies.py); results carry it")
     width: int = Field(default=320, ge=16, description="camera image width (pixels)")
     height: int = Field(default=240, ge=16)
     agent: AgentConfig = Field(default_factory=AgentConfig)
@@ -86,19 +89,23 @@ def scene_mapping(scene: Scene, base: MappingConfig | None = None) -> MappingCon
 
 
 def episode_config(policy: Policy | str, base: EpisodeConfig | None = None) -> EpisodeConfig:
-    """``base`` with the policy set where the agent reads it."""
+    """``base`` with the policy set where the agent reads it; a benchmark ablation's name
+    (:data:`bench.policies.PLUS_ABLATIONS`) sets its planner policy and switches."""
     base = base or EpisodeConfig()
-    policy = Policy(policy)
-    decision = base.agent.decision.model_copy(update={"policy": policy})
+    name = policy.value if isinstance(policy, Policy) else policy
+    planner, changes = base_policy(name)
+    decision = base.agent.decision.model_copy(update={
+        "policy": Policy(planner), "plus": base.agent.decision.plus.model_copy(update=changes)})
     agent = base.agent.model_copy(update={"decision": decision})
-    return base.model_copy(update={"policy": policy, "agent": agent})
+    return base.model_copy(update={"policy": Policy(planner), "agent": agent,
+                                   "name": name if changes else ""})
 
 
 def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: EpisodeConfig,
                 prior: ObjectPrior | None = None,
                 on_step: Callable[[int, Step], None] | None = None) -> EpisodeResult:
     started = time.perf_counter()
-    config = episode_config(config.policy, config)
+    config = episode_config(config.name or config.policy, config)
     prior = prior or ObjectPrior.load()
     perception = SimPerception(FrameLabels.of(scene), prior, config.perception)
     state = MapState(scene_mapping(scene, config.mapping))
@@ -145,7 +152,7 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
     success = set(found) >= set(spec.targets)
     shortest = truth.shortest_tour((spec.start.x, spec.start.y), spec.targets)
     return EpisodeResult(
-        episode_id=spec.episode_id, policy=config.policy.value, scene_seed=spec.scene_seed,
+        episode_id=spec.episode_id, policy=config.name or config.policy.value, scene_seed=spec.scene_seed,
         targets=spec.targets, success=success, spl=spl(success, shortest, robot.distance),
         found=found, steps=task.steps, path_m=round(robot.distance, 4), shortest_m=round(shortest, 4),
         state=task.state.value, reason=task.reason, decisions=agent.decisions, blocked=robot.blocked,

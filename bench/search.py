@@ -30,7 +30,7 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, 
 from bench.draw import draw_chart, draw_replay
 from bench.episode import EpisodeResult
 from bench.jobs import Job, init_worker, iter_results, jobs_for, load_episode, run_job
-from bench.policies import POLICY_ORDER
+from bench.policies import DEFAULT_POLICIES, POLICY_ORDER
 from bench.stats import miss_reasons, paired_differences, policy_scores
 from bench.tables import print_table
 from services.mapping.render import write_png
@@ -133,7 +133,7 @@ def _progress(console: Console | None, total: int) -> Iterator[Callable[[Episode
         yield lambda result: bar.update(task, advance=1, description=_mark(result))
 
 
-def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = POLICY_ORDER, workers: int = 2,
+def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_POLICIES, workers: int = 2,
                max_steps: int | None = None, progress: Console | None = None, perception: str = "ideal",
                homes: str = "default") -> SearchRun:
     """Run every (policy, episode) pair with the simulated perception ``perception`` (a preset
@@ -158,6 +158,7 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = POLICY_OR
 def summary(run: SearchRun) -> dict[str, Any]:
     """The ``--json`` object: scores per policy, the run's settings and its wall time."""
     return {"policies": policy_scores(run.results), "vs_ovamos": paired_differences(run.results),
+            "vs_plus": paired_differences(run.results, reference="ovamos-plus"),
             "missed": miss_reasons(run.results),
             "seconds": round(run.seconds, 1),
             "episodes_per_min": round(60 * len(run.results) / max(run.seconds, 1e-9), 2),
@@ -230,7 +231,7 @@ def replay(episode_id: str, out: Path, policy: str = "ovamos", source: Path | No
 
 
 # -- the command ----------------------------------------------------------------------------------
-def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(POLICY_ORDER), workers: int = 2,
+def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT_POLICIES), workers: int = 2,
          as_json: bool = False, out: Path | None = None, max_steps: int | None = None,
          replay_id: str | None = None, policy: str = "ovamos", source: Path | None = None,
          perception: str = "ideal", homes: str = "default",

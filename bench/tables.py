@@ -13,6 +13,9 @@ from bench.policies import LABELS, PAPER
 
 TABLE_I = ("random", "vlfm", "finder", "ovamos")
 TABLE_II = ("ovamos-greedy", "ovamos-nodecay", "ovamos")
+#: Ours: the planner of services/planner/plus.py, its ablations, and the paper's best three to beat.
+TABLE_PLUS = ("finder", "ovamos-greedy", "ovamos", "ovamos-plus-1frontier", "ovamos-plus-noverify",
+              "ovamos-plus-nobudget", "ovamos-plus")
 
 
 def print_table(console: Console, result: dict[str, Any]) -> None:
@@ -21,28 +24,23 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
     limit = "" if result.get("max_steps") is None else f", max {result['max_steps']} steps (quick run)"
     limit += f", {result.get('perception', 'ideal')} perception, {result.get('homes', 'default')} homes"
     for title, rows in (("Table I: comparison with baselines", TABLE_I),
-                        ("Table II: ablations", TABLE_II)):
+                        ("Table II: ablations", TABLE_II), ("Ours: OVAMOS-plus and its ablations", TABLE_PLUS)):
         present = [p for p in rows if p in scores]
-        if not present:
+        if not present or (rows is TABLE_PLUS and "ovamos-plus" not in scores):
             continue
         table = Table("method", "episodes", "SR", "MSPL", "targets found", "wrong STOPs", "paper SR",
                       "paper MSPL", title=f"{title} (seed {result['seed']}{limit})")
         for policy in present:
-            s, (paper_sr, paper_mspl) = scores[policy], PAPER[policy]
+            s = scores[policy]
+            paper_sr, paper_mspl = (f"{PAPER[policy][0]:.1f}%", f"{PAPER[policy][1]:.3f}") if policy in PAPER \
+                else ("", "")
             label = "OVAMOS (full)" if rows is TABLE_II and policy == "ovamos" else LABELS[policy]
             table.add_row(label, str(s["episodes"]), f"{s['sr']:.1f}%", f"{s['mspl']:.3f}",
-                          f"{s['targets_found']:.1f}%", str(s.get("wrong_stops", "")),
-                          f"{paper_sr:.1f}%", f"{paper_mspl:.3f}")
+                          f"{s['targets_found']:.1f}%", str(s.get("wrong_stops", "")), paper_sr, paper_mspl)
         console.print(table)
-    paired = result.get("vs_ovamos", {})
-    if paired:
-        table = Table("method", "episodes", "OVAMOS SR minus it", "95% CI", "OVAMOS MSPL minus it", "95% CI",
-                      title="OVAMOS against each policy on the same episodes (bootstrap)")
-        for policy, d in paired.items():
-            table.add_row(LABELS.get(policy, policy), str(d["episodes"]), f"{d['sr_diff']:+.1f}",
-                          f"[{d['sr_ci'][0]:+.1f}, {d['sr_ci'][1]:+.1f}]", f"{d['mspl_diff']:+.3f}",
-                          f"[{d['mspl_ci'][0]:+.3f}, {d['mspl_ci'][1]:+.3f}]")
-        console.print(table)
+    for key, name in (("vs_ovamos", "OVAMOS"), ("vs_plus", "OVAMOS-plus")):
+        if result.get(key):
+            console.print(_paired_table(result[key], name))
     missed = {p: m for p, m in result.get("missed", {}).items() if m["targets"]}
     if missed:
         table = Table("method", "targets", *(m.value for m in Miss),
@@ -53,3 +51,14 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
     total = sum(s["episodes"] for s in scores.values())
     console.print(f"{total} episodes in {result['seconds']:.0f} s on {result['workers']} worker(s): "
                   f"{result['episodes_per_min']:.1f} episodes/min")
+
+
+def _paired_table(paired: dict[str, Any], name: str) -> Table:
+    """``name`` minus each policy on the episodes both ran, with the bootstrap intervals."""
+    table = Table("method", "episodes", f"{name} SR minus it", "95% CI", f"{name} MSPL minus it", "95% CI",
+                  title=f"{name} against each policy on the same episodes (bootstrap)")
+    for policy, d in paired.items():
+        table.add_row(LABELS.get(policy, policy), str(d["episodes"]), f"{d['sr_diff']:+.1f}",
+                      f"[{d['sr_ci'][0]:+.1f}, {d['sr_ci'][1]:+.1f}]", f"{d['mspl_diff']:+.3f}",
+                      f"[{d['mspl_ci'][0]:+.3f}, {d['mspl_ci'][1]:+.3f}]")
+    return table

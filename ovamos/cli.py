@@ -15,6 +15,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from bench.policies import DEFAULT_POLICIES, POLICY_ORDER
 from shared import __version__
 from shared.log import setup_logging
 from shared.zconfig import ZenohConfigError, build_config, open_session
@@ -555,9 +556,8 @@ def bench_homes(count: Annotated[int, typer.Option(help="Homes to generate (seed
 def bench_search(
         episodes: Annotated[int, typer.Option(help="Episodes per policy (the paper: 120).")] = 120,
         seed: Annotated[int, typer.Option(help="Seed of the episode set (ids are SEED-INDEX).")] = 0,
-        policies: Annotated[str, typer.Option(help="Comma-separated: random, vlfm, finder, ovamos-greedy, "
-                                                   "ovamos-nodecay, ovamos.")] =
-        "random,vlfm,finder,ovamos-greedy,ovamos-nodecay,ovamos",
+        policies: Annotated[str, typer.Option(help="Comma-separated, of: " + ", ".join(POLICY_ORDER) + ".")] =
+        ",".join(DEFAULT_POLICIES),
         workers: Annotated[int, typer.Option(help="Worker processes.")] = 2,
         out: Annotated[Optional[Path], typer.Option(help="Folder for episodes.jsonl, timings.jsonl, "
                                                          "summary.json, chart.png (or the replay PNG).")] = None,

@@ -243,3 +243,17 @@ def test_a_run_with_a_perception_preset_and_a_home_tier_says_so_and_bad_names_ar
         run_search(1, SEED, ("ovamos",), workers=1, perception="perfect")
     with pytest.raises(SearchError, match="unknown home tier 'huge'"):
         run_search(1, SEED, ("ovamos",), workers=1, homes="huge")
+
+
+def test_ovamos_plus_and_an_ablation_run_under_their_names_and_get_their_own_tables() -> None:
+    ours = run_search(1, SEED, ("ovamos-plus-noverify", "ovamos-plus", "ovamos"), workers=1, max_steps=STEPS)
+    assert [r.policy for r in ours.results] == ["ovamos", "ovamos-plus", "ovamos-plus-noverify"]
+    result = json.loads(json.dumps(summary(ours)))
+    assert set(result["vs_plus"]) == {"ovamos", "ovamos-plus-noverify"}
+    out = io.StringIO()
+    print_table(Console(file=out, width=200), result)
+    text = out.getvalue()
+    assert "Ours: OVAMOS-plus and its ablations" in text and "plus w/o verifying" in text
+    assert "OVAMOS-plus against each policy" in text
+    with pytest.raises(SearchError, match="ovamos-plus-nothing"):
+        parse_policies("ovamos-plus-nothing")

@@ -32,6 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from services.planner.decide import (Decision, DecisionConfig, GoalKind, Policy, away, decide,
                                      targets_to_search)
 from services.planner.navigator import NavigationConfig, NavMap, Navigator, Unreachable
+from services.planner.plus import goal_budget
 from services.planner.task import SearchTask
 from shared.messages import MapSnapshot, TaskStatus
 from shared.motion import Action, Pose
@@ -131,6 +132,8 @@ class SearchAgent:
         self.visited: list[tuple[float, float]] = []   # candidates reached
         self._scan_left = self.config.initial_turns
         self._toward_goal = 0
+        self._goal_commands = 0                 # commands towards the same goal, across re-decisions
+        self._goal_budget: int | None = None    # ovamos-plus: commands before the goal is given up
         self._blocked = 0
         self._idle = 0
         self._random_walk = self.config.decision.policy is Policy.RANDOM
@@ -158,6 +161,12 @@ class SearchAgent:
                 if self._still_confirmed(snapshot, goal):
                     return Step(Action.STOP, Reason.FOUND, goal)
                 self._decide(snapshot, pose, remaining)  # the close views unconfirmed it
+                continue
+            if self._goal_budget is not None and self._goal_commands >= self._goal_budget:
+                log.info("step %d: goal (%.2f, %.2f) not reached in its %d commands: given up",
+                         self.task.steps, goal.x, goal.y, self._goal_budget)
+                self.unreachable.add(goal.x, goal.y, self.task.steps)
+                self._decide(snapshot, pose, remaining)
                 continue
             try:
                 action = self.navigator.next_command(self._nav_map(snapshot), pose, (goal.x, goal.y),
@@ -194,6 +203,7 @@ class SearchAgent:
             self._scan_left -= 1
         elif step.reason is Reason.NAVIGATE:
             self._toward_goal += 1
+            self._goal_commands += 1
         self._blocked = self._blocked + 1 if blocked else 0
         if blocked and step.action is Action.MOVE_FORWARD and pose is not None:
             d = self.config.bump_depth_m
@@ -215,6 +225,9 @@ class SearchAgent:
                               or math.hypot(g.x - previous.x, g.y - previous.y) > same_place):
             log.info("step %d: goal %s%s at (%.2f, %.2f) of %d candidates", self.task.steps, g.kind.value,
                      f" {g.label}" if g.label else "", g.x, g.y, g.candidates)
+            self._goal_commands = 0
+            self._goal_budget = goal_budget(math.hypot(g.x - pose.x, g.y - pose.y), self.config.decision.plus) \
+                if self.config.decision.policy is Policy.OVAMOS_PLUS else None
         self.decisions += 1
         self._toward_goal = 0
 

@@ -86,16 +86,21 @@ def find_candidates(value_map: np.ndarray, grid: GridGeometry, config: Candidate
     return Candidates(points, v, v / v.sum())
 
 
-def best_frontier(frontiers: np.ndarray, value_map: np.ndarray, grid: GridGeometry,
-                  radius_m: float) -> int | None:
-    """Index of the frontier whose highest value within ``radius_m`` is the largest."""
-    if len(frontiers) == 0:
-        return None
+def frontier_scores(frontiers: np.ndarray, value_map: np.ndarray, grid: GridGeometry,
+                    radius_m: float) -> np.ndarray:
+    """Each frontier's highest value within ``radius_m`` (what ranks frontiers)."""
     r = int(np.ceil(radius_m / grid.resolution))
     offsets = np.array([(dr, dc) for dr in range(-r, r + 1) for dc in range(-r, r + 1)
                         if (dr * dr + dc * dc) * grid.resolution ** 2 <= radius_m ** 2 + 1e-12])
     rows, cols = grid.to_cell(frontiers[:, 0], frontiers[:, 1])
     rr = np.clip(rows[:, None] + offsets[None, :, 0], 0, grid.rows - 1)
     cc = np.clip(cols[:, None] + offsets[None, :, 1], 0, grid.cols - 1)
-    scores = value_map[rr, cc].max(axis=1)
-    return int(np.argmax(scores))
+    return value_map[rr, cc].max(axis=1)
+
+
+def best_frontier(frontiers: np.ndarray, value_map: np.ndarray, grid: GridGeometry,
+                  radius_m: float) -> int | None:
+    """Index of the frontier whose highest value within ``radius_m`` is the largest."""
+    if len(frontiers) == 0:
+        return None
+    return int(np.argmax(frontier_scores(frontiers, value_map, grid, radius_m)))

@@ -11,7 +11,7 @@ same way.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
 from typing import Literal
@@ -20,7 +20,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from services.mapping.layers import DECAY_KAPPA, DECAY_TAU, WHOLE, Window, value_map
-from services.planner.candidates import CandidateConfig, Candidates, best_frontier, find_candidates
+from services.planner.candidates import (CandidateConfig, Candidates, best_frontier, find_candidates,
+                                         frontier_scores)
+from services.planner.plus import ManyFrontierPOMDP, PlusConfig, detection_candidates, frontier_bonuses
 from services.planner.pomdp import POMDPConfig, SearchPOMDP, root_particles
 from services.planner.pouct import POUCT
 from shared.gridpaths import FreeSpaceGraph
@@ -36,6 +38,7 @@ class Policy(str, Enum):
     FINDER = "finder"             # all targets' layers, always the best frontier
     VLFM = "vlfm"                 # one target at a time (see `targets_to_search`), always the best frontier
     RANDOM = "random"             # a random walk (same stop logic for found objects): no goals
+    OVAMOS_PLUS = "ovamos-plus"   # ours: several frontiers, detections to verify, a goal budget (plus.py)
 
 
 FRONTIER_ONLY = (Policy.FINDER, Policy.VLFM)
@@ -47,6 +50,7 @@ class DecisionConfig(BaseModel):
     policy: Policy = Policy.OVAMOS
     candidates: CandidateConfig = Field(default_factory=CandidateConfig)
     pomdp: POMDPConfig = Field(default_factory=POMDPConfig)
+    plus: PlusConfig = Field(default_factory=PlusConfig, description="ovamos-plus only")
     decay_tau: float = Field(default=DECAY_TAU, description="update count at which a value halves")
     decay_kappa: float = Field(default=DECAY_KAPPA, gt=0, description="how sharply it fades around tau")
     robot_radius: float = Field(default=ROBOT.radius_m, ge=0, description="path lengths keep this far from obstacles")
@@ -196,6 +200,9 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     if not keep.all():
         cands = Candidates(cands.points[keep], cands.values[keep],
                            cands.belief[keep] / max(cands.belief[keep].sum(), 1e-12))
+    if config.policy is Policy.OVAMOS_PLUS:
+        return _plus(snapshot, robot_xy, remaining, config, values, grid, frontiers, cands,
+                     lambda points: away(points, avoid, radius))
     f = best_frontier(frontiers, values, grid, config.candidates.frontier_radius_m)
     frontier = None if f is None else frontiers[f]
     frontier_value = 0.0 if frontier is None else _value_at(values, grid, frontier)
@@ -204,10 +211,10 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
                else "no candidate above the value threshold: the best frontier")
         return None if frontier is None else Decision(
             GoalKind.FRONTIER, *map(float, frontier), reason=why,
-            options=_options(cands, frontier, frontier_value))
+            options=_options(cands, *_one(frontier, frontier_value)))
     if config.policy is Policy.GREEDY:
         return _greedy(cands, frontier, frontier_value)
-    return _pouct(cands, frontier, frontier_value, robot_xy, snapshot, config)
+    return _pouct(cands, *_one(frontier, frontier_value), robot_xy, snapshot, config)
 
 
 def _points(xy: np.ndarray | None) -> np.ndarray:
@@ -220,11 +227,11 @@ def _value_at(values: np.ndarray, grid: GridGeometry, xy: np.ndarray) -> float:
     return float(values[int(np.clip(row, 0, grid.rows - 1)), int(np.clip(col, 0, grid.cols - 1))])
 
 
-def _options(cands: Candidates, frontier: np.ndarray | None, frontier_value: float,
+def _options(cands: Candidates, frontiers: np.ndarray, frontier_values: np.ndarray,
              distances: np.ndarray | None = None, q: dict[int, tuple[float, int]] | None = None
              ) -> tuple[TraceOption, ...]:
-    """The decision trace's options: the candidates (action i + 1) and the frontier (the last
-    action), with path lengths from the robot (row 0 of ``distances``) and POUCT's ``q``."""
+    """The decision trace's options: the candidates (action i + 1) and the frontiers (the last
+    actions), with path lengths from the robot (row 0 of ``distances``) and POUCT's ``q``."""
     def option(kind: Literal["candidate", "frontier"], i: int, xy: np.ndarray, value: float,
                belief: float | None) -> TraceOption:
         path = None if distances is None or not np.isfinite(distances[0, i]) else float(distances[0, i])
@@ -232,16 +239,22 @@ def _options(cands: Candidates, frontier: np.ndarray | None, frontier_value: flo
         return TraceOption(kind=kind, x=float(xy[0]), y=float(xy[1]), value=value, belief=belief,
                            path_m=path, q=qi, visits=visits)
 
+    n = len(cands.points)
     out = [option("candidate", i + 1, xy, float(v), float(b))
            for i, (xy, v, b) in enumerate(zip(cands.points, cands.values, cands.belief))]
-    if frontier is not None:
-        out.append(option("frontier", len(cands.points) + 1, frontier, frontier_value, None))
+    out += [option("frontier", n + 1 + j, xy, float(v), None)
+            for j, (xy, v) in enumerate(zip(frontiers, frontier_values))]
     return tuple(out)
+
+
+def _one(frontier: np.ndarray | None, value: float) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's single best frontier as the (F x 2 points, F values) the functions below take."""
+    return (np.zeros((0, 2)), np.zeros(0)) if frontier is None else (frontier[None], np.array([value]))
 
 
 def _greedy(cands: Candidates, frontier: np.ndarray | None, frontier_value: float) -> Decision:
     best = int(np.argmax(cands.values))
-    options = _options(cands, frontier, frontier_value)
+    options = _options(cands, *_one(frontier, frontier_value))
     if frontier is not None and frontier_value > cands.values[best]:
         return Decision(GoalKind.FRONTIER, *map(float, frontier), candidates=len(cands.points),
                         reason="greedy: the frontier's value beats every candidate's", options=options)
@@ -249,36 +262,62 @@ def _greedy(cands: Candidates, frontier: np.ndarray | None, frontier_value: floa
                     reason="greedy: the highest-valued candidate", options=options)
 
 
-def _pouct(cands: Candidates, frontier: np.ndarray | None, frontier_value: float,
-           robot_xy: tuple[float, float], snapshot: MapSnapshot, config: DecisionConfig) -> Decision:
-    points = np.vstack([np.asarray(robot_xy, float)[None], cands.points,
-                        *([frontier[None]] if frontier is not None else [])])
+def _plus(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequence[str],
+          config: DecisionConfig, values: np.ndarray, grid: GridGeometry, frontiers: np.ndarray,
+          cands: Candidates, allowed: Callable[[np.ndarray], np.ndarray]) -> Decision | None:
+    """``ovamos-plus``'s step (services/planner/plus.py): the best ``plus.frontiers`` frontiers,
+    each with a value-scaled bonus, and unconfirmed detections as candidates, into POUCT."""
+    plus = config.plus
+    if plus.verify_detections:
+        cands = detection_candidates(snapshot.objects, remaining, cands, allowed)
+    scores = frontier_scores(frontiers, values, grid, config.candidates.frontier_radius_m) \
+        if len(frontiers) else np.zeros(0)
+    best = np.argsort(-scores, kind="stable")[:plus.frontiers]
+    offered, offered_values = frontiers[best], scores[best]
+    if len(cands.points) == 0:
+        if not len(offered):
+            return None
+        cands = Candidates(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
+    bonuses = frontier_bonuses(offered_values, cands, plus, config.pomdp.lambda_frontier)
+    return _pouct(cands, offered, offered_values, robot_xy, snapshot, config, bonuses)
+
+
+def _pouct(cands: Candidates, frontiers: np.ndarray, frontier_values: np.ndarray,
+           robot_xy: tuple[float, float], snapshot: MapSnapshot, config: DecisionConfig,
+           bonuses: np.ndarray | None = None) -> Decision:
+    """POUCT over the candidates and ``frontiers`` (the paper: at most one, with the fixed
+    frontier bonus; ``bonuses``: one per frontier, ovamos-plus's many-frontier model)."""
+    points = np.vstack([np.asarray(robot_xy, float)[None], cands.points.reshape(-1, 2), frontiers.reshape(-1, 2)])
     distances = ActionDistances(snapshot, config, include=points).matrix(points)
     n = len(cands.points)
+    options = _options(cands, frontiers, frontier_values, distances)
     reachable = [i for i in range(1, n + 1) if np.isfinite(distances[0, i])]
-    frontier_index = n + 1 if frontier is not None and np.isfinite(distances[0, n + 1]) else None
-    if not reachable:
-        options = _options(cands, frontier, frontier_value, distances)
-        if frontier_index is None:
-            why = "no candidate and no frontier has a path: trying the "
-            return Decision(GoalKind.FRONTIER, *map(float, frontier), reason=why + "frontier",
-                            options=options) if frontier is not None \
-                else Decision(GoalKind.CANDIDATE, *map(float, cands.points[0]), candidates=n,
-                              reason=why + "best candidate", options=options)
-        return Decision(GoalKind.FRONTIER, *map(float, points[frontier_index]), candidates=n,
+    open_frontiers = [n + 1 + j for j in range(len(frontiers)) if np.isfinite(distances[0, n + 1 + j])]
+    if not reachable and not open_frontiers:
+        why = "no candidate and no frontier has a path: trying the "
+        return Decision(GoalKind.FRONTIER, *map(float, frontiers[0]), reason=why + "frontier",
+                        options=options) if len(frontiers) \
+            else Decision(GoalKind.CANDIDATE, *map(float, cands.points[0]), candidates=n,
+                          reason=why + "best candidate", options=options)
+    if not reachable and bonuses is None:
+        return Decision(GoalKind.FRONTIER, *map(float, points[open_frontiers[0]]), candidates=n,
                         reason="no candidate has a path: the frontier", options=options)
-    belief = cands.belief[[i - 1 for i in reachable]]
-    belief = belief / belief.sum()
     c = config.pomdp
-    model = SearchPOMDP(np.where(np.isfinite(distances), distances, 1e6), reachable,
-                        frontier_index, c)
+    finite = np.where(np.isfinite(distances), distances, 1e6)
+    if bonuses is None:
+        model: SearchPOMDP = SearchPOMDP(finite, reachable, open_frontiers[0] if open_frontiers else None, c)
+    else:
+        model = ManyFrontierPOMDP(finite, reachable, None, c,
+                                  frontier_rewards={i: float(bonuses[i - n - 1]) for i in open_frontiers})
+    # with no reachable candidate (ovamos-plus only) the target is nowhere the model knows of
+    belief = cands.belief[[i - 1 for i in reachable]] if reachable else np.ones(1)
     planner = POUCT(model, num_sims=c.num_sims, max_depth=c.max_depth, discount=c.gamma,
                     exploration=c.exploration, seed=config.seed)
-    action = planner.plan(root_particles(reachable, belief, c.particles, config.seed))
-    kind = GoalKind.FRONTIER if action == frontier_index else GoalKind.CANDIDATE
+    action = planner.plan(root_particles(reachable or [0], belief / belief.sum(), c.particles, config.seed))
+    kind = GoalKind.FRONTIER if action > n else GoalKind.CANDIDATE
     q = planner.action_values()
     value, visits = q[action]
     sims = planner.last_stats.sims if planner.last_stats else 0
     return Decision(kind, float(points[action][0]), float(points[action][1]), candidates=n,
                     reason=f"POUCT: the highest mean return (Q {value:.1f}, {visits} of {sims} simulations)",
-                    options=_options(cands, frontier, frontier_value, distances, q))
+                    options=_options(cands, frontiers, frontier_values, distances, q))

@@ -1,0 +1,110 @@
+"""``ovamos-plus``: our planner beside the paper's, built from what the paper's loses episodes to.
+
+The paper's decision step (:mod:`services.planner.decide`) stays the reference. This one keeps
+its map, candidates, belief and POUCT, and changes three things, each a switch of
+:class:`PlusConfig` so that each has its ablation row in the search benchmark:
+
+* **Frontiers** (``frontiers``): the paper offers POUCT one frontier, the one with the highest
+  value nearby, wherever it is; re-decided every metre, that goal jumps across the house as
+  values change and the robot walks back and forth between rooms (seed 1, 24 episodes: most
+  failures ran out of steps that way). Here the ``frontiers`` best frontiers by value are
+  actions, so the path cost in the POMDP picks a near one among the good ones, and each
+  frontier's bonus is scaled by its value relative to the best value on offer (at least
+  ``frontier_floor``), so that frontier and candidate rewards follow one value map.
+* **Detections to verify** (``verify_detections``): an object instance of a remaining target that
+  the detector has seen but the map has not confirmed is a place worth looking at from close
+  by (a confirmation needs repeated hits). The paper's planner only goes there if the value map
+  happens to peak there; here such instances are candidates with the best candidate value.
+* **A goal budget** (``goal_commands_per_m``): the navigator plans through unexplored space and
+  re-plans as walls appear; a goal behind a wall that is revealed bit by bit kept the robot
+  busy for 280 commands (seed 1, episode 15). Here a goal gets ``goal_commands_min`` commands
+  plus ``goal_commands_per_m`` per metre of straight-line distance, counted across re-decisions
+  of the same goal, and is then given up like an unreachable one (for ``memory_steps``).
+
+This module knows nothing of Zenoh; the planner service runs it when its policy is
+``ovamos-plus``.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from services.planner.candidates import Candidates
+from services.planner.pomdp import SearchPOMDP, State
+from shared.messages import ObjectInstance
+
+
+class PlusConfig(BaseModel):
+    """The switches of ``ovamos-plus`` (see the module doc); each off gives an ablation."""
+
+    model_config = ConfigDict(extra="forbid")
+    frontiers: int = Field(default=3, ge=1, description="best frontiers (by value) offered as actions")
+    frontier_floor: float = Field(
+        default=0.25, ge=0, le=1,
+        description="a frontier's bonus is lambda_frontier times its value over the best value on offer, "
+                    "at least this share (1: every frontier gets the paper's full bonus)")
+    verify_detections: bool = Field(default=True, description="unconfirmed detections of remaining "
+                                                              "targets are candidates")
+    goal_commands_min: int = Field(default=24, ge=1, description="commands any goal gets")
+    goal_commands_per_m: float | None = Field(
+        default=12.0, gt=0,
+        description="more commands per metre of straight-line distance to the goal; None: no budget")
+
+
+def detection_candidates(objects: Sequence[ObjectInstance], remaining: Sequence[str], cands: Candidates,
+                         allowed: Callable[[np.ndarray], np.ndarray]) -> Candidates:
+    """``cands`` plus the unconfirmed instances of remaining targets that ``allowed`` (points ->
+    mask) lets through, valued like the best candidate (1 when there is none), the belief
+    renormalised over all."""
+    picks = [o for o in objects if not o.confirmed and o.hits > 0 and o.label in remaining]
+    points = np.array([(o.x, o.y) for o in picks], float).reshape(-1, 2)
+    points = points[allowed(points)]
+    if len(points) == 0:
+        return cands
+    value = float(cands.values.max()) if len(cands.values) else 1.0
+    all_points = np.vstack([cands.points.reshape(-1, 2), points])
+    values = np.concatenate([cands.values, np.full(len(points), value)])
+    return Candidates(all_points, values, values / values.sum())
+
+
+def frontier_bonuses(frontier_values: np.ndarray, cands: Candidates, config: PlusConfig,
+                     lambda_frontier: float) -> np.ndarray:
+    """Each offered frontier's bonus: ``lambda_frontier`` times its value over the best value on
+    offer (candidates' and frontiers'), at least ``frontier_floor`` of it."""
+    best = max(float(frontier_values.max(initial=0.0)), float(cands.values.max(initial=0.0)))
+    share = frontier_values / best if best > 0 else np.ones_like(frontier_values)
+    return lambda_frontier * np.maximum(share, config.frontier_floor)
+
+
+@dataclass
+class ManyFrontierPOMDP(SearchPOMDP):
+    """The paper's search POMDP with several frontier actions, each with its own bonus.
+
+    ``frontier_rewards`` maps a frontier's point index to its bonus; the inherited ``frontier``
+    field is unused (None). Reaching a frontier ends the simulated episode, as in the paper's."""
+
+    frontier_rewards: dict[int, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self._actions = [*self.candidates, *self.frontier_rewards]
+
+    def step(self, state: State, action: int, rng: random.Random) -> tuple[State, int, float, bool]:
+        bonus = self.frontier_rewards.get(action)
+        if bonus is None:
+            return super().step(state, action, rng)
+        robot, target = state
+        return (action, target), 0, bonus - self.config.lambda_move * self._d[robot][action], True
+
+
+def goal_budget(distance_m: float, config: PlusConfig) -> int | None:
+    """Commands a goal this far (straight line) gets before it is given up; None: unlimited."""
+    if config.goal_commands_per_m is None:
+        return None
+    return config.goal_commands_min + math.ceil(config.goal_commands_per_m * distance_m)

@@ -1,0 +1,90 @@
+"""ovamos-plus on hand-made maps: several frontiers weighed by path, detections to verify, a goal budget."""
+
+from __future__ import annotations
+
+import random
+
+import numpy as np
+import pytest
+
+from services.planner.agent import AgentConfig, SearchAgent
+from services.planner.candidates import Candidates
+from services.planner.decide import DecisionConfig, GoalKind, Policy, decide
+from services.planner.plus import ManyFrontierPOMDP, PlusConfig, frontier_bonuses, goal_budget
+from services.planner.pomdp import POMDPConfig
+from services.planner.task import SearchTask
+from shared.messages import ObjectInstance
+from shared.motion import Action, Pose
+from tests.planner_maps import snapshot
+
+PLUS = DecisionConfig(policy=Policy.OVAMOS_PLUS)
+
+
+def plus(**changes: object) -> DecisionConfig:
+    return PLUS.model_copy(update={"plus": PlusConfig(**changes)})  # type: ignore[arg-type]
+
+
+def test_of_two_equally_valued_frontiers_plus_takes_the_near_one_and_the_paper_the_first_best() -> None:
+    # the far frontier's surroundings are a hair more valuable: the paper's single best frontier
+    snap = snapshot({(9.5, 1.0): 0.21, (5.5, 5.0): 0.2}, [(9.5, 0.5), (6.0, 5.0)])
+    no_cands = DecisionConfig().candidates.model_copy(update={"value_threshold": 10.0})
+    paper = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig(candidates=no_cands))
+    assert paper.kind is GoalKind.FRONTIER and (paper.x, paper.y) == pytest.approx((9.5, 0.5))
+    ours = decide(snap, (5.0, 5.0), ["cup"], plus().model_copy(update={"candidates": no_cands}))
+    assert ours.kind is GoalKind.FRONTIER and (ours.x, ours.y) == pytest.approx((6.0, 5.0))
+    assert [o.kind for o in ours.options] == ["frontier", "frontier"]
+    one = decide(snap, (5.0, 5.0), ["cup"], plus(frontiers=1).model_copy(update={"candidates": no_cands}))
+    assert (one.x, one.y) == pytest.approx((9.5, 0.5))
+
+
+def test_frontier_bonuses_follow_value_with_a_floor() -> None:
+    cands = Candidates(np.array([[1.0, 1.0]]), np.array([0.8]), np.array([1.0]))
+    bonus = frontier_bonuses(np.array([0.4, 0.0, 0.8]), cands, PlusConfig(frontier_floor=0.25), 500.0)
+    assert bonus.tolist() == pytest.approx([250.0, 125.0, 500.0])
+    assert frontier_bonuses(np.array([0.0]), Candidates(np.zeros((0, 2)), np.zeros(0), np.zeros(0)),
+                            PlusConfig(), 500.0).tolist() == [500.0]
+
+
+def test_the_many_frontier_model_ends_at_a_frontier_with_its_own_bonus() -> None:
+    d = np.array([[0.0, 2.0, 1.0, 4.0], [2.0, 0.0, 3.0, 5.0], [1.0, 3.0, 0.0, 5.0], [4.0, 5.0, 5.0, 0.0]])
+    model = ManyFrontierPOMDP(d, [1], None, POMDPConfig(), frontier_rewards={2: 100.0, 3: 400.0})
+    assert list(model.actions((0, 1))) == [1, 2, 3]
+    assert model.step((0, 1), 3, random.Random(0)) == ((3, 1), 0, 400.0 - 20.0 * 4.0, True)
+    assert model.step((0, 1), 1, random.Random(0))[1:] == (1, 500.0 - 40.0, True)  # the target, as the paper's
+
+
+def test_an_unconfirmed_detection_of_a_remaining_target_is_a_candidate_for_plus_only() -> None:
+    seen_once = ObjectInstance(label="cup", x=8.0, y=8.0, score=0.5, hits=1, views=1, confirmed=False)
+    other = ObjectInstance(label="bed", x=2.0, y=8.0, score=0.5, hits=1, views=1, confirmed=False)
+    snap = snapshot({(6.0, 5.0): 0.3}, [], objects=[seen_once, other])
+    paper = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig())
+    assert [(o.x, o.y) for o in paper.options] == [pytest.approx((6.0, 5.0), abs=0.1)]
+    ours = decide(snap, (5.0, 5.0), ["cup"], plus())
+    points = [(o.x, o.y) for o in ours.options if o.kind == "candidate"]
+    assert (8.0, 8.0) in points and (2.0, 8.0) not in points and len(points) == 2
+    assert decide(snap, (5.0, 5.0), ["cup"], plus(verify_detections=False)).options == paper.options
+    visited = decide(snap, (5.0, 5.0), ["cup"], plus(), visited=np.array([[8.0, 8.1]]))
+    assert (8.0, 8.0) not in [(o.x, o.y) for o in visited.options]
+
+
+def test_a_goal_is_given_up_after_its_budget_even_across_redecisions() -> None:
+    assert goal_budget(2.0, PlusConfig(goal_commands_min=10, goal_commands_per_m=3.0)) == 16
+    assert goal_budget(2.0, PlusConfig(goal_commands_per_m=None)) is None
+    config = AgentConfig(initial_turns=0, redecide_every=2, stuck_steps=100,
+                         decision=plus(goal_commands_min=6, goal_commands_per_m=1.0))
+    agent = SearchAgent(SearchTask("t", ["cup"]), config)
+    snap, pose = snapshot({}, [(9.0, 5.0)]), Pose(x=2.0, y=5.0, yaw=0.0)  # 7 m: 13 commands (stuck: off)
+    goals = []
+    for _ in range(14):  # the robot never moves: every command leaves it where it was
+        step = agent.next_step(snap, pose)
+        goals.append(step.goal)
+        assert step.action is not None
+        agent.executed(step, 0.0, pose=pose)
+    assert agent.decisions > 2  # re-decided every 2 commands, the same goal each time
+    assert all((g.x, g.y) == (9.0, 5.0) for g in goals[:13])
+    assert goals[13] is None and agent.unreachable.points(agent.task.steps) == [(9.0, 5.0)]
+    paper = SearchAgent(SearchTask("t", ["cup"]), AgentConfig(initial_turns=0, redecide_every=2, stuck_steps=100))
+    for _ in range(14):
+        step = paper.next_step(snap, pose)
+        paper.executed(step, 0.0, pose=pose)
+    assert step.action is Action.MOVE_FORWARD and (step.goal.x, step.goal.y) == (9.0, 5.0)
