@@ -4,7 +4,8 @@ A decision is what the planner does per step: candidates from the value map
 (DBSCAN), the best frontier, path lengths between the robot and all action
 points, and POUCT (500 simulations, depth 5). Instances are synthetic but
 map-sized: a 15 x 15 m explored area with scattered obstacles on the default
-1000 x 1000 grid, K value blobs (K = 5, 10, 20) and three frontiers, seeded.
+1000 x 1000 grid, K value blobs (K = 5, 10, 20) and three frontiers, seeded; the paper's
+decision and ovamos-plus's (all three frontiers as actions, services/planner/plus.py).
 Simulations per second are also measured with pomdp_py's POUCT on the same
 search POMDP when pomdp-py is installed (a benchmark-only dependency).
 """
@@ -20,7 +21,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from services.planner.decide import ActionDistances, DecisionConfig, decide
+from services.planner.decide import ActionDistances, DecisionConfig, Policy, decide
 from services.planner.pomdp import SearchPOMDP, root_particles
 from services.planner.pouct import POUCT
 from shared.messages import MapSnapshot
@@ -143,17 +144,20 @@ def pomdp_py_sims_per_s(model: SearchPOMDP, particles: list[tuple[int, int]], si
 def run_benchmark(runs: int = 5, sims: int = 500, progress: Console | None = None) -> dict[str, Any]:
     config = DecisionConfig()
     result: dict[str, Any] = {"runs": runs, "num_sims": sims, "max_depth": config.pomdp.max_depth,
-                              "decision_ms": {}}
-    for k in CANDIDATE_COUNTS:
-        times = []
-        for run in range(runs):
-            snap, robot = instance(k, seed=run)
-            start = time.perf_counter()
-            decide(snap, robot, ["t"], config)
-            times.append((time.perf_counter() - start) * 1e3)
-        result["decision_ms"][str(k)] = round(statistics.median(times), 2)
-        if progress:
-            progress.print(f"{k} candidates: {result['decision_ms'][str(k)]:.1f} ms per decision")
+                              "decision_ms": {}, "plus_decision_ms": {}}
+    for key, policy_config in (("decision_ms", config), ("plus_decision_ms",
+                                                          DecisionConfig(policy=Policy.OVAMOS_PLUS))):
+        for k in CANDIDATE_COUNTS:
+            times = []
+            for run in range(runs):
+                snap, robot = instance(k, seed=run)
+                start = time.perf_counter()
+                decide(snap, robot, ["t"], policy_config)
+                times.append((time.perf_counter() - start) * 1e3)
+            result[key][str(k)] = round(statistics.median(times), 2)
+            if progress:
+                progress.print(f"{policy_config.policy.value}, {k} candidates: {result[key][str(k)]:.1f} ms "
+                               "per decision")
     model, particles = _search_pomdp(20, config)
     result["sims_per_s"] = round(statistics.median(
         ours_sims_per_s(model, particles, 5000) for _ in range(runs)))
@@ -165,11 +169,11 @@ def run_benchmark(runs: int = 5, sims: int = 500, progress: Console | None = Non
 
 
 def print_table(console: Console, result: dict[str, Any]) -> None:
-    table = Table("candidates", "median decision (ms)",
+    table = Table("candidates", "median decision (ms)", "ovamos-plus (ms)",
                   title=f"Decision = candidates + path lengths + POUCT ({result['num_sims']} sims, "
                         f"depth {result['max_depth']}); median of {result['runs']} instances")
     for k in CANDIDATE_COUNTS:
-        table.add_row(str(k), f"{result['decision_ms'][str(k)]:.1f}")
+        table.add_row(str(k), f"{result['decision_ms'][str(k)]:.1f}", f"{result['plus_decision_ms'][str(k)]:.1f}")
     console.print(table)
     theirs = result.get("pomdp_py_sims_per_s")
     console.print(f"POUCT simulations/s on the search POMDP (20 candidates): ours {result['sims_per_s']}"
