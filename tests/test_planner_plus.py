@@ -1,4 +1,4 @@
-"""ovamos-plus on hand-made maps: several frontiers weighed by path, detections to verify, a goal budget."""
+"""ovamos-plus on hand-made maps: several frontiers weighed by path, detections to verify, the goal budget (off by default)."""
 
 from __future__ import annotations
 

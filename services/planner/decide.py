@@ -38,7 +38,7 @@ class Policy(str, Enum):
     FINDER = "finder"             # all targets' layers, always the best frontier
     VLFM = "vlfm"                 # one target at a time (see `targets_to_search`), always the best frontier
     RANDOM = "random"             # a random walk (same stop logic for found objects): no goals
-    OVAMOS_PLUS = "ovamos-plus"   # ours: several frontiers, detections to verify, a goal budget (plus.py)
+    OVAMOS_PLUS = "ovamos-plus"   # ours: several frontiers, detections to verify (plus.py)
 
 
 FRONTIER_ONLY = (Policy.FINDER, Policy.VLFM)
