@@ -122,9 +122,10 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
             pose = robot.pose
             # lock-step as in the services: frame seq follows command seq (seq commands done)
             frame = renderer.render(pose.x, pose.y, pose.yaw, seq=seq, stamp=float(seq), after_action=seq)
-            # The services map the robot's first view before the task reaches perception (no
-            # targets, no values); the same here, so the distributed demo replays this episode.
-            remaining = task.remaining if seq > 0 else []
+            # Every frame for the remaining targets, the first view too: the services map it
+            # before the task reaches perception, which then re-scores it for the task's targets,
+            # and the map adds those values (MapState.apply: a frame counts once), to the same map.
+            remaining = task.remaining
             detections = perception.detect(frame, remaining)
             funnel.frame(task.steps, frame, perception.visible_classes(frame), detections)
             state.apply(frame, PerceptionResult.build(seq, frame.stamp, perception.score(frame, remaining),

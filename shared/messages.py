@@ -14,9 +14,11 @@ version or an inconsistent payload raises :class:`DecodeError` and nothing else.
 
 from __future__ import annotations
 
+import secrets
+import time
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any, ClassVar, Literal, Self
+from typing import Annotated, Any, ClassVar, Literal, Self
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -26,10 +28,26 @@ from shared.detections import Detection
 from shared.motion import Action
 from shared.robot import Primitives
 
-__all__ = ["DecodeError", "JsonMessage", "BinaryMessage", "ArraySpec", "Intrinsics", "RgbdFrame",
+__all__ = ["DecodeError", "OdomSession", "new_odom_session", "JsonMessage", "BinaryMessage", "ArraySpec", "Intrinsics", "RgbdFrame",
            "MapSnapshot", "ObjectInstance", "PerceptionResult", "CounterSet", "ServiceStats", "CameraState", "Odometry", "PlanCommand", "DriverMode",
            "Outcome", "DriverState", "EStop", "TaskSpec", "TaskStatus", "FINAL", "FoundObject",
            "Goal", "TaskEvent", "TraceOption", "DecisionTrace"]
+
+
+OdomSession = Annotated[str, Field(
+    max_length=64, pattern=r"^[A-Za-z0-9_-]*$",
+    description="the odometry session: new at every start of the base's odometry integration (its "
+                "frame starts again at the initial pose); '' = not said (a producer older than sessions)")]
+"""Which odometry frame a pose is in. Poses, frames and maps of two sessions must never be mixed: a
+restarted driver's odometry starts again at its initial pose, wherever the robot stands. Letters,
+digits, '-' and '_' only: the mapping service names files with it."""
+
+
+def new_odom_session() -> str:
+    """A new odometry session id: the UTC start time (for people) and 6 random hex digits (two
+    starts in one second differ). Deliberately not seeded: it must differ at every start, also
+    of a seeded simulation, and no result depends on its value."""
+    return time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-" + secrets.token_hex(3)
 
 
 def _validation_error(cls: type, exc: ValidationError) -> DecodeError:
@@ -150,6 +168,8 @@ class RgbdFrame(BinaryMessage):
     ``driver/state``). A planner waits for a map that fused a frame after its
     command, and never compares the clocks of two machines (``stamp`` is the
     capture time on the camera's host, for people and latency figures only).
+    ``odom_session`` is the :data:`OdomSession` of the odometry ``camera_pose`` came from: the
+    map fuses only frames of the driver's current session.
     """
 
     KIND: ClassVar[str] = "rgbd"
@@ -161,6 +181,7 @@ class RgbdFrame(BinaryMessage):
     seq: int = Field(ge=0)
     stamp: float
     after_action: int = Field(default=0, ge=0, description="last completed command at capture")
+    odom_session: OdomSession = ""  # of the odometry the frame was posed with
     intrinsics: Intrinsics
     camera_pose: tuple[float, ...] = _IDENTITY
     depth_scale: float = Field(default=1.0, gt=0)
@@ -223,6 +244,9 @@ class MapSnapshot(BinaryMessage):
     frames, so a planner knows whether the map has seen the world after its
     last command without reading any clock. ``stamp`` (the mapping host's
     clock) is for people only.
+
+    A map belongs to one odometry session (``odom_session``, that of every frame it fused): a
+    planner plans only on a map of its driver's current session.
     """
 
     KIND: ClassVar[str] = "map"
@@ -237,6 +261,7 @@ class MapSnapshot(BinaryMessage):
     }
     seq: int = Field(ge=-1, description="seq of the last fused frame, -1 before the first")
     after_action: int = Field(default=0, ge=0, description="newest after_action of a fused frame")
+    odom_session: OdomSession = ""
     stamp: float
     resolution: float = Field(gt=0)
     origin: tuple[float, float]
@@ -274,7 +299,9 @@ class PerceptionResult(BinaryMessage):
     """Perception's output for one frame: a value score per target and detections with masks.
 
     ``targets`` is the target list the frame was scored for; consumers (the map)
-    follow it, so adding or removing a target needs no other message.
+    follow it, so adding or removing a target needs no other message. A frame may get a second
+    result (re-scored when targets were added): the map then fuses the values of the targets
+    it had not fused for that frame. ``odom_session`` is the frame's.
     """
 
     KIND: ClassVar[str] = "perception"
@@ -285,6 +312,7 @@ class PerceptionResult(BinaryMessage):
     }
     seq: int = Field(ge=0, description="seq of the frame this result is for")
     stamp: float
+    odom_session: OdomSession = ""
     targets: tuple[str, ...]
     scores: tuple[float, ...]
     labels: tuple[str, ...] = ()
@@ -303,10 +331,11 @@ class PerceptionResult(BinaryMessage):
 
     @classmethod
     def build(cls, seq: int, stamp: float, scores: dict[str, float], detections: list[Detection],
-              image_shape: tuple[int, int]) -> PerceptionResult:
+              image_shape: tuple[int, int], odom_session: str = "") -> PerceptionResult:
         masks = (np.stack([d.mask for d in detections]) if detections
                  else np.zeros((0, *image_shape), bool))
-        return cls(seq=seq, stamp=stamp, targets=tuple(scores), scores=tuple(scores.values()),
+        return cls(seq=seq, stamp=stamp, odom_session=odom_session, targets=tuple(scores),
+                   scores=tuple(scores.values()),
                    labels=tuple(d.label for d in detections),
                    detection_scores=tuple(d.score for d in detections),
                    boxes=np.array([d.box for d in detections], np.int32).reshape(-1, 4), masks=masks)
@@ -366,11 +395,13 @@ class Odometry(JsonMessage):
     ``after_action``: the last command the base had completed when this pose was
     measured, so the planner books a command's distance with the pose it ended
     at (causal, like :attr:`RgbdFrame.after_action`: no clock comparison).
+    ``odom_session``: which odometry frame the pose is in (:data:`OdomSession`).
     """
 
     seq: int = Field(ge=0)
     stamp: float
     after_action: int = Field(default=0, ge=0, description="last completed command when measured")
+    odom_session: OdomSession = ""
     x: float
     y: float
     yaw: float
@@ -421,11 +452,13 @@ class DriverState(JsonMessage):
     ``last_outcome``). Lock-step freshness is causal: a planner that sees
     ``last_completed`` reach its command waits for an :class:`Odometry` and a
     :class:`MapSnapshot` whose ``after_action`` reaches it too; no stamp is
-    compared across machines.
+    compared across machines. ``odom_session`` is the session of the odometry it publishes: a
+    planner plans only on a map of that session.
     """
 
     stamp: float
     mode: DriverMode
+    odom_session: OdomSession = ""
     faults: tuple[str, ...] = ()
     estop_latched: bool = False
     active_action: int | None = None
@@ -512,6 +545,7 @@ class TaskEvent(JsonMessage):
     x: float | None = None  # robot position when the event was made
     y: float | None = None
     goal: Goal | None = None  # the goal being driven to; None between goals and once over
+    odom_session: OdomSession = ""  # the driver's odometry session: the frame x, y and goal are in
 
 
 class TraceOption(BaseModel):

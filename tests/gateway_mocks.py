@@ -55,6 +55,10 @@ class RunningGateway:
         assert not self._thread.is_alive(), "the gateway did not stop"
 
 
+ODOM_SESSION = "20261201T120000Z-0a1b2c"
+"""The odometry session the mocks' maps and reports are in."""
+
+
 class MockPlanner:
     """A fake planner (mock): records TaskSpecs from ``task/current``, sends TaskEvents."""
 
@@ -75,10 +79,10 @@ class MockPlanner:
 
     def report(self, task_id: str, status: TaskStatus, targets: list[str], *, steps: int,
                found: tuple[FoundObject, ...] = (), x: float = 0.0, y: float = 0.0,
-               goal: Goal | None = None) -> None:
+               goal: Goal | None = None, odom_session: str = ODOM_SESSION) -> None:
         self.events.put(TaskEvent(task_id=task_id, status=status, targets=tuple(targets), found=found,
                                   steps=steps, distance_m=0.25 * steps, stamp=time.time(), x=x, y=y,
-                                  message=f"mock step {steps}", goal=goal))
+                                  message=f"mock step {steps}", goal=goal, odom_session=odom_session))
 
     def close(self) -> None:
         self.bus.close()
@@ -92,7 +96,7 @@ def small_map() -> MapSnapshot:
     obstacle[20, 5:30] = True
     values = np.zeros((1, 40, 40), np.float32)
     values[0, 25:30, 10:15] = 0.8
-    return MapSnapshot(seq=3, stamp=time.time(), resolution=0.05, origin=(0.0, 0.0), layers=("chair",),
+    return MapSnapshot(seq=3, odom_session=ODOM_SESSION, stamp=time.time(), resolution=0.05, origin=(0.0, 0.0), layers=("chair",),
                        objects=(ObjectInstance(label="chair", x=0.6, y=1.4, score=0.9, hits=3,
                                                confirmed=True),),
                        obstacle=obstacle, explored=explored, counts=np.ones((40, 40), np.uint16),

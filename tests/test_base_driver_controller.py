@@ -85,6 +85,16 @@ def test_a_bumper_during_a_forward_move_blocks_it_halts_and_latches_a_fault(rig:
     rig.hw.bumpers = ()
     rig.until(lambda: rig.mode is DriverMode.READY, 2.0)
     assert rig.d.state().faults == () and rig.d.counters["recoveries"] == 1
+    # the hardware was re-opened: odometry went on integrating, in the same session
+    assert rig.hw.opens > opens and rig.d.odometry().odom_session == state.odom_session
+
+
+def test_the_odometry_session_is_one_per_controller_in_its_states_and_odometry(rig: Rig) -> None:
+    session = rig.d.state().odom_session
+    assert session and rig.d.odometry().odom_session == session
+    rig.run(1.0)
+    assert rig.d.state().odom_session == rig.d.odometry().odom_session == session
+    assert Rig().d.state().odom_session != session  # a driver started again: a new session
 
 
 def test_a_collision_report_during_a_forward_move_backs_off_to_the_start_then_blocks() -> None:

@@ -34,9 +34,10 @@ def shot(device: float, host: float, *, depth: int = 1500, mm: bool = True) -> C
 
 
 def odom(seq: int, t: float, x: float = 0.0, y: float = 0.0, yaw: float = 0.0, *,
-         linear: float = 0.0, angular: float = 0.0) -> Odometry:
+         linear: float = 0.0, angular: float = 0.0, session: str = "") -> Odometry:
     """Odometry measured at host monotonic ``t`` (stamped with the wall clock, as the driver does)."""
-    return Odometry(seq=seq, stamp=t + WALL, x=x, y=y, yaw=yaw, linear=linear, angular=angular)
+    return Odometry(seq=seq, stamp=t + WALL, x=x, y=y, yaw=yaw, linear=linear, angular=angular,
+                    odom_session=session)
 
 
 def driver(completed: int, mode: DriverMode = DriverMode.READY, active: int | None = None) -> DriverState:
@@ -218,6 +219,26 @@ def test_buffer_starts_again_when_the_driver_restarts() -> None:
     buf.add(odom(0, 0.3, x=0.0))   # seq starts again: a new odometry frame
     assert len(buf) == 1 and buf.restarts == 1
     assert buf.pose_at(0.1 + WALL) is Miss.TOO_OLD
+
+
+def test_buffer_starts_again_with_a_new_odometry_session_and_frames_carry_theirs() -> None:
+    """A restarted driver says so with a new session even when its seq and stamps look like a
+    continuation; a late message of the old session is dropped; each frame names its session."""
+    core = make_core(0.0, lock_step=False)
+    for k in range(10):
+        core.on_odom(odom(k, k / 50, x=5.0, session="A"))
+    core.on_frame(shot(0.1, 0.1))
+    core.on_odom(odom(10, 0.2, x=0.0, session="B"))   # restarted: odometry back at zero
+    core.on_odom(odom(11, 0.22, x=0.0, session="B"))
+    core.on_odom(odom(9, 0.19, x=5.0, session="A"))   # late, of the old session
+    core.on_frame(shot(0.21, 0.21))
+    published = core.poll(0.3)[0]
+    assert [(f.odom_session, pose_of(f)[0]) for f in published] == [("A", 5.0), ("B", 0.0)]
+    buf = OdometryBuffer(window_s=2.0, tolerance_s=0.0)
+    for k in range(3):
+        buf.add(odom(k, k / 50, session="A"))
+    assert buf.add(odom(3, 0.1, session="B")) and len(buf) == 1 and buf.restarts == 1
+    assert not buf.add(odom(3, 0.05, session="A")) and buf.dropped == 1 and buf.session == "B"
 
 
 # -- interpolation through the core ---------------------------------------------------------------

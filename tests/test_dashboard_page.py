@@ -21,7 +21,7 @@ from shared.messages import DriverMode, DriverState, EStop, Goal, Odometry, Task
 from shared.zconfig import build_config
 from tests.browser import (PHONE, by_id, chromium, console_errors, row, screenshot, set_viewport,
                            task_rows, text_of, wait_text)
-from tests.gateway_mocks import ROBOT, MockMapping, MockPlanner, RunningGateway, gateway_config
+from tests.gateway_mocks import ODOM_SESSION, ROBOT, MockMapping, MockPlanner, RunningGateway, gateway_config
 from tests.polling import wait_for
 
 
@@ -228,6 +228,7 @@ def test_the_map_view_holds_what_the_page_draws(inproc_router: str, gateway: Run
         view = wait_for(lambda: (r := httpx.get(url, timeout=10)).status_code == 200 and r.json()
                         and r.json()["robot"] and r.json(), what="the map view with the robot")
         assert view["task_id"] == task.id and view["path"] == [[0.4, 0.4], [0.5, 0.6]]
+        assert view["odom_session"] == ODOM_SESSION
         assert view["goal"] == {"kind": "candidate", "x": 0.6, "y": 1.3, "label": None}
         assert view["robot"] == {"x": 0.5, "y": 0.5, "yaw": 1.0}  # the driver's odometry
         assert view["layers"] == ["chair"] and view["frontiers"] == [[1.7, 1.0]]

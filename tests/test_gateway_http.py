@@ -20,7 +20,7 @@ from shared.messages import FoundObject, TaskStatus
 from shared.service import ServiceConfigError, load_config, run_service
 from shared.zconfig import build_config
 from tests.polling import wait_for
-from tests.gateway_mocks import ROBOT, MockMapping, MockPlanner, RunningGateway, gateway_config
+from tests.gateway_mocks import ODOM_SESSION, ROBOT, MockMapping, MockPlanner, RunningGateway, gateway_config
 
 CHAIR = FoundObject(label="chair", x=0.6, y=1.4, step=2)
 
@@ -91,6 +91,8 @@ def test_map_png_from_the_mapping_service(inproc_router: str, gateway: RunningGa
         png = wait_for(lambda: (r := httpx.get(f"{gateway.url}/v1/robots/{ROBOT}/map.png", timeout=10))
                        .status_code == 200 and r, what="the map")
         assert png.headers["content-type"] == "image/png" and png.content[:8] == b"\x89PNG\r\n\x1a\n"
+        assert png.headers["x-ovamos-odom-session"] == ODOM_SESSION  # which odometry frame it is in
+        assert api.get(task.id).odom_session == ODOM_SESSION          # the planner's latest report's
         image = cv2.imdecode(np.frombuffer(png.content, np.uint8), cv2.IMREAD_COLOR)
         assert image is not None and image.shape[0] > 20 and image.shape[1] > 20
         layer = httpx.get(f"{gateway.url}/v1/robots/{ROBOT}/map.png", params={"layer": "chair"})

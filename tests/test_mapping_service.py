@@ -3,17 +3,20 @@
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Iterator
 
 import numpy as np
 import pytest
 import zenoh
 
+from services.mapping.checkpoint import load_checkpoint
 from services.mapping.service import MappingService, MappingServiceConfig
 from services.sim.render import SceneRenderer
 from shared import keys
 from shared.bus import Bus
-from shared.messages import MapSnapshot, PerceptionResult, RgbdFrame
+from shared.messages import MapSnapshot, Odometry, PerceptionResult, RgbdFrame
+from shared.status import live_services
 from shared.zconfig import build_config
 from tests.polling import wait_for
 from tests.service_helpers import Running
@@ -95,7 +98,6 @@ def test_snapshots_are_published_and_malformed_input_is_counted(service, sender,
     wait_for(lambda: query_snapshot(client), what="the service answers")
     client.put(keys.perception_result(ROBOT), b"garbage")
     wait_for(lambda: pub_f.put(frames[4]) or any(s.seq == 4 for s in got), what="a published snapshot")
-    from shared.status import live_services
 
     def mapping_stats():
         (svc,) = [s for s in live_services(client, ROBOT) if s.service == "mapping"]
@@ -106,30 +108,100 @@ def test_snapshots_are_published_and_malformed_input_is_counted(service, sender,
     wait_for(lambda: mapping_stats().info["seq"] == 4, what="the service's info shows frame 4")
 
 
-def test_a_restarted_service_resumes_from_its_checkpoint(inproc_router, tmp_path, sender, client,
-                                                         frames) -> None:
+def in_session(frame: RgbdFrame, session: str) -> RgbdFrame:
+    return frame.model_copy(update={"odom_session": session})
+
+
+def odometry(session: str) -> Odometry:
+    return Odometry(seq=1, stamp=time.time(), odom_session=session, x=1.5, y=2.0, yaw=0.0)
+
+
+def mapping_info(client: zenoh.Session) -> dict:
+    (svc,) = [s for s in live_services(client, ROBOT) if s.service == "mapping"]
+    return svc.stats.info
+
+
+def test_a_restarted_service_resumes_its_checkpoint_only_in_the_same_odometry_session(
+        inproc_router, tmp_path, sender, client, frames) -> None:
     config = MappingServiceConfig(grid_cells=300, publish_hz=10, match_timeout_s=0.2,
                                   checkpoint_path=tmp_path / "{robot_id}.ckpt", checkpoint_every_s=60)
     first = Running(MappingService, inproc_router, config)
     pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
-    wait_for(lambda: pub_f.put(frames[5]) or (s := query_snapshot(client)) and s.seq == 5, what="seq 5")
+    pub_o = sender.publisher(keys.odom(ROBOT), Odometry)
+    wait_for(lambda: pub_f.put(in_session(frames[5], "A")) or (s := query_snapshot(client)) and s.seq == 5,
+             what="seq 5")
     before = query_snapshot(client)
+    assert before.odom_session == "A"
     first.close()  # writes the checkpoint on shutdown, named for the robot
     checkpoint = tmp_path / f"{ROBOT}.ckpt"
     assert checkpoint.exists()
+    # the driver kept running (same session): the checkpoint is resumed
     second = Running(MappingService, inproc_router, config)
     try:
-        after = wait_for(lambda: query_snapshot(client), what="the restarted service")
-        assert after.seq == 5 and np.array_equal(after.explored, before.explored)
+        after = wait_for(lambda: pub_o.put(odometry("A")) or (s := query_snapshot(client)) and s.seq == 5
+                         and s, what="the restarted service resumes")
+        assert after.odom_session == "A" and np.array_equal(after.explored, before.explored)
     finally:
         second.close()
-    checkpoint.write_bytes(b"not a checkpoint")
+    # the driver restarted meanwhile (session B): a fresh map; session A's is kept, not fused into
     third = Running(MappingService, inproc_router, config)
     try:
-        fresh = wait_for(lambda: query_snapshot(client), what="a fresh map after a corrupt checkpoint")
+        fresh = wait_for(lambda: pub_o.put(odometry("B")) or (s := query_snapshot(client))
+                         and s.odom_session == "B" and s, what="a fresh map of session B")
         assert fresh.seq == -1 and not fresh.explored.any()
+        kept = load_checkpoint(tmp_path / f"{ROBOT}.A.ckpt", config)
+        assert kept.odom_session == "A" and kept.seq == 5 and np.array_equal(kept.explored, before.explored)
+        pub_f.put(in_session(frames[4], "A"))  # posed with session A's odometry: dropped, counted
+        wait_for(lambda: mapping_info(client)["other_session_dropped"].get("frame", 0) >= 1,
+                 what="the frame of session A counted")
+        assert query_snapshot(client).seq == -1
+        pub_f.put(in_session(frames[3], "B"))
+        wait_for(lambda: query_snapshot(client).seq == 3, what="session B's frame fused")
     finally:
         third.close()
+    assert load_checkpoint(checkpoint, config).odom_session == "B"
+    checkpoint.write_bytes(b"not a checkpoint")
+    fourth = Running(MappingService, inproc_router, config)
+    try:
+        fresh = wait_for(lambda: pub_o.put(odometry("B")) or (s := query_snapshot(client))
+                         and s.odom_session == "B" and s, what="a fresh map after a corrupt checkpoint")
+        assert fresh.seq == -1 and not fresh.explored.any()
+    finally:
+        fourth.close()
+
+
+def test_a_new_odometry_session_starts_a_fresh_map_and_keeps_the_old_one(service, sender, client,
+                                                                          frames, tmp_path) -> None:
+    pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
+    pub_o = sender.publisher(keys.odom(ROBOT), Odometry)
+    old = wait_for(lambda: pub_o.put(odometry("A")) or pub_f.put(in_session(frames[2], "A"))
+                   or (s := query_snapshot(client)) and s.seq == 2 and s, what="session A's map")
+    assert old.odom_session == "A"
+    new = wait_for(lambda: pub_o.put(odometry("B")) or (s := query_snapshot(client)) and s.odom_session == "B"
+                   and s, what="the driver restarted: session B")
+    assert new.seq == -1 and not new.explored.any()
+    kept = load_checkpoint(tmp_path / "map.A.ckpt", service[1])
+    assert kept.seq == 2 and np.array_equal(kept.explored, old.explored)
+
+
+def test_a_re_published_frame_and_a_re_scored_result_add_no_update_counts(service, sender, client,
+                                                                          frames) -> None:
+    pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
+    pub_r = sender.publisher(keys.perception_result(ROBOT), PerceptionResult)
+    wait_for(lambda: pub_f.put(frames[0]) or pub_r.put(result_for(frames[0], {}))
+             or (s := query_snapshot(client)) and s.seq == 0, what="frame 0 without targets")
+    first = query_snapshot(client)
+    # the task starts: perception scores the latest frame again, for the task's targets
+    rescored = wait_for(lambda: pub_r.put(result_for(frames[0], {"cup": 0.7}))
+                        or (s := query_snapshot(client)) and s.layers == ("cup",) and s, what="re-scored")
+    assert rescored.values[0].max() == pytest.approx(0.7)
+    # the robot stands still: the frame comes again, its result too
+    for _ in range(3):
+        pub_f.put(frames[0])
+        pub_r.put(result_for(frames[0], {"cup": 0.7}))
+    wait_for(lambda: mapping_info(client)["repeated_frames"] >= 1, what="the repeated frame counted")
+    last = query_snapshot(client)
+    assert np.array_equal(last.counts, first.counts) and np.array_equal(last.counts, rescored.counts)
 
 
 def test_the_map_command_draws_the_current_map(service, sender, client, frames, tmp_path) -> None:

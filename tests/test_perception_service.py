@@ -101,6 +101,33 @@ def test_a_frame_gets_a_result_with_its_seq_for_the_current_targets(inproc_route
         service.close()
 
 
+def test_new_targets_re_score_the_latest_frame(inproc_router, sim_config, sender, frames) -> None:
+    """The robot stands still when a task starts: the frame in front of it gets a second result,
+    for the task's targets, without a new frame; the same targets again do not re-score it."""
+    service = RunningPerception(inproc_router, sim_config)
+    try:
+        latest = frames[3].model_copy(update={"odom_session": "S"})
+        idle = sender.until_result(latest, "a result without a task")
+        assert idle.targets == () and idle.odom_session == "S"
+        task = TaskSpec(task_id="t1", targets=("fridge",), stamp=0.0)
+
+        def rescored(targets: tuple[str, ...]) -> PerceptionResult | None:
+            sender.tasks.put(task)  # no frame: only the target list changes
+            return next((r for r in sender.results(latest.seq) if r.targets == targets), None)
+        result = wait_for(lambda: rescored(("fridge",)), what="the latest frame re-scored for the task")
+        direct = SimBackend(two_rooms(), config=sim_config.sim.perception)
+        assert result.score_map() == direct.score(latest, task.targets) and result.odom_session == "S"
+        assert result.stamp == latest.stamp
+        for _ in range(3):
+            sender.tasks.put(task)  # re-published: the same targets
+        task = task.model_copy(update={"targets": ("fridge", "cup")})
+        wait_for(lambda: rescored(("fridge", "cup")), what="re-scored for an added target")
+        # (the frame itself may have been sent more than once before its first result came)
+        assert [r.targets for r in sender.results(latest.seq) if r.targets] == [("fridge",), ("fridge", "cup")]
+    finally:
+        service.close()
+
+
 def settled(read: Callable[[], object]) -> object:
     """``read()`` once it gave the same value twice a refresh of the services' info apart (the
     info in their stats is a snapshot, refreshed every INFO_EVERY_S while they are idle)."""

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from services.planner.agent import AgentConfig
-from services.planner.executive import Executive, ExecutiveConfig
+from services.planner.executive import OLD_MAP, Executive, ExecutiveConfig
 from shared.messages import (DecisionTrace, DriverMode, DriverState, MapSnapshot, ObjectInstance, Odometry,
                              PlanCommand, TaskEvent, TaskSpec, TaskStatus)
 from shared.motion import Action
@@ -16,9 +16,9 @@ N = 120  # 6 x 6 m at 5 cm
 
 
 def snapshot(seq: int, objects: tuple[ObjectInstance, ...] = (), after: int | None = None,
-             stamp: float | None = None) -> MapSnapshot:
+             stamp: float | None = None, session: str = "") -> MapSnapshot:
     """A map whose newest fused frame is ``seq``, taken after command ``after`` (default: seq)."""
-    return MapSnapshot(seq=seq, after_action=seq if after is None else after,
+    return MapSnapshot(seq=seq, after_action=seq if after is None else after, odom_session=session,
                        stamp=float(seq) if stamp is None else stamp, resolution=0.05, origin=(0.0, 0.0), layers=("cup",),
                        objects=objects, obstacle=np.zeros((N, N), bool), explored=np.ones((N, N), bool),
                        counts=np.zeros((N, N), np.uint16), values=np.zeros((1, N, N), np.float32),
@@ -26,15 +26,15 @@ def snapshot(seq: int, objects: tuple[ObjectInstance, ...] = (), after: int | No
 
 
 def driver(completed: int = 0, mode: DriverMode = DriverMode.READY, active: int | None = None,
-           outcome: str | None = None, stamp: float = 0.0) -> DriverState:
-    return DriverState(stamp=stamp, mode=mode, last_completed=completed,
+           outcome: str | None = None, stamp: float = 0.0, session: str = "") -> DriverState:
+    return DriverState(stamp=stamp, mode=mode, last_completed=completed, odom_session=session,
                        active_action=active, last_outcome=outcome,
                        faults=("axis 0: heartbeat lost",) if mode is DriverMode.FAULT else ())
 
 
-def odom(x: float = 1.0, y: float = 1.0, yaw: float = 0.0, stamp: float = 0.0, after: int = 0
-         ) -> Odometry:
-    return Odometry(seq=0, stamp=stamp, x=x, y=y, yaw=yaw, after_action=after)
+def odom(x: float = 1.0, y: float = 1.0, yaw: float = 0.0, stamp: float = 0.0, after: int = 0,
+         session: str = "") -> Odometry:
+    return Odometry(seq=0, stamp=stamp, x=x, y=y, yaw=yaw, after_action=after, odom_session=session)
 
 
 def spec(targets: tuple[str, ...] = ("cup",), cancelled: bool = False) -> TaskSpec:
@@ -297,3 +297,28 @@ def test_the_robot_unreachable_pauses_the_task_with_the_reason_and_it_resumes_by
     ex.on_snapshot(snapshot(1))
     out = ex.poll(5.2)
     assert [c.action_id for c in commands(out)] == [2] and ex.task.steps == 1 and ex.waiting == ""
+
+
+def test_a_driver_restart_is_a_new_odometry_session_and_no_plan_is_made_on_the_old_map(
+        ex: Executive) -> None:
+    ex.on_driver(driver(session="A"))
+    ex.on_snapshot(snapshot(0, session="A"))
+    ex.on_odom(odom(session="A"))
+    assert [c.action_id for c in commands(ex.poll(0.0))] == [1]
+    ex.on_driver(driver(active=1, session="A"))
+    ex.on_robot_link(False)                                   # the driver process died ...
+    ex.on_robot_link(True)
+    ex.on_driver(driver(session="B"))                         # ... and started again: odometry at zero
+    ex.on_odom(odom(x=0.0, y=0.0, session="B"))
+    assert ex.in_flight is None                               # command 1 was decided in the old frame
+    assert ex.map_wanted() == 0                               # the map is asked for at once
+    out = ex.poll(0.1)
+    assert commands(out) == [] and events(out)[-1].message == OLD_MAP
+    assert events(out)[-1].odom_session == "B"
+    ex.on_snapshot(snapshot(1, after=1, session="A"))         # a late map of session A changes nothing
+    assert commands(ex.poll(0.2)) == [] and ex.waiting == OLD_MAP
+    ex.on_snapshot(snapshot(0, after=0, session="B"))         # the fresh map (its seq starts again)
+    assert ex.map_wanted() is None
+    out = ex.poll(0.3)
+    assert [c.action for c in commands(out)] == [Action.TURN_LEFT]  # a new look-around, then on
+    assert [c.action_id for c in commands(out)] == [2] and ex.task.steps == 0 and ex.waiting == ""

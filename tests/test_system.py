@@ -7,7 +7,7 @@ kills one process once the robot is moving. The task must still complete.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -16,6 +16,8 @@ from ovamos.demo import DEMO_EPISODE, DEMO_SEED, demo_entries, write_configs
 from ovamos.supervisor import Backoff, Supervisor, port_open
 from services.gateway.client import GatewayClient, GatewayError
 from services.gateway.models import TaskView
+from services.mapping.checkpoint import load_checkpoint
+from services.mapping.config import MappingConfig
 from services.sim.episodes import make_episode
 from shared.procs import free_port, kill
 from tests.polling import wait_for
@@ -53,13 +55,15 @@ def system(tmp_path: Path) -> Iterator[System]:
         yield running
 
 
-def _run_with_a_kill(system: System, victim: str, after_steps: int = 25) -> TaskView:
+def _run_with_a_kill(system: System, victim: str, after_steps: int = 25,
+                     before_kill: Callable[[str], object] = lambda task_id: None) -> TaskView:
     targets = list(make_episode(DEMO_SEED, DEMO_EPISODE)[0].targets)
     # A kill costs the robot part of its map (up to one checkpoint period) or some commands, and
     # the search then takes a different, possibly longer path: a generous step budget keeps this
     # test about recovery, not about how efficient the method is on a damaged map.
     task_id = system.client.submit(targets, robot_id=ROBOT, max_steps=FAULT_STEP_BUDGET).id
     wait_for(lambda: system.task(task_id).steps >= after_steps, timeout=120, what=f"{after_steps} steps")
+    before_kill(task_id)
     proc = system.supervisor.process(victim)
     assert proc is not None
     kill(proc)
@@ -78,6 +82,30 @@ def test_a_killed_mapping_process_is_restarted_from_its_checkpoint_and_the_task_
     assert _restarted(system, "mapping") >= 1
     log = (system.supervisor.status()[0].log_path.parent / "mapping.log").read_text()
     assert "resumed the map from" in log
+
+
+def test_a_killed_robot_starts_a_new_odometry_session_the_map_starts_again_and_the_task_completes(
+        system, tmp_path) -> None:
+    """The simulated robot (camera and base driver) killed mid-task and restarted by the
+    supervisor: its odometry starts again (a new session, the robot back at the start pose). The
+    mapping service starts a fresh map and keeps the old one under its session id, the planner
+    drops what it decided in the old frame and searches on the new map, and the task completes."""
+    before: list[str | None] = []
+
+    def session_known(task_id: str) -> bool:
+        before[:] = [system.task(task_id).odom_session]
+        return bool(before[0])
+    final = _run_with_a_kill(system, "sim", before_kill=lambda task_id: wait_for(
+        lambda: session_known(task_id), timeout=30, what="a task event's odometry session"))
+    assert final.status.value == "done", final.message
+    assert sorted(f.label for f in final.found) == sorted(final.targets)
+    assert _restarted(system, "sim") >= 1
+    assert final.odom_session and final.odom_session != before[0]
+    logs = system.supervisor.status()[0].log_path.parent
+    assert f"odometry session {final.odom_session!r}: a fresh map" in (logs / "mapping.log").read_text()
+    assert f"odometry session is now {final.odom_session!r}" in (logs / "planner.log").read_text()
+    kept = load_checkpoint(tmp_path / "config" / f"map.{before[0]}.ckpt", MappingConfig())
+    assert kept.odom_session == before[0] and kept.seq > 0
 
 
 def test_a_killed_router_comes_back_and_the_services_reconnect_without_restarts(system) -> None:

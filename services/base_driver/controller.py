@@ -55,7 +55,7 @@ from services.base_driver.config import DriverConfig
 from services.base_driver.hardware import BaseHardware, HardwareError, WheelFeedback
 from services.base_driver.kinematics import Geometry, WheelOdometry, toward
 from services.base_driver.primitives import PrimitiveTracker
-from shared.messages import DriverMode, DriverState, Odometry, Outcome, PlanCommand
+from shared.messages import DriverMode, DriverState, Odometry, Outcome, PlanCommand, new_odom_session
 from shared.motion import Action, ActionIds
 
 log = logging.getLogger("ovamos.base_driver")
@@ -119,6 +119,7 @@ class BaseController:
         self._last_command_at = -math.inf
         self._completed = _Completed()
         self._odom = WheelOdometry(self.geometry, config.initial_pose)
+        self.odom_session = new_odom_session()  # the integration starts here, once per process
         self._odom_seq = 0
         self._feedback: WheelFeedback | None = None
         self._wheels = (0.0, 0.0)              # rev/s, wheel forward positive
@@ -478,8 +479,8 @@ class BaseController:
                 mode = DriverMode.MOVING if self._active is not None else DriverMode.READY
             faults = tuple(self._faults.values()) + ((self._estop,) if self._estop else ())
             done = self._completed
-            return DriverState(stamp=time.time(), mode=mode, faults=faults,
-                               estop_latched=self._estop is not None,
+            return DriverState(stamp=time.time(), mode=mode, odom_session=self.odom_session,
+                               faults=faults, estop_latched=self._estop is not None,
                                active_action=self._active.command.action_id if self._active else None,
                                last_completed=done.action_id, last_outcome=done.outcome,
                                primitives=self._primitives)
@@ -489,7 +490,8 @@ class BaseController:
             pose = self._odom.pose
             linear, angular = self.geometry.body(*self._wheels)
             self._odom_seq += 1
-            return Odometry(seq=self._odom_seq, stamp=time.time(), x=pose.x, y=pose.y, yaw=pose.yaw,
+            return Odometry(seq=self._odom_seq, stamp=time.time(), odom_session=self.odom_session,
+                            x=pose.x, y=pose.y, yaw=pose.yaw,
                             linear=linear, angular=angular, after_action=self._completed.action_id)
 
     def wheel_speeds(self) -> tuple[float, float]:

@@ -36,7 +36,8 @@ What a frame goes through (:meth:`CameraCore.on_frame`):
    in a gap of it (``odometry.max_gap_s``), is skipped. Skips are counted by reason
    (:attr:`CameraState.skipped`), and frames that stay unposed for
    ``frame_timeout_s`` are a fault (the planner then waits with a reason instead of
-   a silent stall).
+   a silent stall). A frame carries the ``odom_session`` of the odometry it was posed
+   with; a restarted driver's odometry is never interpolated with the old one's.
 
 Lock-step also re-publishes the latest frame (same seq) every ``republish_s`` while
 idle, for late subscribers, as the simulated robot does (services/sim/service.py).
@@ -335,7 +336,7 @@ class CameraCore:
             self._due = self._due + period if p.capture - self._due < period else p.capture + period
         c = p.captured
         frame = RgbdFrame(seq=self._seq, stamp=p.capture_wall, after_action=p.after_action,
-                          intrinsics=c.intrinsics, camera_pose=camera_pose(pose, self._mount),
+                          odom_session=self._odom.session, intrinsics=c.intrinsics, camera_pose=camera_pose(pose, self._mount),
                           depth_scale=c.depth_scale, rgb=np.ascontiguousarray(c.rgb),
                           depth=np.ascontiguousarray(c.depth, dtype="<u2"))
         self._seq += 1

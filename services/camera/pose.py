@@ -92,9 +92,10 @@ class OdometryBuffer:
 
     Times are the robot host's wall clock (``Odometry.stamp``, ``time.time()`` when the pose was
     measured). Messages arriving out of order are put in place; a message older than the window
-    or repeating a stamp is dropped (counted). A driver that restarts (its ``seq`` starts again
-    at a later stamp) starts the buffer again: poses from before and after a restart are in
-    different odometry frames and must not be interpolated.
+    or repeating a stamp is dropped (counted). A driver that restarts (a new ``odom_session``, or,
+    from a driver that says none, its ``seq`` starting again at a later stamp) starts the buffer
+    again: poses from before and after a restart are in different odometry frames and must not
+    be interpolated. A message of another session older than the newest is dropped (counted).
     """
 
     def __init__(self, window_s: float, tolerance_s: float, max_gap_s: float = math.inf) -> None:
@@ -117,12 +118,22 @@ class OdometryBuffer:
     def oldest(self) -> float | None:
         return self._stamps[0] if self._stamps else None
 
+    @property
+    def session(self) -> str:
+        """The odometry session of the poses held ('' when none is held or the driver says none)."""
+        return self._msgs[-1].odom_session if self._msgs else ""
+
     def add(self, msg: Odometry) -> bool:
         """Keep one message; False when it was dropped."""
-        if self._msgs and msg.seq < self._msgs[-1].seq and msg.stamp > self._stamps[-1]:
-            self._stamps.clear()
-            self._msgs.clear()
-            self.restarts += 1
+        if self._msgs:
+            last = self._msgs[-1]
+            if msg.odom_session != last.odom_session and msg.stamp <= self._stamps[-1]:
+                self.dropped += 1  # a late message of another session
+                return False
+            if msg.odom_session != last.odom_session or (msg.seq < last.seq and msg.stamp > self._stamps[-1]):
+                self._stamps.clear()
+                self._msgs.clear()
+                self.restarts += 1
         newest = self.newest
         if newest is not None and msg.stamp < newest - self.window_s:
             self.dropped += 1

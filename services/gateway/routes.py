@@ -43,7 +43,8 @@ class Gateway:
     monitor: RobotMonitor
 
     def view(self, record: TaskRecord) -> TaskView:
-        return task_view(record, self.store.queue_position(record))
+        return task_view(record, self.store.queue_position(record),
+                         self.manager.odom_session(record.robot_id, record.id))
 
     def find(self, task_id: str) -> TaskRecord:
         record = self.store.get(task_id)
@@ -57,6 +58,8 @@ def _gateway(request: Request) -> Gateway:
 
 
 GW = Annotated[Gateway, Depends(_gateway)]
+ODOM_SESSION_HEADER = "X-Ovamos-Odom-Session"
+"""The map.png answer's header naming the odometry session the map belongs to."""
 router = APIRouter(prefix="/v1", responses={401: {"model": Problem}})
 
 
@@ -141,7 +144,8 @@ def health(gw: GW) -> Health:
 
 
 @router.get("/robots/{robot_id}/map.png", response_class=Response, responses={
-    200: {"content": {"image/png": {}}, "description": "the map, with the latest task's path"},
+    200: {"content": {"image/png": {}}, "description": "the map, with the latest task's path; the "
+          "odometry session it belongs to in the X-Ovamos-Odom-Session header"},
     404: {"model": Problem}, 422: {"model": Problem}, 503: {"model": Problem}})
 def robot_map(robot_id: str, gw: GW, layer: str | None = None) -> Response:
     """The robot's current map from its mapping service (503 while none answers)."""
@@ -156,4 +160,5 @@ def robot_map(robot_id: str, gw: GW, layer: str | None = None) -> Response:
         png = map_png(snapshot, latest[0].path if latest else (), layer)
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
-    return Response(png, media_type="image/png", headers={"Cache-Control": "no-store"})
+    return Response(png, media_type="image/png", headers={"Cache-Control": "no-store",
+                                                          ODOM_SESSION_HEADER: snapshot.odom_session})

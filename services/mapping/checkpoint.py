@@ -2,6 +2,9 @@
 
 A checkpoint is a compressed :class:`MapSnapshot` that also carries the
 per-layer fusion confidences, so a restarted mapping service resumes exactly.
+It carries the map's odometry session too: the map of an earlier session is
+kept beside the checkpoint under its session id (:func:`session_path`), never
+resumed.
 """
 
 from __future__ import annotations
@@ -23,6 +26,13 @@ def save_checkpoint(state: MapState, path: str | Path, stamp: float) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(path, state.snapshot(stamp).to_bytes())
+
+
+def session_path(path: str | Path, odom_session: str) -> Path:
+    """Where the map of an earlier odometry session is kept: ``map.ckpt`` -> ``map.<session>.ckpt``
+    (a session id holds only letters, digits, '-' and '_': see shared.messages.OdomSession)."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.{odom_session or 'no-session'}{path.suffix}")
 
 
 def load_checkpoint(path: str | Path, config: MappingConfig) -> MapState:

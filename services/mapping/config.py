@@ -30,3 +30,7 @@ class MappingConfig(ServiceConfig):
         description="also needed to confirm: hits / views of its place (views within "
                     "object_view_range_m, unoccluded); 0 = off (see services/mapping/objects.py)")
     object_view_range_m: float = Field(default=3.0, gt=0)
+    remember_frames: int = Field(
+        default=16, ge=1,
+        description="the newest fused frames whose targets are remembered: such a frame arriving "
+                    "again adds no update counts, a second result for it only new targets' values")

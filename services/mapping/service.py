@@ -4,7 +4,21 @@ Frames and perception results arrive on separate keys and are matched by
 frame seq. A frame whose result has not come within ``match_timeout_s`` is
 fused without values (obstacles, explored area, frontiers still grow), so a
 slow or absent perception service never stalls the map. The value layers
-follow the target list of the newest perception result.
+follow the target list of the newest perception result. A frame counts once
+(:class:`MapState`): the same frame again (re-published while the robot stands
+still) is not fused again, and a second result for a fused frame (perception
+re-scores its latest frame when targets are added) adds only the values of the
+targets the frame was not fused for; the newest fused frames are kept for that.
+
+One map per odometry session. The driver's current session is that of the
+newest odometry (until odometry comes, that of the first frame: a replay of
+frames alone). A new session starts a fresh map: the map of the earlier one is
+kept on disk beside the checkpoint under its session id
+(:func:`~services.mapping.checkpoint.session_path`) and never fused into again,
+and frames and results of another session are dropped and counted. The
+checkpoint found at start is held until the current session is known and
+resumed only when it is that session's (a mapping service restarted while the
+driver runs); else it is kept under its session id.
 
 Everything runs on the service's one thread (fusing, snapshots for the
 periodic put and for queries, checkpoints), so the map needs no lock and a
@@ -14,23 +28,26 @@ snapshot is always of one consistent state (:meth:`MapState.snapshot` copies).
 from __future__ import annotations
 
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
 from pydantic import Field
 
-from services.mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from services.mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint, session_path
 from services.mapping.config import MappingConfig
 from services.mapping.state import MapState
 from shared.bus import BusCore
-from shared.messages import MapSnapshot, PerceptionResult, RgbdFrame
+from shared.log import sampled
+from shared.messages import MapSnapshot, Odometry, PerceptionResult, RgbdFrame
 from shared.service import Service
 
 
 class MappingServiceConfig(MappingConfig):
     publish_hz: float = Field(default=2.0, gt=0, description="snapshot publication rate")
     match_timeout_s: float = Field(default=1.0, gt=0, description="wait this long for a frame's result")
-    max_pending: int = Field(default=16, ge=1, description="frames or results waiting for their pair")
+    max_pending: int = Field(default=16, ge=1, description="frames or results waiting for their pair, "
+                                                           "and fused frames kept for a second result")
     checkpoint_path: Path | None = Field(
         default=None, description="'{robot_id}' in it is replaced: one map per robot, never another's")
     checkpoint_every_s: float = Field(default=5.0, gt=0)
@@ -49,52 +66,120 @@ class MappingService(Service):
         self.tick_hz = config.publish_hz
         self._frames: dict[int, tuple[RgbdFrame, float]] = {}
         self._results: dict[int, PerceptionResult] = {}
-        self._published_seq = -2
+        self._fused: dict[int, RgbdFrame] = {}  # the newest fused frames, for a second result
+        self._changed = True
         self._last_checkpoint = time.monotonic()
-        self.state = self._initial_state()
+        self._session: str | None = None   # the driver's current odometry session, once known
+        self._held = self._load_checkpoint()  # resumed once the session is known to be its own
+        self.state = MapState(config)
+        self.other_session: Counter[str] = Counter()  # frames / results of another session: dropped
+        self.repeated = 0                    # frames that came again after they were fused
 
-    def _initial_state(self) -> MapState:
+    def _load_checkpoint(self) -> MapState | None:
         path = self.config.checkpoint_path
         if path is not None and path.exists():
             try:
-                state = load_checkpoint(path, self.config)
-                self.log.info("resumed the map from %s (last frame seq %d)", path, state.seq)
-                return state
+                return load_checkpoint(path, self.config)
             except CheckpointError as exc:
                 self.log.error("%s; starting a fresh map", exc)
-        return MapState(self.config)
+        return None
 
     def start(self) -> None:
-        self.wire({"rgbd": self._on_frame, "perception_result": self._on_result},
+        self.wire({"rgbd": self._on_frame, "perception_result": self._on_result, "odom": self._on_odom},
                   answers={"map_snapshot": self.snapshot})
+
+    # -- the odometry session --------------------------------------------------------------------
+    def _on_odom(self, odom: Odometry) -> None:
+        self._follow(odom.odom_session)
+
+    def _follow(self, session: str) -> None:
+        """Make ``session`` the current one, with its own map: the held checkpoint when it is that
+        session's, else a fresh map (a map of another session is kept on disk, see the module)."""
+        if session == self._session:
+            return
+        self._session, held, self._held = session, self._held, None
+        self._frames = {s: p for s, p in self._frames.items() if p[0].odom_session == session}
+        self._results = {s: r for s, r in self._results.items() if r.odom_session == session}
+        if held is not None and held.odom_session == session:
+            self.state, self._changed = held, True
+            self.log.info("resumed the map from %s (odometry session %r, last frame seq %d)",
+                          self.config.checkpoint_path, session, held.seq)
+            return
+        if held is not None:
+            self._keep(held, "the checkpoint's map")
+        if self.state.odom_session != session:
+            if self.state.seq >= 0:
+                self._keep(self.state, "the map")
+            self.state, self._fused, self._changed = MapState(self.config, odom_session=session), {}, True
+            self.log.info("odometry session %r: a fresh map", session)
+        if self.config.checkpoint_path is not None:
+            self._checkpoint()  # the checkpoint file is the current session's from now on
+
+    def _keep(self, state: MapState, what: str) -> None:
+        path = self.config.checkpoint_path
+        if path is None:
+            self.log.warning("%s of odometry session %r is dropped: the odometry session is now %r "
+                             "(no checkpoint_path to keep it)", what, state.odom_session, self._session)
+            return
+        kept = session_path(path, state.odom_session)
+        save_checkpoint(state, kept, time.time())
+        self.log.warning("%s of odometry session %r is not fused into any more: the odometry session "
+                         "is now %r; kept as %s", what, state.odom_session, self._session, kept)
+
+    def _of_another_session(self, kind: str, seq: int, session: str) -> bool:
+        if session == self._session:
+            return False
+        self.other_session[kind] += 1
+        if sampled(self.other_session[kind]):
+            self.log.warning("dropped %s %d of odometry session %r: the map is of session %r",
+                             kind, seq, session, self._session)
+        return True
 
     # -- inputs --------------------------------------------------------------------------------
     def _on_frame(self, frame: RgbdFrame) -> None:
+        if self._session is None:
+            self._follow(frame.odom_session)  # no odometry (yet): a replay of frames alone
+        if self._of_another_session("frame", frame.seq, frame.odom_session):
+            return
+        if self.state.has_fused(frame):
+            self.repeated += 1  # re-published: its result, if one comes again, is matched below
+            return
         result = self._results.pop(frame.seq, None)
         if result is None:
             self._frames.setdefault(frame.seq, (frame, time.monotonic()))  # a repeat keeps its wait
             _trim(self._frames, self.config.max_pending)
             return
-        self.state.apply(frame, result)
+        self._fuse(frame, result)
 
     def _on_result(self, result: PerceptionResult) -> None:
+        if self._session is not None and self._of_another_session("result", result.seq, result.odom_session):
+            return
         pending = self._frames.pop(result.seq, None)
-        if pending is None:
+        fused = self._fused.get(result.seq)
+        if pending is not None:
+            self._fuse(pending[0], result)
+        elif fused is not None and fused.stamp == result.stamp:
+            self._fuse(fused, result)  # a second result (re-scored): new targets' values only
+        else:
             self._results[result.seq] = result
             _trim(self._results, self.config.max_pending)
-            return
-        self.state.apply(pending[0], result)
+
+    def _fuse(self, frame: RgbdFrame, result: PerceptionResult | None) -> None:
+        layers = self.state.layers
+        fused = self.state.apply(frame, result)
+        self._fused[frame.seq] = frame
+        _trim(self._fused, self.config.max_pending)
+        self._changed = self._changed or fused or self.state.layers != layers
 
     # -- periodic work -------------------------------------------------------------------------
     def tick(self) -> None:
         now = time.monotonic()
         expired = sorted(s for s, (_, t) in self._frames.items() if now - t > self.config.match_timeout_s)
         for seq in expired:
-            self.state.apply(self._frames.pop(seq)[0], None)
-        if self.state.seq != self._published_seq:
-            snapshot = self.snapshot()
-            self.out["map_snapshot"].put(snapshot)
-            self._published_seq = snapshot.seq
+            self._fuse(self._frames.pop(seq)[0], None)
+        if self._changed and self._session is not None:
+            self.out["map_snapshot"].put(self.snapshot())
+            self._changed = False
         if self.config.checkpoint_path and now - self._last_checkpoint >= self.config.checkpoint_every_s:
             self._checkpoint()
 
@@ -103,15 +188,17 @@ class MappingService(Service):
 
     def _checkpoint(self) -> None:
         assert self.config.checkpoint_path is not None
-        save_checkpoint(self.state, self.config.checkpoint_path, time.time())
+        if self._session is not None:  # before, the file holds the checkpoint not yet resumed
+            save_checkpoint(self.state, self.config.checkpoint_path, time.time())
         self._last_checkpoint = time.monotonic()
 
     def info(self) -> dict[str, Any]:
         return {"seq": self.state.seq, "after_action": self.state.after_action,
-                "layers": list(self.state.layers),
+                "odom_session": self.state.odom_session, "layers": list(self.state.layers),
                 "explored_m2": round(float(self.state.explored.sum()) * self.config.resolution ** 2, 2),
                 "objects": len(self.state.objects.instances()),
-                "pending_frames": len(self._frames), "pending_results": len(self._results)}
+                "pending_frames": len(self._frames), "pending_results": len(self._results),
+                "other_session_dropped": dict(self.other_session), "repeated_frames": self.repeated}
 
     def stop(self) -> None:
         if self.config.checkpoint_path:

@@ -22,8 +22,19 @@ from shared.messages import MapSnapshot, PerceptionResult, RgbdFrame
 
 
 class MapState:
-    def __init__(self, config: MappingConfig | None = None, targets: Sequence[str] = ()) -> None:
+    """One map, of one odometry session (``odom_session``: the frames it fuses are posed in it).
+
+    A frame counts once: obstacles, explored area and update counts take each frame (seq and
+    stamp) once, however often it arrives (a camera re-publishes its latest frame while the
+    robot stands still, and the decay must not grow then). A second perception result for a
+    fused frame (re-scored for targets added since) adds the values and objects of the targets
+    the frame was not fused for yet, and nothing else.
+    """
+
+    def __init__(self, config: MappingConfig | None = None, targets: Sequence[str] = (),
+                 odom_session: str = "") -> None:
         self.config = c = config or MappingConfig()
+        self.odom_session = odom_session
         half = c.grid_cells * c.resolution / 2
         self.grid = GridGeometry(c.resolution, c.center[0] - half, c.center[1] - half,
                                  c.grid_cells, c.grid_cells)
@@ -38,6 +49,8 @@ class MapState:
         self.after_action = 0  # newest RgbdFrame.after_action fused: the map's causal freshness
         # bounding box (row0, row1, col0, col1) of everything explored: frontier search stays in it
         self._bbox: tuple[int, int, int, int] | None = None
+        # (seq, stamp) of the newest fused frames -> the targets their values were fused for
+        self._fused: dict[tuple[int, float], set[str]] = {}
         for target in targets:
             self.add_layer(target)
 
@@ -58,34 +71,57 @@ class MapState:
         self.confidence.pop(target, None)
 
     # -- integration --------------------------------------------------------------------------
-    def apply(self, frame: RgbdFrame, result: PerceptionResult | None = None) -> None:
+    def apply(self, frame: RgbdFrame, result: PerceptionResult | None = None) -> bool:
         """Fuse a frame with its perception result; the layers follow the result's target list
-        (a found or removed target's layer goes, a new one starts), so no other message is needed."""
-        if result is None:
-            self.integrate(frame)
-            return
-        for target in set(self.layers) - set(result.targets):
-            self.remove_layer(target)
-        for target in result.targets:
-            self.add_layer(target)
-        self.integrate(frame, result.score_map(), result.detections())
+        (a found or removed target's layer goes, a new one starts), so no other message is needed.
+        A frame fused before adds only the values of targets it was not fused for (see the class).
+        Whether anything was fused."""
+        scores, detections = None, []
+        if result is not None:
+            for target in set(self.layers) - set(result.targets):
+                self.remove_layer(target)
+            for target in result.targets:
+                self.add_layer(target)
+            scores, detections = result.score_map(), result.detections()
+        fused = self._fused.get((frame.seq, frame.stamp))
+        if fused is None:
+            self.integrate(frame, scores, detections)
+            return True
+        new = {t: s for t, s in (scores or {}).items() if t not in fused}
+        if new:
+            window, _, confidence = self._confidence(self._project(frame))
+            self._fuse_evidence(frame, window, confidence, new, [d for d in detections if d.label in new])
+            fused.update(new)
+        return bool(new)
+
+    def has_fused(self, frame: RgbdFrame) -> bool:
+        """Whether ``frame`` (its seq and stamp) is one of the newest ``remember_frames`` fused."""
+        return (frame.seq, frame.stamp) in self._fused
 
     def integrate(self, frame: RgbdFrame, scores: Mapping[str, float] | None = None,
                   detections: Sequence[Detection] = ()) -> None:
-        """Fuse one frame: obstacles and explored area always; values and objects when given."""
-        c = self.config
-        view = project(frame, c.pixel_stride, (c.depth_min, c.depth_max),
-                       (c.min_obstacle_height, c.max_obstacle_height))
+        """Fuse one frame: obstacles, explored area and update counts always; values and objects
+        when given."""
+        view = self._project(frame)
         self._mark_obstacles(view)
-        window, seen, theta = self._view_cells(view)
+        window, seen, confidence = self._confidence(view)
         if window is not None:
             rows, cols = window
             self.explored[rows, cols] |= seen
             self._grow_bbox(rows, cols)
-            confidence = np.where(seen, fov_confidence(theta, view.hfov), 0.0).astype(np.float32)
-            confidence[confidence < c.confidence_floor] = 0.0
-            counted = confidence > 0
-            self.counts[rows, cols] += counted.astype(np.uint16)
+            self.counts[rows, cols] += (confidence > 0).astype(np.uint16)
+        self._fuse_evidence(frame, window, confidence, scores, detections)
+        self.seq = max(self.seq, frame.seq)
+        self.after_action = max(self.after_action, frame.after_action)
+        self._fused[(frame.seq, frame.stamp)] = set(scores or ())
+        for key in list(self._fused)[:max(0, len(self._fused) - self.config.remember_frames)]:
+            del self._fused[key]
+
+    def _fuse_evidence(self, frame: RgbdFrame, window: tuple[slice, slice] | None, confidence: np.ndarray,
+                       scores: Mapping[str, float] | None, detections: Sequence[Detection]) -> None:
+        """The value layers and objects of ``scores``' targets from one frame."""
+        if window is not None:
+            rows, cols = window
             for target, score in (scores or {}).items():
                 if target in self.values:
                     v, conf = self.values[target][rows, cols], self.confidence[target][rows, cols]
@@ -95,8 +131,19 @@ class MapState:
             self.objects.observe(frame, [t for t in scores if t in self.values])
         if detections:
             self.objects.add([d for d in detections if d.label in self.values], frame)
-        self.seq = max(self.seq, frame.seq)
-        self.after_action = max(self.after_action, frame.after_action)
+
+    def _project(self, frame: RgbdFrame) -> View:
+        c = self.config
+        return project(frame, c.pixel_stride, (c.depth_min, c.depth_max),
+                       (c.min_obstacle_height, c.max_obstacle_height))
+
+    def _confidence(self, view: View) -> tuple[tuple[slice, slice] | None, np.ndarray, np.ndarray]:
+        """The window of cells around the view, which of them it covers, and each cell's FOV
+        confidence (0 outside the view or below the floor: not counted, no value)."""
+        window, seen, theta = self._view_cells(view)
+        confidence = np.where(seen, fov_confidence(theta, view.hfov), 0.0).astype(np.float32)
+        confidence[confidence < self.config.confidence_floor] = 0.0
+        return window, seen, confidence
 
     def _grow_bbox(self, rows: slice, cols: slice) -> None:
         box = (rows.start, rows.stop, cols.start, cols.stop)
@@ -171,7 +218,8 @@ class MapState:
 
         values = stacked(self.values)
         confidence = stacked(self.confidence) if with_confidence else None
-        return MapSnapshot(seq=self.seq, after_action=self.after_action, stamp=stamp,
+        return MapSnapshot(seq=self.seq, after_action=self.after_action, odom_session=self.odom_session,
+                           stamp=stamp,
                            resolution=self.grid.resolution, origin=(self.grid.x0, self.grid.y0),
                            layers=layers, objects=self.objects.instances(),
                            obstacle=self.obstacle.copy(), explored=self.explored.copy(),
@@ -181,7 +229,7 @@ class MapState:
     @classmethod
     def from_snapshot(cls, snapshot: MapSnapshot, config: MappingConfig) -> MapState:
         """Resume from a snapshot (a checkpoint); it must fit the configured grid."""
-        state = cls(config)
+        state = cls(config, odom_session=snapshot.odom_session)
         if (snapshot.obstacle.shape != state.grid.shape or snapshot.resolution != state.grid.resolution
                 or tuple(snapshot.origin) != (state.grid.x0, state.grid.y0)):
             raise ValueError("the snapshot's grid does not match the configured grid")

@@ -22,7 +22,11 @@ Targets: ``task/current`` sets the target list, less the targets
 the same). Without a task (or once it is cancelled) there are no targets: each
 frame still gets a result, with no scores and no detections and without running
 a model. The map then fuses the frame at once instead of waiting out its match
-timeout, and drops its value layers when a task ends.
+timeout, and drops its value layers when a task ends. When the list gains a
+target (a task starts, targets are added), the latest frame this replica
+processed is scored again for the new list and gets a second result: the view
+in front of a robot standing still is not lost for the new targets (the map
+fuses only the values of targets it had not fused that frame for).
 
 A frame no backend can use (wrong size, or a camera frame sent to the sim
 backend) is rejected: counted as ``malformed`` on the frame key (as the bus
@@ -66,6 +70,8 @@ class PerceptionService(Service):
         self._found: frozenset[str] = frozenset()
         self._processed = self._rejected = 0
         self._last_seq: int | None = None
+        self._latest: RgbdFrame | None = None  # the newest frame processed: re-scored on new targets
+        self._rescored = 0
         self._last_ms: float | None = None
         self._last_rejection = ""
         self._ready: Any = None
@@ -101,7 +107,11 @@ class PerceptionService(Service):
             self._retarget()
 
     def _retarget(self) -> None:
+        before = self._targets
         self._targets = tuple(t for t in self._spec_targets if t not in self._found)
+        if self._latest is not None and set(self._targets) - set(before):
+            self._rescored += 1
+            self._process(self._latest)
 
     def _on_frame(self, frame: RgbdFrame) -> None:
         if self.replicas.owns(frame.seq):
@@ -120,8 +130,9 @@ class PerceptionService(Service):
         except FrameRejected as exc:
             self._reject(frame, str(exc))
             return
-        self.out["perception_result"].put(PerceptionResult.build(frame.seq, frame.stamp, scores, detections,
-                                                                 frame.depth.shape))
+        self.out["perception_result"].put(PerceptionResult.build(
+            frame.seq, frame.stamp, scores, detections, frame.depth.shape, frame.odom_session))
+        self._latest = frame
         self._processed += 1
         self._last_seq = frame.seq
         self._last_ms = (time.perf_counter() - start) * 1e3
@@ -139,7 +150,7 @@ class PerceptionService(Service):
         members = self.replicas.members()
         return {"backend": self.backend.name, "targets": list(self._targets),
                 "replicas": members, "replica_index": members.index(self.bus.instance),
-                "processed": self._processed, "rejected": self._rejected,
+                "processed": self._processed, "rescored": self._rescored, "rejected": self._rejected,
                 "last_rejection": self._last_rejection, "last_seq": self._last_seq,
                 "last_ms": None if self._last_ms is None else round(self._last_ms, 1)}
 

@@ -23,6 +23,12 @@ rules be tested message by message:
 * a command the driver is running that this planner did not send (it was
   restarted) is waited for, and new ids continue after it, so the driver
   never drops a new command as a duplicate of an old one;
+* one odometry session (:data:`shared.messages.OdomSession`): a decision only on a map of the
+  driver's current session, else the task waits ("map from an earlier odometry session");
+  when the driver's session changes (it restarted: odometry starts again at its initial pose,
+  wherever the robot is) the command in flight is forgotten and the search goes on with a
+  new agent (a look-around first) on the task's progress so far, since every place the old
+  agent remembers is in the old frame;
 * no new decision while the camera reports a fault (``CameraState.fault``: the map
   would stop growing), with the camera's reason as the task's;
 * nothing is sent while the driver is in fault or e-stop, or advertises primitive sizes
@@ -37,6 +43,7 @@ stamps of outgoing messages come from ``wall_clock`` (for people and logs).
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable
@@ -49,6 +56,12 @@ from services.planner.task import SearchTask, SearchTaskError
 from shared.messages import (FINAL, CameraState, DecisionTrace, DriverMode, DriverState, JsonMessage,
                              MapSnapshot, Odometry, Goal, PlanCommand, TaskEvent, TaskSpec, TaskStatus)
 from shared.motion import Pose
+
+
+log = logging.getLogger("ovamos.planner")
+
+OLD_MAP = "map from an earlier odometry session: waiting for a new map"
+"""Why the planner waits while its map is of another odometry session than the driver's."""
 
 
 class ExecutiveConfig(BaseModel):
@@ -82,6 +95,7 @@ class Executive:
         self.waiting = ""           # why no command is going out, for status and events
         self.robot_reachable = True  # False once every driver's liveliness token is gone
         self._next_id = 1
+        self._odom_session: str | None = None  # the driver's, kept while it is unreachable
         self._decided_on = -2       # snapshot seq of the last decision (free-running mode)
         self._event_due = True
         self._last_event = -math.inf
@@ -117,10 +131,22 @@ class Executive:
         self._event_due = self._event_due or bool(added or removed)
 
     def on_driver(self, state: DriverState) -> None:
-        self.driver = state
+        if self._odom_session is not None and state.odom_session != self._odom_session:
+            self._new_odom_session(state.odom_session)
+        self.driver, self._odom_session = state, state.odom_session
         newest = max(state.last_completed, state.active_action or 0)
         if newest >= self._next_id:  # ids continue after the driver's (a planner restart)
             self._next_id = newest + 1
+
+    def _new_odom_session(self, session: str) -> None:
+        """The driver restarted its odometry: nothing decided in the old frame still holds."""
+        log.warning("the driver's odometry session is now %r (was %r): the command in flight is "
+                    "dropped; the search goes on, with a look-around, on a map of the new session",
+                    session, self._odom_session)
+        self.in_flight = None
+        if self.task is not None and self.task.state is TaskStatus.SEARCHING:
+            self.agent = SearchAgent(self.task, self.config.agent)
+        self._event_due = True
 
     def on_robot_link(self, reachable: bool) -> None:
         """Whether a service driving the robot is alive (its liveliness token is seen)."""
@@ -135,7 +161,11 @@ class Executive:
         self.odom = odom
 
     def on_snapshot(self, snapshot: MapSnapshot) -> None:
-        if self.snapshot is None or snapshot.seq >= self.snapshot.seq:
+        """Keep the newest map; one of another odometry session replaces a map that is not of the
+        driver's session (a fresh map's seq starts again)."""
+        kept = self.snapshot
+        if kept is None or (snapshot.seq >= kept.seq if snapshot.odom_session == kept.odom_session
+                            else kept.odom_session != self._odom_session):
             self.snapshot = snapshot
 
     # -- what the service asks -----------------------------------------------------------------
@@ -146,7 +176,8 @@ class Executive:
         d = self.driver
         if not self.config.lock_step or d is None or self.in_flight:
             return None
-        if self.snapshot is not None and self.snapshot.has_seen_after(d.last_completed):
+        if self.snapshot is not None and self.snapshot.has_seen_after(d.last_completed) \
+                and self.snapshot.odom_session == d.odom_session:
             return None
         return d.last_completed
 
@@ -171,7 +202,7 @@ class Executive:
                          distance_m=task.distance, stamp=self._wall_clock(),
                          message=task.reason or self.waiting,
                          x=None if pose is None else pose.x, y=None if pose is None else pose.y,
-                         goal=self._goal())
+                         goal=self._goal(), odom_session="" if self.odom is None else self.odom.odom_session)
 
     def _goal(self) -> Goal | None:
         """The agent's goal while the task searches (the operator's map shows it)."""
@@ -229,6 +260,10 @@ class Executive:
         snapshot, pose = self.snapshot, self._pose()
         if snapshot is None or pose is None:
             return self._wait("waiting for the map" if snapshot is None else "waiting for odometry")
+        if snapshot.odom_session != d.odom_session:
+            return self._wait(OLD_MAP)
+        if self.odom is not None and self.odom.odom_session != d.odom_session:
+            return self._wait("waiting for odometry of the driver's odometry session")
         if self.config.lock_step:
             if not snapshot.has_seen_after(d.last_completed):
                 return self._wait(f"waiting for the map to fuse a frame taken after command "

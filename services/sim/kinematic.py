@@ -13,7 +13,7 @@ import threading
 import time
 from collections import Counter, deque
 from services.sim.robot import SimRobot
-from shared.messages import DriverMode, DriverState, Odometry, Outcome, PlanCommand
+from shared.messages import DriverMode, DriverState, Odometry, Outcome, PlanCommand, new_odom_session
 from shared.motion import ActionIds
 
 
@@ -29,6 +29,7 @@ class KinematicBase:
         self._primitives = robot.config.primitives  # advertised in every state
         self._estop: str | None = None
         self._completed: tuple[int, Outcome | None] = (0, None)  # last command that ended, how
+        self.odom_session = new_odom_session()  # odometry (the true pose) starts here, once per process
         self._odom_seq = 0
 
     def submit(self, command: PlanCommand) -> str:
@@ -73,8 +74,8 @@ class KinematicBase:
             mode = (DriverMode.ESTOP if self._estop else DriverMode.MOVING if self._pending
                     else DriverMode.READY)
             action_id, outcome = self._completed
-            return DriverState(stamp=time.time(), mode=mode, faults=(self._estop,) if self._estop else (),
-                               estop_latched=self._estop is not None,
+            return DriverState(stamp=time.time(), mode=mode, odom_session=self.odom_session,
+                               faults=(self._estop,) if self._estop else (), estop_latched=self._estop is not None,
                                active_action=self._pending[0].action_id if self._pending else None,
                                last_completed=action_id, last_outcome=outcome,
                                primitives=self._primitives)
@@ -84,8 +85,8 @@ class KinematicBase:
         with self._lock:
             p = self.robot.pose
             self._odom_seq += 1
-            return Odometry(seq=self._odom_seq, stamp=time.time(), x=p.x, y=p.y, yaw=p.yaw,
-                            after_action=self._completed[0])
+            return Odometry(seq=self._odom_seq, stamp=time.time(), odom_session=self.odom_session,
+                            x=p.x, y=p.y, yaw=p.yaw, after_action=self._completed[0])
 
     def info(self) -> dict[str, object]:
         with self._lock:

@@ -225,9 +225,10 @@ class SceneRenderer:
         return out
 
     def render(self, x: float, y: float, yaw: float, *, seq: int = 0, stamp: float = 0.0,
-               after_action: int = 0) -> RgbdFrame:
+               after_action: int = 0, odom_session: str = "") -> RgbdFrame:
         """The frame a level camera at (x, y, ``CAMERA_HEIGHT_M``) sees looking along ``yaw``
-        (``after_action``: the last command completed before it, see :class:`RgbdFrame`)."""
+        (``after_action``: the last command completed before it; ``odom_session``: the base's,
+        see :class:`RgbdFrame`)."""
         if self._con is None:
             raise RuntimeError("render() after close()")
         mj = self._mj
@@ -259,8 +260,8 @@ class SceneRenderer:
         np.left_shift(seg[..., 2], 16, out=tmp, dtype=np.int32)
         code |= tmp
         np.take(self._segment_lut(), code, out=arrays["instance_ids"], mode="clip")
-        return RgbdFrame(seq=seq, stamp=stamp, after_action=after_action, intrinsics=self.intrinsics,
-                         camera_pose=camera_pose(x, y, yaw), **arrays)
+        return RgbdFrame(seq=seq, stamp=stamp, after_action=after_action, odom_session=odom_session,
+                         intrinsics=self.intrinsics, camera_pose=camera_pose(x, y, yaw), **arrays)
 
     # -- lifetime ----------------------------------------------------------------------------
 

@@ -18,7 +18,8 @@ perception backend reads).
   real pyserial / dynamixel-sdk client on a pseudo-terminal against a simulated
   Kobuki / OpenCR board; the robot takes that base's wheels and track.
 
-Every frame carries ``after_action``, the last command completed when it was
+Every frame carries the base's odometry session (a restarted sim starts a new
+one, its robot back at the start pose) and ``after_action``, the last command completed when it was
 rendered (the state is read *before* the frame is rendered, so a frame never
 claims a completion it does not show). Lock-step (default): after each
 completed command one frame is rendered and published, so the planner's wait
@@ -135,7 +136,7 @@ class SimRobotService(BaseDriverService):
     def _render(self, after_action: int) -> RgbdFrame:
         p = self._pose()
         frame = self.renderer.render(p.x, p.y, p.yaw, seq=self._next_seq, stamp=time.time(),
-                                     after_action=after_action)
+                                     after_action=after_action, odom_session=self.base.odom_session)
         self._next_seq += 1
         return frame
 

@@ -504,7 +504,8 @@ async function loadMap() {
     state.lastMap = view;
     drawMap();
     const steps = state.views.get(view.task_id);
-    $("map-status").textContent = `map of frame ${view.seq}` + (steps ? `, step ${steps.steps}` : "");
+    $("map-status").textContent = `map of frame ${view.seq}` + (steps ? `, step ${steps.steps}` : "") +
+      (view.odom_session ? `, odometry session ${view.odom_session}` : "");
   } finally {
     state.mapBusy = false;
   }
