@@ -182,6 +182,15 @@ def test_a_new_odometry_session_starts_a_fresh_map_and_keeps_the_old_one(service
     assert new.seq == -1 and not new.explored.any()
     kept = load_checkpoint(tmp_path / "map.A.ckpt", service[1])
     assert kept.seq == 2 and np.array_equal(kept.explored, old.explored)
+    # a restarted driver's first frame may come before its first odometry: a new session too
+    newer = wait_for(lambda: pub_f.put(in_session(frames[1], "C")) or (s := query_snapshot(client))
+                     and s.odom_session == "C" and s.seq == 1 and s, what="session C's first frame")
+    pub_o.put(odometry("B"))  # late, of a session left behind: changes nothing
+    pub_f.put(in_session(frames[4], "A"))
+    wait_for(lambda: mapping_info(client)["other_session_dropped"].get("frame", 0) >= 1,
+             what="session A's frame dropped and counted")
+    assert query_snapshot(client).odom_session == "C" and np.array_equal(query_snapshot(client).explored,
+                                                                         newer.explored)
 
 
 def test_a_re_published_frame_and_a_re_scored_result_add_no_update_counts(service, sender, client,

@@ -16,9 +16,8 @@ from ovamos.demo import DEMO_EPISODE, DEMO_SEED, demo_entries, write_configs
 from ovamos.supervisor import Backoff, Supervisor, port_open
 from services.gateway.client import GatewayClient, GatewayError
 from services.gateway.models import TaskView
-from services.mapping.checkpoint import load_checkpoint
-from services.mapping.config import MappingConfig
 from services.sim.episodes import make_episode
+from shared.messages import MapSnapshot
 from shared.procs import free_port, kill
 from tests.polling import wait_for
 
@@ -104,8 +103,8 @@ def test_a_killed_robot_starts_a_new_odometry_session_the_map_starts_again_and_t
     logs = system.supervisor.status()[0].log_path.parent
     assert f"odometry session {final.odom_session!r}: a fresh map" in (logs / "mapping.log").read_text()
     assert f"odometry session is now {final.odom_session!r}" in (logs / "planner.log").read_text()
-    kept = load_checkpoint(tmp_path / "config" / f"map.{before[0]}.ckpt", MappingConfig())
-    assert kept.odom_session == before[0] and kept.seq > 0
+    kept = MapSnapshot.from_bytes((tmp_path / "config" / f"map.{before[0]}.ckpt").read_bytes())
+    assert kept.odom_session == before[0] and kept.seq > 0 and kept.explored.any()
 
 
 def test_a_killed_router_comes_back_and_the_services_reconnect_without_restarts(system) -> None:

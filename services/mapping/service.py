@@ -10,15 +10,16 @@ still) is not fused again, and a second result for a fused frame (perception
 re-scores its latest frame when targets are added) adds only the values of the
 targets the frame was not fused for; the newest fused frames are kept for that.
 
-One map per odometry session. The driver's current session is that of the
-newest odometry (until odometry comes, that of the first frame: a replay of
-frames alone). A new session starts a fresh map: the map of the earlier one is
-kept on disk beside the checkpoint under its session id
+One map per odometry session. The driver's current session is the newest one
+seen, on odometry or on a frame (a restarted driver's first frame may come
+before its first odometry; a session id is never used twice, so one not seen
+before is a new start). A new session starts a fresh map: the map of the
+earlier one is kept on disk beside the checkpoint under its session id
 (:func:`~services.mapping.checkpoint.session_path`) and never fused into again,
-and frames and results of another session are dropped and counted. The
+and frames and results of a session left behind are dropped and counted. The
 checkpoint found at start is held until the current session is known and
 resumed only when it is that session's (a mapping service restarted while the
-driver runs); else it is kept under its session id.
+driver runs); else it is kept under its session id, a session left behind.
 
 Everything runs on the service's one thread (fusing, snapshots for the
 periodic put and for queries, checkpoints), so the map needs no lock and a
@@ -70,6 +71,7 @@ class MappingService(Service):
         self._changed = True
         self._last_checkpoint = time.monotonic()
         self._session: str | None = None   # the driver's current odometry session, once known
+        self._left: set[str] = set()        # sessions that were current, or the held checkpoint's
         self._held = self._load_checkpoint()  # resumed once the session is known to be its own
         self.state = MapState(config)
         self.other_session: Counter[str] = Counter()  # frames / results of another session: dropped
@@ -90,13 +92,16 @@ class MappingService(Service):
 
     # -- the odometry session --------------------------------------------------------------------
     def _on_odom(self, odom: Odometry) -> None:
-        self._follow(odom.odom_session)
+        if odom.odom_session not in self._left:
+            self._follow(odom.odom_session)
 
     def _follow(self, session: str) -> None:
         """Make ``session`` the current one, with its own map: the held checkpoint when it is that
         session's, else a fresh map (a map of another session is kept on disk, see the module)."""
         if session == self._session:
             return
+        if self._session is not None:
+            self._left.add(self._session)
         self._session, held, self._held = session, self._held, None
         self._frames = {s: p for s, p in self._frames.items() if p[0].odom_session == session}
         self._results = {s: r for s, r in self._results.items() if r.odom_session == session}
@@ -106,6 +111,7 @@ class MappingService(Service):
                           self.config.checkpoint_path, session, held.seq)
             return
         if held is not None:
+            self._left.add(held.odom_session)
             self._keep(held, "the checkpoint's map")
         if self.state.odom_session != session:
             if self.state.seq >= 0:
@@ -126,8 +132,9 @@ class MappingService(Service):
         self.log.warning("%s of odometry session %r is not fused into any more: the odometry session "
                          "is now %r; kept as %s", what, state.odom_session, self._session, kept)
 
-    def _of_another_session(self, kind: str, seq: int, session: str) -> bool:
-        if session == self._session:
+    def _left_behind(self, kind: str, seq: int, session: str) -> bool:
+        """Whether a frame or result is of a session left behind (then it is counted)."""
+        if session not in self._left:
             return False
         self.other_session[kind] += 1
         if sampled(self.other_session[kind]):
@@ -137,10 +144,9 @@ class MappingService(Service):
 
     # -- inputs --------------------------------------------------------------------------------
     def _on_frame(self, frame: RgbdFrame) -> None:
-        if self._session is None:
-            self._follow(frame.odom_session)  # no odometry (yet): a replay of frames alone
-        if self._of_another_session("frame", frame.seq, frame.odom_session):
+        if self._left_behind("frame", frame.seq, frame.odom_session):
             return
+        self._follow(frame.odom_session)  # a new one: before its odometry, or frames replayed alone
         if self.state.has_fused(frame):
             self.repeated += 1  # re-published: its result, if one comes again, is matched below
             return
@@ -152,10 +158,13 @@ class MappingService(Service):
         self._fuse(frame, result)
 
     def _on_result(self, result: PerceptionResult) -> None:
-        if self._session is not None and self._of_another_session("result", result.seq, result.odom_session):
+        if self._left_behind("result", result.seq, result.odom_session):
             return
         pending = self._frames.pop(result.seq, None)
         fused = self._fused.get(result.seq)
+        if pending is not None and pending[0].odom_session != result.odom_session:
+            self._frames[result.seq] = pending  # of a newer session: its frame has yet to come
+            pending = None
         if pending is not None:
             self._fuse(pending[0], result)
         elif fused is not None and fused.stamp == result.stamp:
