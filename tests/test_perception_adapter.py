@@ -73,7 +73,9 @@ def test_results_follow_the_task_and_bad_frames_are_counted(frames, backend) -> 
     robot.tasks.put(task)
     robot.frames.put(frames[1])
     network.pump()
-    result = robot.results[-1]
+    # the task re-scores the latest frame (the robot's view when it starts), then the next frame
+    rescored, result = robot.results[-2:]
+    assert rescored.seq == 0 and rescored.score_map() == backend.score(frames[0], task.targets)
     assert result.seq == 1 and result.score_map() == backend.score(frames[1], task.targets)
     expected = backend.detect(frames[1], task.targets)
     assert result.labels == tuple(d.label for d in expected)
@@ -102,7 +104,7 @@ def test_results_follow_the_task_and_bad_frames_are_counted(frames, backend) -> 
     assert service.bus.counters.snapshot()[FRAME_KEY].malformed == 2
     info = service.info()
     assert info["rejected"] == 1 and "8x8" in info["last_rejection"]
-    assert info["processed"] == 4 and info["last_seq"] == 3
+    assert info["processed"] == 5 and info["rescored"] == 1 and info["last_seq"] == 3
 
     # a cancelled task: results without targets again
     robot.tasks.put(task.model_copy(update={"cancelled": True}))
