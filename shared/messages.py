@@ -28,7 +28,8 @@ from shared.detections import Detection
 from shared.motion import Action
 from shared.robot import Primitives
 
-__all__ = ["DecodeError", "OdomSession", "new_odom_session", "JsonMessage", "BinaryMessage", "ArraySpec", "Intrinsics", "RgbdFrame",
+__all__ = ["DecodeError", "OdomSession", "new_odom_session", "JsonMessage", "BinaryMessage", "ArraySpec",
+           "Intrinsics", "RgbdFrame",
            "MapSnapshot", "ObjectInstance", "PerceptionResult", "CounterSet", "ServiceStats", "CameraState", "Odometry", "PlanCommand", "DriverMode",
            "Outcome", "DriverState", "EStop", "TaskSpec", "TaskStatus", "FINAL", "FoundObject",
            "Goal", "TaskEvent", "TraceOption", "DecisionTrace"]

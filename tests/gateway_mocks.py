@@ -96,7 +96,8 @@ def small_map() -> MapSnapshot:
     obstacle[20, 5:30] = True
     values = np.zeros((1, 40, 40), np.float32)
     values[0, 25:30, 10:15] = 0.8
-    return MapSnapshot(seq=3, odom_session=ODOM_SESSION, stamp=time.time(), resolution=0.05, origin=(0.0, 0.0), layers=("chair",),
+    return MapSnapshot(seq=3, odom_session=ODOM_SESSION, stamp=time.time(), resolution=0.05, origin=(0.0, 0.0),
+                       layers=("chair",),
                        objects=(ObjectInstance(label="chair", x=0.6, y=1.4, score=0.9, hits=3,
                                                confirmed=True),),
                        obstacle=obstacle, explored=explored, counts=np.ones((40, 40), np.uint16),

@@ -336,7 +336,8 @@ class CameraCore:
             self._due = self._due + period if p.capture - self._due < period else p.capture + period
         c = p.captured
         frame = RgbdFrame(seq=self._seq, stamp=p.capture_wall, after_action=p.after_action,
-                          odom_session=self._odom.session, intrinsics=c.intrinsics, camera_pose=camera_pose(pose, self._mount),
+                          odom_session=self._odom.session, intrinsics=c.intrinsics,
+                          camera_pose=camera_pose(pose, self._mount),
                           depth_scale=c.depth_scale, rgb=np.ascontiguousarray(c.rgb),
                           depth=np.ascontiguousarray(c.depth, dtype="<u2"))
         self._seq += 1

@@ -75,7 +75,8 @@ class KinematicBase:
                     else DriverMode.READY)
             action_id, outcome = self._completed
             return DriverState(stamp=time.time(), mode=mode, odom_session=self.odom_session,
-                               faults=(self._estop,) if self._estop else (), estop_latched=self._estop is not None,
+                               faults=(self._estop,) if self._estop else (),
+                               estop_latched=self._estop is not None,
                                active_action=self._pending[0].action_id if self._pending else None,
                                last_completed=action_id, last_outcome=outcome,
                                primitives=self._primitives)

@@ -19,9 +19,9 @@ perception backend reads).
   Kobuki / OpenCR board; the robot takes that base's wheels and track.
 
 Every frame carries the base's odometry session (a restarted sim starts a new
-one, its robot back at the start pose) and ``after_action``, the last command completed when it was
-rendered (the state is read *before* the frame is rendered, so a frame never
-claims a completion it does not show). Lock-step (default): after each
+one, its robot back at the start pose) and ``after_action``, the last command
+completed when it was rendered (the state is read *before* the frame is
+rendered, so a frame never claims a completion it does not show). Lock-step (default): after each
 completed command one frame is rendered and published, so the planner's wait
 for a map with ``after_action`` >= its command ends with exactly that frame.
 A frame is published at start-up too, and the latest one is re-published
