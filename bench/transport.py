@@ -4,11 +4,17 @@ Each round trip sends a frame from this process to an echo process and waits
 for a small acknowledgement. ``raw`` puts pre-encoded bytes with plain Zenoh
 calls; ``ovamos`` goes through the service layer (encode, typed publisher,
 latest-only subscription with its worker thread, validated decode, JSON ack).
-Round trips alternate between the variants so drift on the machine hits both
-alike, and start ``gap_ms`` apart as frames from a camera would: sent
-back-to-back, a round trip finds the router's and peer's threads still spinning
-from the previous one, and whichever variant does less work before its put
-gets that fast path, which a robot streaming at 10-30 Hz never sees.
+Each comes in three transports (:data:`VARIANTS`), all in the same run through the same
+router (shared memory on, as shipped): shared memory off in both clients (the
+network path, as between two hosts); on, with the frame in a buffer of the
+sender's own shared-memory provider (``+shm``: raw Zenoh's ``ShmProvider``, the
+bus's :mod:`shared.shm`); and, for raw, on with a plain put of bytes
+(``+zpool``: Zenoh's own pool for payloads over 3 KB, what a session does by default).
+Round trips alternate between the variants so drift on the machine hits all alike, and start
+``gap_ms`` apart as frames from a camera would: sent back-to-back, a round trip
+finds the router's and peer's threads still spinning from the previous one, and
+whichever variant does less work before its put gets that fast path, which a
+robot streaming at 10-30 Hz never sees.
 """
 
 from __future__ import annotations
@@ -17,9 +23,11 @@ import multiprocessing as mp
 import statistics
 import threading
 import time
+from dataclasses import dataclass
 from typing import Any
 from collections.abc import Callable
 
+import zenoh
 from rich.console import Console
 from rich.table import Table
 
@@ -28,37 +36,61 @@ from shared import keys
 from shared.bus import Bus
 from shared.messages import JsonMessage, RgbdFrame
 from shared.procs import free_port, loopback, start_cli, stop
+from shared.shm import ShmPool
 from shared.zconfig import build_config, open_session
 
-ROBOT = "bench"
-RAW_FRAME, RAW_ACK = keys.bench(ROBOT, "raw-frame"), keys.bench(ROBOT, "raw-ack")
-OVAMOS_FRAME, OVAMOS_ACK = keys.rgbd(ROBOT), keys.bench(ROBOT, "ack")
-VARIANTS = ("raw", "ovamos")
 WARMUP = 20
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One way across: ``path`` raw or ovamos; ``shm`` off, ``provider`` (the sender's own pool) or
+    ``zpool`` (shared memory on, bytes put: Zenoh copies them into its own pool)."""
+
+    name: str
+    path: str
+    shm: str
+
+    @property
+    def robot(self) -> str:
+        """A key chunk of its own, so each variant's echo hears only its frames."""
+        return "bench-" + self.name.replace("+", "-")
+
+    def config(self, endpoint: str) -> zenoh.Config:
+        cfg = build_config(connect=[endpoint])
+        cfg.insert_json5("transport/shared_memory/enabled", "false" if self.shm == "off" else "true")
+        return cfg
+
+
+VARIANTS = (Variant("raw", "raw", "off"), Variant("ovamos", "ovamos", "off"),
+            Variant("raw+shm", "raw", "provider"), Variant("ovamos+shm", "ovamos", "provider"),
+            Variant("raw+zpool", "raw", "zpool"))
+#: the ratios reported: ours over raw Zenoh on the same transport
+RATIOS = {"overhead_ratio": ("ovamos", "raw"), "shm_overhead_ratio": ("ovamos+shm", "raw+shm")}
 
 
 class Ack(JsonMessage):
     seq: int
 
 
-def _echo(variant: str, endpoint: str, stop_event: Any) -> None:
+def _echo(variant: Variant, endpoint: str, stop_event: Any) -> None:
     """Echo process: acknowledge every frame it receives."""
-    cfg = build_config(connect=[endpoint])
-    if variant == "raw":
+    cfg = variant.config(endpoint)
+    if variant.path == "raw":
         session = open_session(cfg)
-        ack = session.declare_publisher(RAW_ACK)
+        ack = session.declare_publisher(keys.bench(variant.robot, "ack"))
 
         def on_frame(sample: Any) -> None:
             ack.put(len(sample.payload.to_bytes()).to_bytes(8, "little"))
 
-        sub = session.declare_subscriber(RAW_FRAME, on_frame)
+        sub = session.declare_subscriber(keys.rgbd(variant.robot), on_frame)
         stop_event.wait()
         sub.undeclare()
         session.close()
     else:
-        with Bus.open(cfg, ROBOT, "bench-echo") as bus:
-            ack_pub = bus.publisher(OVAMOS_ACK, Ack)
-            bus.subscribe(OVAMOS_FRAME, RgbdFrame, lambda f: ack_pub.put(Ack(seq=f.seq)),
+        with Bus.open(cfg, variant.robot, "bench-echo") as bus:
+            ack_pub = bus.publisher(keys.bench(variant.robot, "ack"), Ack)
+            bus.subscribe(keys.rgbd(variant.robot), RgbdFrame, lambda f: ack_pub.put(Ack(seq=f.seq)),
                           keep=1)
             stop_event.wait()
 
@@ -92,23 +124,27 @@ class AckedSender:
 class _Pinger(AckedSender):
     """One variant of this benchmark (raw Zenoh or through the Bus)."""
 
-    def __init__(self, variant: str, endpoint: str, frame: RgbdFrame) -> None:
+    def __init__(self, variant: Variant, endpoint: str, frame: RgbdFrame) -> None:
         self.acked = threading.Event()
-        cfg = build_config(connect=[endpoint])
-        if variant == "raw":
+        cfg = variant.config(endpoint)
+        frame_key, ack_key = keys.rgbd(variant.robot), keys.bench(variant.robot, "ack")
+        if variant.path == "raw":
             self._session = open_session(cfg)
             payload = bytes(frame.to_bytes())
-            pub = self._session.declare_publisher(RAW_FRAME)
-            self._sub = self._session.declare_subscriber(RAW_ACK, lambda _s: self.acked.set())
-            self.send = lambda: pub.put(payload)  # type: ignore[method-assign]
+            pub = self._session.declare_publisher(frame_key)
+            self._sub = self._session.declare_subscriber(ack_key, lambda _s: self.acked.set())
+            if variant.shm == "provider":
+                pool = ShmPool()  # the bus's allocation and copy, without the bus
+                self.send = lambda: pub.put(pool.wrap(payload))  # type: ignore[method-assign]
+            else:
+                self.send = lambda: pub.put(payload)  # type: ignore[method-assign]
             self.close: Callable[[], None] = self._session.close
         else:
-            bus = Bus.open(cfg, ROBOT, "bench-client")
-            pub = bus.publisher(OVAMOS_FRAME, RgbdFrame)
-            bus.subscribe(OVAMOS_ACK, Ack, lambda _a: self.acked.set())
+            bus = Bus.open(cfg, variant.robot, "bench-client")
+            pub = bus.publisher(frame_key, RgbdFrame)
+            bus.subscribe(ack_key, Ack, lambda _a: self.acked.set())
             self.send = lambda: pub.put(frame)  # type: ignore[method-assign]
             self.close = bus.close
-
 
 
 def _measure(pingers: dict[str, _Pinger], frames: int, gap_s: float) -> dict[str, float]:
@@ -134,11 +170,11 @@ def run_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
     router = start_cli(["router", "--listen", endpoint, "--log-level", "WARNING"])
     echoes = [ctx.Process(target=_echo, args=(v, endpoint, stop_echo)) for v in VARIANTS]
     pingers: dict[str, _Pinger] = {}
-    medians: dict[str, list[float]] = {v: [] for v in VARIANTS}
+    medians: dict[str, list[float]] = {v.name: [] for v in VARIANTS}
     try:
         for proc in echoes:
             proc.start()
-        pingers = {v: _Pinger(v, endpoint, frame) for v in VARIANTS}
+        pingers = {v.name: _Pinger(v, endpoint, frame) for v in VARIANTS}
         for pinger in pingers.values():
             pinger.wait_ready(30.0, 0.2, "the echo process never answered")
         for run in range(runs):
@@ -156,18 +192,20 @@ def run_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
             if proc.is_alive():
                 proc.kill()
         stop(router)
-    raw, ours = (statistics.median(medians[v]) for v in VARIANTS)
-    raw_us, ours_us = round(raw * 1e6, 1), round(ours * 1e6, 1)
     size = len(frame.to_bytes())
-    return {
-        "frame_bytes": size, "frames_per_run": frames, "runs": runs, "gap_ms": gap_ms,
-        "raw_median_us": raw_us, "ovamos_median_us": ours_us,
+    result: dict[str, Any] = {"frame_bytes": size, "frames_per_run": frames, "runs": runs, "gap_ms": gap_ms}
+    for name, ms in medians.items():
+        median = statistics.median(ms)
+        prefix = name.replace("+", "_")
+        result[f"{prefix}_median_us"] = round(median * 1e6, 1)
+        result[f"{prefix}_frames_per_s"] = round(1 / median, 1)
+        result[f"{prefix}_mb_per_s"] = round(size / median / 1e6, 1)
+    for ratio, (ours, raw) in RATIOS.items():
         # From the printed medians, so a reader dividing the two table cells gets the same ratio.
-        "overhead_ratio": round(ours_us / raw_us, 3),
-        "raw_frames_per_s": round(1 / raw, 1), "ovamos_frames_per_s": round(1 / ours, 1),
-        "raw_mb_per_s": round(size / raw / 1e6, 1), "ovamos_mb_per_s": round(size / ours / 1e6, 1),
-        "run_medians_us": {v: [round(m * 1e6, 1) for m in ms] for v, ms in medians.items()},
-    }
+        result[ratio] = round(result[f"{ours.replace('+', '_')}_median_us"]
+                              / result[f"{raw.replace('+', '_')}_median_us"], 3)
+    result["run_medians_us"] = {v: [round(m * 1e6, 1) for m in ms] for v, ms in medians.items()}
+    return result
 
 
 def print_table(console: Console, result: dict[str, Any]) -> None:
@@ -176,7 +214,9 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
                         f"{result['runs']} runs x {result['frames_per_run']} frames, "
                         f"{result['gap_ms']:g} ms apart")
     for v in VARIANTS:
-        table.add_row(v, f"{result[f'{v}_median_us']:.0f}", f"{result[f'{v}_frames_per_s']:.0f}",
-                      f"{result[f'{v}_mb_per_s']:.0f}")
+        prefix = v.name.replace("+", "_")
+        table.add_row(v.name, f"{result[f'{prefix}_median_us']:.0f}", f"{result[f'{prefix}_frames_per_s']:.0f}",
+                      f"{result[f'{prefix}_mb_per_s']:.0f}")
     console.print(table)
-    console.print(f"overhead ratio (ovamos / raw): {result['overhead_ratio']:.3f}")
+    console.print(f"overhead ratio (ovamos / raw): {result['overhead_ratio']:.3f} without shared memory, "
+                  f"{result['shm_overhead_ratio']:.3f} with (ovamos+shm / raw+shm)")

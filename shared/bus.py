@@ -32,6 +32,7 @@ from shared import keys
 from shared.inbox import Inbox
 from shared.log import fields, sampled
 from shared.messages import CounterSet, DecodeError, ServiceStats
+from shared.shm import ShmPool, enabled as shm_enabled
 from shared.zconfig import open_session
 
 log = logging.getLogger("ovamos.bus")
@@ -316,7 +317,11 @@ class BusCore:
     def stats(self) -> ServiceStats:
         return ServiceStats(robot_id=self.robot_id, service=self.service, instance=self.instance,
                             pid=os.getpid(), started=self.started,
-                            counters=self.counters.snapshot(), info=self.info)
+                            counters=self.counters.snapshot(), info={**self.info, **self._transport_info()})
+
+    def _transport_info(self) -> dict[str, Any]:
+        """What the transport adds to :meth:`stats`' info (a subclass's)."""
+        return {}
 
     def close(self) -> None:
         """Undeclare everything and drop what is queued (idempotent)."""
@@ -342,12 +347,15 @@ class Bus(BusCore):
     ``dispatch="thread"`` (tools, tests, embedding programs): a thread of the bus
     takes the inbox's events. ``"caller"``: the owner takes them
     (:func:`shared.service.run_service` runs them between a service's ticks).
+    ``shm``: large payloads go out through this shared-memory pool (:mod:`shared.shm`);
+    :meth:`open` gives one when the session's config has shared memory on.
     """
 
     def __init__(self, session: zenoh.Session, robot_id: str, service: str, instance: str, *,
-                 dispatch: Literal["thread", "caller"] = "thread") -> None:
+                 dispatch: Literal["thread", "caller"] = "thread", shm: ShmPool | None = None) -> None:
         super().__init__(robot_id, service, instance)
         self.session = session
+        self.shm = shm
         self._dispatcher = (self.inbox.run_forever(f"bus:{service}/{instance}") if dispatch == "thread"
                             else None)
         # Answered on Zenoh's thread, the one exception to enqueue-only: it reads only the
@@ -362,13 +370,17 @@ class Bus(BusCore):
     def open(cls, cfg: zenoh.Config, robot_id: str, service: str, instance: str = "0", *,
              dispatch: Literal["thread", "caller"] = "thread") -> Bus:
         _check_identity(robot_id, service, instance)  # first: opening may wait for a router
-        return cls(open_session(cfg), robot_id, service, instance, dispatch=dispatch)
+        return cls(open_session(cfg), robot_id, service, instance, dispatch=dispatch,
+                   shm=ShmPool() if shm_enabled(cfg) else None)
 
     def _publish(self, key: str, block: bool = False
                  ) -> tuple[Callable[[bytes | bytearray], None], Callable[[], None]]:
         congestion = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
         pub = self.session.declare_publisher(key, congestion_control=congestion)
-        return pub.put, pub.undeclare
+        shm = self.shm
+        if shm is None:
+            return pub.put, pub.undeclare
+        return (lambda payload: pub.put(shm.wrap(payload))), pub.undeclare
 
     def _listen(self, key_expr: str, on_payload: Callable[[str, Callable[[], bytes]], None]
                 ) -> Callable[[], None]:
@@ -410,6 +422,9 @@ class Bus(BusCore):
                 on_reply(r.ok.payload.to_bytes())
 
         self.session.get(key, zenoh.handlers.Callback(reply, on_done), timeout=timeout_s)
+
+    def _transport_info(self) -> dict[str, Any]:
+        return {} if self.shm is None else self.shm.info()
 
     def get(self, key: str, msg_type: type[M], timeout_s: float = 1.0) -> M | None:
         """Ask the queryable(s) on ``key`` and wait (HTTP handlers, tools; never a service's loop):

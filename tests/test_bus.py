@@ -153,3 +153,26 @@ def test_close_waits_for_the_handler_being_run(open_bus) -> None:
     _send_until(a.publisher(keys.task_events("r1"), Note), Note(text="x"), started)
     b.close()
     assert finished.is_set()
+
+
+def test_large_payloads_go_through_shared_memory_and_small_ones_do_not(open_bus, client) -> None:
+    """A 640x480 frame is put as a buffer of the bus's own pool, which a subscriber on this host
+    receives by reference (Zenoh hands it a shared buffer); a small message is put as bytes."""
+    bus = open_bus("camera")
+    assert bus.shm is not None  # shared memory is on in Zenoh's default config
+    shared: dict[str, bool] = {}
+    sub = client.declare_subscriber("ovamos/r1/**", lambda s: shared.setdefault(
+        str(s.key_expr), s.payload.as_shm() is not None))
+    frames, notes = bus.publisher(keys.rgbd("r1"), RgbdFrame), bus.publisher(keys.bench("r1", "note"), Note)
+    wait_for(lambda: frames.put(pattern_frame(1, 0.0)) or keys.rgbd("r1") in shared, 10, "a frame arrives")
+    wait_for(lambda: notes.put(Note(text="small")) or keys.bench("r1", "note") in shared, 10, "a note arrives")
+    sub.undeclare()
+    assert shared == {keys.rgbd("r1"): True, keys.bench("r1", "note"): False}
+    assert bus.stats().info["shm_shared"] >= 1 and bus.stats().info["shm_fallbacks"] == 0
+
+
+def test_a_config_with_shared_memory_off_puts_bytes(inproc_router: str) -> None:
+    cfg = build_config(connect=[inproc_router])
+    cfg.insert_json5("transport/shared_memory/enabled", "false")
+    with Bus.open(cfg, "r1", "camera") as bus:
+        assert bus.shm is None and "shm_shared" not in bus.stats().info

@@ -104,11 +104,13 @@ def test_demo_finds_every_target_through_the_http_api_and_cleans_up(tmp_path: Pa
     assert [(f["label"], f["step"]) for f in task["found"]] == [(s.label, s.step) for s in local.stops]
 
 
-def test_transport_benchmark_reports_both_paths() -> None:
+def test_transport_benchmark_reports_both_paths_with_and_without_shared_memory() -> None:
     result = run_benchmark(frames=5, runs=1, gap_ms=1.0)
     assert result["frame_bytes"] > 640 * 480 * 7
-    assert result["raw_median_us"] > 0 and result["ovamos_median_us"] > 0
+    for path in ("raw", "ovamos", "raw_shm", "ovamos_shm", "raw_zpool"):
+        assert result[f"{path}_median_us"] > 0
     assert result["overhead_ratio"] == round(result["ovamos_median_us"] / result["raw_median_us"], 3)
+    assert result["shm_overhead_ratio"] == round(result["ovamos_shm_median_us"] / result["raw_shm_median_us"], 3)
 
 
 def test_tls_transport_benchmark_compares_the_links() -> None:
