@@ -188,12 +188,20 @@ class BusCore:
         maps): while the handler is busy, only the newest ``n`` samples wait,
         the others are dropped and counted.
         """
-        def deliver(read: Callable[[], bytes]) -> None:
+        return self.subscribe_keyed(key, msg_type, lambda _key, msg: handler(msg), keep=keep)
+
+    def subscribe_keyed(self, key_expr: str, msg_type: type[M], handler: Callable[[str, M], None], *,
+                        keep: int = 0) -> Subscription:
+        """:meth:`subscribe`, for a key expression that may match many keys (``ovamos/*/sensors/rgbd``):
+        ``handler(key, msg)`` gets each message with its key, and ``keep=n`` keeps the newest ``n``
+        of each key (each robot's), not of all of them together."""
+        def deliver(sample: tuple[str, Callable[[], bytes]]) -> None:
+            key, read = sample
             msg = self.decode(key, msg_type, read())
             if msg is not None:
-                handler(msg)
+                handler(key, msg)
 
-        return self._subscribe(key, self._guard(deliver, key), keep)
+        return self._subscribe(key_expr, self._guard(deliver, key_expr), keep)
 
     def subscribe_raw(self, key_expr: str, handler: Callable[[str, bytes], None]) -> Subscription:
         """Deliver every payload under ``key_expr`` undecoded, with its key (monitoring tools)."""
@@ -225,14 +233,12 @@ class BusCore:
         self._declared.append(sub)
         return sub
 
-    def _subscribe(self, key_expr: str, deliver: Callable[[Callable[[], bytes]], None], keep: int
+    def _subscribe(self, key_expr: str, deliver: Callable[[tuple[str, Callable[[], bytes]]], None], keep: int
                    ) -> Subscription:
-        def dropped() -> None:
-            self.counters.bump(key_expr, "dropped")
-
         def on_payload(key: str, read: Callable[[], bytes]) -> None:
             self.counters.bump(key, "received")
-            self.inbox.put(deliver, read, channel=key_expr, keep=keep, on_drop=dropped)
+            self.inbox.put(deliver, (key, read), channel=key, keep=keep,
+                           on_drop=lambda: self.counters.bump(key, "dropped"))
 
         sub = Subscription(self._listen(key_expr, on_payload))
         self._declared.append(sub)

@@ -118,6 +118,14 @@ def robot_all(robot_id: str) -> str:
     return f"{_robot(robot_id)}/**"
 
 
+def robot_of(key: str) -> str:
+    """The robot id of one of our keys (``ovamos/<robot_id>/...``)."""
+    parts = str(key).split("/")
+    if len(parts) < 3 or parts[0] != ROOT:
+        raise KeyExprError(f"not an ovamos key: {key!r}")
+    return parts[1]
+
+
 class ServiceKey(NamedTuple):
     robot_id: str
     service: str

@@ -18,14 +18,15 @@ import signal
 import threading
 import time
 from pathlib import Path
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, ClassVar
 
 import zenoh
 
 from shared.bus import Bus, BusCore, Publisher
 from shared.config import ServiceConfig, ServiceConfigError, read_config
-from shared.topology import TOPOLOGY
+from shared import keys
+from shared.topology import TOPOLOGY, Node
 
 __all__ = ["Service", "ServiceConfig", "ServiceConfigError", "load_config", "run_loop", "run_service"]
 
@@ -59,11 +60,7 @@ class Service:
         declared keep-latest depth (a config setting); ``answers`` serves the
         declared queryables.
         """
-        node = TOPOLOGY[self.name]
-        declared = {p.name for p in node.inputs}
-        if set(handlers) != declared:
-            raise ValueError(f"{self.name}: handlers for {sorted(handlers)} but the topology declares "
-                             f"inputs {sorted(declared)}")
+        node = self._declared_inputs(handlers)
         if set(answers or {}) != {p.name for p in node.answers}:
             raise ValueError(f"{self.name}: answers {sorted(answers or {})} but the topology declares "
                              f"{sorted(p.name for p in node.answers)}")
@@ -78,6 +75,37 @@ class Service:
                 self.bus.subscribe_raw(port.key(robot), handlers[port.name])
             else:
                 self.bus.subscribe(port.key(robot), port.message, handlers[port.name], keep=depth)
+
+    def wire_robots(self, robots: Sequence[str], handlers: dict[str, Callable[[str, Any], None]], *,
+                    keep: dict[str, int] | None = None) -> None:
+        """:meth:`wire` for a service that serves several robots (``robots``; ``["*"]``: every
+        robot): ``handlers[name](robot_id, msg)`` gets each robot's inputs, and ``keep`` applies per
+        robot. Outputs go to each robot's own key through :meth:`output`."""
+        node = self._declared_inputs(handlers)
+        for robot in robots:
+            for port in node.inputs:
+                handler = handlers[port.name]
+                self.bus.subscribe_keyed(port.key(robot), port.message,
+                                         lambda key, msg, handler=handler: handler(keys.robot_of(key), msg),
+                                         keep=(keep or {}).get(port.name, port.keep))
+
+    def output(self, name: str, robot_id: str) -> Publisher[Any]:
+        """The publisher of declared output ``name`` on ``robot_id``'s key (declared on first use)."""
+        entry = f"{name}@{robot_id}"
+        if entry not in self.out:
+            port = TOPOLOGY[self.name].port("outputs", name)
+            self.out[entry] = self.bus.publisher(port.key(robot_id), port.message)
+        return self.out[entry]
+
+    def _declared_inputs(self, handlers: dict[str, Any]) -> Node:
+        """This service's node, once ``handlers`` cover its declared inputs exactly (a service cannot
+        listen to a key the graph does not show)."""
+        node = TOPOLOGY[self.name]
+        declared = {p.name for p in node.inputs}
+        if set(handlers) != declared:
+            raise ValueError(f"{self.name}: handlers for {sorted(handlers)} but the topology declares "
+                             f"inputs {sorted(declared)}")
+        return node
 
     def tick(self) -> None:
         """Periodic work, called ``tick_hz`` times a second on the service's thread."""

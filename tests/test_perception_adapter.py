@@ -87,7 +87,7 @@ def test_results_follow_the_task_and_bad_frames_are_counted(frames, backend) -> 
     robot.frames.put(frames[2])
     network.pump()
     assert robot.results[-1].seq == 2 and robot.results[-1].targets == ("cup",)
-    assert service.info()["targets"] == ["cup"]
+    assert service.info()["targets"] == {"r1": ["cup"]}
 
     # an undecodable payload (not a frame at all) and a frame too small for the models
     wrong = network.bus(ROBOT, "confused").publisher(FRAME_KEY, TaskSpec)
@@ -126,7 +126,7 @@ def test_a_busy_service_keeps_its_newest_frame_and_every_task_message(frames, ba
     network.pump()
     assert [r.seq for r in robot.results] == [12]
     assert service.bus.counters.snapshot()[FRAME_KEY].dropped == 2
-    assert service.info()["targets"] == ["fridge"]  # the event was not dropped
+    assert service.info()["targets"] == {"r1": ["fridge"]}  # the event was not dropped
 
 
 def test_replicas_share_the_frames_and_take_over_when_one_stops(frames, backend) -> None:

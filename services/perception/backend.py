@@ -1,20 +1,45 @@
 """The one interface every perception backend implements, and the factory that picks one.
 
-The service only ever calls :meth:`PerceptionBackend.score` and
-:meth:`PerceptionBackend.detect`, so the simulator's backend and the real
-models are interchangeable by config, and benchmarks time exactly what the
-service runs. A backend raises :class:`~.errors.FrameRejected` for a frame it
-cannot use and :class:`~.errors.BackendError` when it cannot start.
+The service only ever calls :meth:`PerceptionBackend.process` (a batch of
+frames, each from its robot with that robot's targets), so the simulator's
+backend and the real models are interchangeable by config, and benchmarks time
+exactly what the service runs. :meth:`PerceptionBackend.score` and
+:meth:`PerceptionBackend.detect` are the same for one frame. A backend raises
+:class:`~.errors.FrameRejected` for a frame it cannot use (in a batch: that
+job's outcome, the others go on) and :class:`~.errors.BackendError` when it
+cannot start.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 from services.perception.config import PerceptionServiceConfig
+from services.perception.errors import FrameRejected
 from shared.detections import Detection
 from shared.messages import RgbdFrame
+
+
+@dataclass(frozen=True)
+class Job:
+    """One frame to look at: from which robot, for that robot's targets."""
+
+    robot_id: str
+    frame: RgbdFrame
+    targets: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Seen:
+    """What a backend made of one job's frame."""
+
+    scores: dict[str, float]
+    detections: list[Detection] = field(default_factory=list)
+
+
+Outcome = Seen | FrameRejected
 
 
 @runtime_checkable
@@ -28,6 +53,11 @@ class PerceptionBackend(Protocol):
 
     def detect(self, frame: RgbdFrame, targets: Sequence[str]) -> list[Detection]:
         """Detections of the targets; boxes end-exclusive in pixels, masks of the image's size."""
+        ...
+
+    def process(self, jobs: Sequence[Job], detect: bool) -> list[Outcome]:
+        """Each job's outcome, in the jobs' order (detections only when ``detect``); the models
+        see the frames together as far as they can."""
         ...
 
 

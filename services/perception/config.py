@@ -5,23 +5,31 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from services.sim.perception import SimPerceptionConfig
 from shared.config import ServiceConfig, StrictModel
+from shared.keys import check_chunk
 
 
-class SimBackendConfig(StrictModel):
-    """Where the simulated perception gets its scene: a scene file, else an episode's scene.
+class SceneChoice(StrictModel):
+    """A simulated robot's scene: a scene file, else an episode's scene.
 
-    The scene must be the one the simulated robot renders (same file, or the
-    same episode seed and index), since the backend reads the classes of the
+    It must be the one the simulated robot renders (same file, or the same
+    episode seed and index), since the backend reads the classes of the
     instance ids it sees from it.
     """
 
     scene_file: Path | None = None
     episode_seed: int = 0
     episode_index: int = Field(default=0, ge=0)
+
+
+class SimBackendConfig(SceneChoice):
+    """The simulated perception: the scene of every robot not in ``robots`` (a fleet of simulated
+    robots, each in its own home, names each robot's)."""
+
+    robots: dict[str, SceneChoice] = Field(default_factory=dict, description="robot id -> its scene")
     perception: SimPerceptionConfig = SimPerceptionConfig()
 
 
@@ -58,6 +66,15 @@ class FrameLimits(StrictModel):
 
 
 class PerceptionServiceConfig(ServiceConfig):
+    robots: list[str] = Field(
+        default_factory=list,
+        description="robots whose frames this service serves; empty: its own (--robot-id); "
+                    "[\"*\"]: every robot on the network (ovamos/*/sensors/rgbd)")
+    batch_size: int = Field(default=1, ge=1, le=64,
+                            description="frames (of different robots) per model call, at most")
+    batch_wait_ms: float = Field(
+        default=0.0, ge=0, le=1000,
+        description="how long a waiting frame may wait for other robots' frames to fill a batch")
     backend: Literal["sim", "hf"] = "sim"
     sim: SimBackendConfig = SimBackendConfig()
     hf: HfBackendConfig = HfBackendConfig()
@@ -65,5 +82,17 @@ class PerceptionServiceConfig(ServiceConfig):
     detect: bool = Field(default=True, description="run detection (object map) besides scoring")
     queue_frames: int = Field(
         default=1, ge=1, le=256,
-        description="owned frames waiting for the backend; 1 = latest only (a newer frame replaces "
-                    "the waiting one, counted as dropped)")
+        description="frames per robot waiting in the inbox while the backend works; 1 = latest "
+                    "only (a newer frame replaces the waiting one, counted as dropped)")
+
+    @field_validator("robots")
+    @classmethod
+    def _robot_ids(cls, robots: list[str]) -> list[str]:
+        if "*" in robots and robots != ["*"]:
+            raise ValueError('"*" (every robot) stands alone')
+        for robot in robots:
+            if robot != "*":
+                check_chunk(robot, "robot id")
+        if len(set(robots)) != len(robots):
+            raise ValueError("a robot is named twice")
+        return robots

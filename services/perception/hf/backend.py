@@ -4,10 +4,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
+
+from services.perception.backend import Job, Outcome, Seen
 from services.perception.config import HfBackendConfig
 from services.perception.hf.loading import (DETECTOR, ITM, SEGMENTER, Loaded, ModelFilesError, Placement,
                                             load_model, model_type)
-from services.perception.hf.models import GroundingDetector, ItmScorer, SamSegmenter
+from services.perception.hf.models import Box, GroundingDetector, ItmScorer, SamSegmenter
 from shared.detections import Detection
 from shared.messages import RgbdFrame
 
@@ -47,6 +50,16 @@ class HfBackend:
         return self.scorer(frame.rgb, targets)
 
     def detect(self, frame: RgbdFrame, targets: Sequence[str]) -> list[Detection]:
-        boxes = self.detector(frame.rgb, targets)
-        masks = self.segmenter(frame.rgb, [b.box for b in boxes])
+        return self._masked(frame.rgb, self.detector(frame.rgb, targets))
+
+    def _masked(self, rgb: np.ndarray, boxes: list[Box]) -> list[Detection]:
+        masks = self.segmenter(rgb, [b.box for b in boxes])
         return [Detection(b.label, b.score, b.box, m) for b, m in zip(boxes, masks)]
+
+    def process(self, jobs: Sequence[Job], detect: bool) -> list[Outcome]:
+        """Scores of every frame in one ITM pass and boxes in one GroundingDINO pass; masks per
+        frame (SAM prompts each image with its own boxes, a different number per frame)."""
+        images, targets = [j.frame.rgb for j in jobs], [j.targets for j in jobs]
+        scores = self.scorer.batch(images, targets)
+        boxes = self.detector.batch(images, targets) if detect else [[] for _ in jobs]
+        return [Seen(s, self._masked(rgb, b) if b else []) for s, rgb, b in zip(scores, images, boxes)]

@@ -2,8 +2,10 @@
 
 Each stage takes an RGB image (H x W x 3 uint8) and runs one batched forward
 pass: all targets at once for scoring and detection, all boxes at once for
-masks. They hold a loaded model and its processor and know nothing of frames
-or Zenoh.
+masks. Scoring and detection also take several images, each with its own
+targets (frames of several robots), in one forward pass (:meth:`ItmScorer.batch`,
+:meth:`GroundingDetector.batch`). They hold a loaded model and its processor and
+know nothing of frames or Zenoh.
 """
 
 from __future__ import annotations
@@ -44,20 +46,35 @@ class ItmScorer:
         self.loaded, self.placement, self.prompt, self.mode = loaded, placement, prompt, mode
 
     def __call__(self, rgb: np.ndarray, targets: Sequence[str]) -> dict[str, float]:
-        if not targets:
-            return {}
+        return self.batch([rgb], [targets])[0]
+
+    def batch(self, images: Sequence[np.ndarray], targets: Sequence[Sequence[str]]) -> list[dict[str, float]]:
+        """Scores of each image's own targets, all images in one forward pass.
+
+        ``itc``: every image against the union of the prompts (one text pass, cosines of every
+        pair, each image reads its own); ``itm``: one (image, prompt) pair per target of each image.
+        """
+        pairs = [(i, t) for i, image_targets in enumerate(targets) for t in image_targets]
+        if not pairs:
+            return [{} for _ in images]
         torch, _ = torch_and_transformers()
         flag, field = self._API[self.loaded.model_type]
-        texts = [self.prompt.format(target=t) for t in targets]
-        batch = _to(self.loaded.processor(images=rgb, text=texts, return_tensors="pt", padding=True),
-                    self.placement)
         itm = self.mode == "itm"
+        texts = [self.prompt.format(target=t) for _, t in pairs] if itm else \
+            list(dict.fromkeys(self.prompt.format(target=t) for _, t in pairs))
+        batch = _to(self.loaded.processor(images=list(images), text=texts, return_tensors="pt", padding=True),
+                    self.placement)
         if itm:
-            batch["pixel_values"] = batch["pixel_values"].expand(len(texts), -1, -1, -1)
+            batch["pixel_values"] = batch["pixel_values"][[i for i, _ in pairs]]
         with torch.inference_mode():
             out = getattr(self.loaded.model(**batch, **{flag: itm}), field).float()
-        values = out.softmax(dim=-1)[:, 1] if itm else out[0]
-        return {t: float(v) for t, v in zip(targets, values.cpu().tolist())}
+        out = out.cpu()
+        scores: list[dict[str, float]] = [{} for _ in images]
+        column = {text: j for j, text in enumerate(texts)}
+        for n, (i, t) in enumerate(pairs):
+            scores[i][t] = float(out.softmax(dim=-1)[n, 1]) if itm else \
+                float(out[i, column[self.prompt.format(target=t)]])
+        return scores
 
 
 @dataclass(frozen=True)
@@ -104,8 +121,10 @@ class GroundingDetector:
         self.max_detections = max_detections
 
     def _target_tokens(self, text: str, spans: list[tuple[int, int]], input_ids: Any) -> list[list[int]]:
+        """Each target's token positions in ``input_ids`` (one caption's row of the batch; a shorter
+        caption than the batch's longest is padded after its own tokens)."""
         encoded = self.loaded.processor.tokenizer(text, return_offsets_mapping=True)
-        if list(encoded["input_ids"]) != input_ids[0].tolist():
+        if list(encoded["input_ids"]) != input_ids.tolist()[:len(encoded["input_ids"])]:
             raise RuntimeError("GroundingDINO tokenizer and processor disagree on the caption's tokens")
         tokens: list[list[int]] = [[] for _ in spans]
         for i, (start, end) in enumerate(encoded["offset_mapping"]):
@@ -115,23 +134,40 @@ class GroundingDetector:
         return tokens
 
     def __call__(self, rgb: np.ndarray, targets: Sequence[str]) -> list[Box]:
-        if not targets:
-            return []
+        return self.batch([rgb], [targets])[0]
+
+    def batch(self, images: Sequence[np.ndarray], targets: Sequence[Sequence[str]]) -> list[list[Box]]:
+        """Boxes of each image's own targets (its own caption), images with targets in one pass."""
+        todo = [i for i, image_targets in enumerate(targets) if image_targets]
+        found: list[list[Box]] = [[] for _ in images]
+        if not todo:
+            return found
         torch, _ = torch_and_transformers()
-        text, spans = caption(targets)
-        batch = _to(self.loaded.processor(images=rgb, text=text, return_tensors="pt"), self.placement)
+        captions = [caption(targets[i]) for i in todo]
+        batch = _to(self.loaded.processor(images=[images[i] for i in todo], text=[c for c, _ in captions],
+                                          return_tensors="pt", padding=True), self.placement)
         with torch.inference_mode():
             out = self.loaded.model(**batch)
-        probs = out.logits[0].float().sigmoid()                         # queries x text positions
+        for row, (i, (text, spans)) in enumerate(zip(todo, captions)):
+            length = int(batch["attention_mask"][row].sum())  # this caption's text positions, no padding
+            found[i] = self._boxes(out.logits[row][:, :length], out.pred_boxes[row],
+                                   self._target_tokens(text, spans, batch["input_ids"][row]),
+                                   targets[i], images[i].shape[:2])
+        return found
+
+    def _boxes(self, logits: Any, pred_boxes: Any, tokens: list[list[int]], targets: Sequence[str],
+               size: tuple[int, ...]) -> list[Box]:
+        torch, _ = torch_and_transformers()
+        probs = logits.float().sigmoid()                                 # queries x text positions
         per_target = torch.stack([probs[:, idx].amax(dim=1) if idx else torch.zeros_like(probs[:, 0])
-                                  for idx in self._target_tokens(text, spans, batch["input_ids"])], 1)
+                                  for idx in tokens], 1)
         box_score = probs.amax(dim=1)
         label_score, label = per_target.max(dim=1)
         keep = (box_score > self.box_threshold) & (label_score > self.text_threshold)
         order = [i for i in torch.argsort(box_score, descending=True).tolist() if keep[i]]
         order = order[:self.max_detections]
-        height, width = rgb.shape[:2]
-        boxes = pixel_boxes(out.pred_boxes[0].float().cpu().numpy()[order], width, height)
+        height, width = size[:2]
+        boxes = pixel_boxes(pred_boxes.float().cpu().numpy()[order], width, height)
         return [Box(targets[int(label[i])], float(box_score[i]),
                     tuple(int(v) for v in b))  # type: ignore[arg-type]
                 for i, b in zip(order, boxes)]
