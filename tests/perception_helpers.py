@@ -8,7 +8,9 @@ import threading
 from services.perception.config import PerceptionServiceConfig
 from services.perception.service import PerceptionService
 from services.sim.render import SceneRenderer
-from shared.messages import RgbdFrame
+from shared import keys
+from shared.fake_bus import FakeNetwork
+from shared.messages import PerceptionResult, RgbdFrame, TaskEvent, TaskSpec
 from shared.service import run_service
 from shared.zconfig import build_config
 from tests.sim_scenes import two_rooms
@@ -21,6 +23,18 @@ def render_frames(count: int, width: int = 160, height: int = 120) -> list[RgbdF
     with SceneRenderer(two_rooms(), width, height) as renderer:
         return [renderer.render(1.5, 3.0, math.pi + i * math.pi / 4, seq=i, stamp=float(i))
                 for i in range(count)]
+
+
+class Robot:
+    """A robot's camera and its planner's task messages on a fake network, and its results."""
+
+    def __init__(self, network: FakeNetwork, robot_id: str = ROBOT) -> None:
+        bus = network.bus(robot_id, "test-robot")
+        self.frames = bus.publisher(keys.rgbd(robot_id), RgbdFrame)
+        self.tasks = bus.publisher(keys.task_current(robot_id), TaskSpec)
+        self.events = bus.publisher(keys.task_events(robot_id), TaskEvent)
+        self.results: list[PerceptionResult] = []
+        bus.subscribe(keys.perception_result(robot_id), PerceptionResult, self.results.append)
 
 
 class RunningPerception:

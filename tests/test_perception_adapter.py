@@ -13,9 +13,9 @@ from services.perception.config import PerceptionServiceConfig
 from services.perception.service import PerceptionService
 from services.perception.sim_backend import SimBackend
 from shared import keys
-from shared.messages import FoundObject, PerceptionResult, RgbdFrame, TaskEvent, TaskSpec, TaskStatus
+from shared.messages import FoundObject, RgbdFrame, TaskEvent, TaskSpec, TaskStatus
 from shared.fake_bus import FakeNetwork
-from tests.perception_helpers import ROBOT, render_frames
+from tests.perception_helpers import ROBOT, Robot, render_frames
 from tests.sim_scenes import two_rooms
 
 FRAME_KEY = keys.rgbd(ROBOT)
@@ -29,18 +29,6 @@ def frames() -> list[RgbdFrame]:
 @pytest.fixture(scope="module")
 def backend() -> SimBackend:
     return SimBackend(two_rooms())
-
-
-class Robot:
-    """The robot's camera and the planner's task messages on the fake network, and the results."""
-
-    def __init__(self, network: FakeNetwork) -> None:
-        bus = network.bus(ROBOT, "test-robot")
-        self.frames = bus.publisher(FRAME_KEY, RgbdFrame)
-        self.tasks = bus.publisher(keys.task_current(ROBOT), TaskSpec)
-        self.events = bus.publisher(keys.task_events(ROBOT), TaskEvent)
-        self.results: list[PerceptionResult] = []
-        bus.subscribe(keys.perception_result(ROBOT), PerceptionResult, self.results.append)
 
 
 def start(network: FakeNetwork, backend: SimBackend, instance: str = "0",

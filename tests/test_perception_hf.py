@@ -116,3 +116,38 @@ def test_the_service_runs_the_hf_backend_from_its_config(model_dirs, inproc_rout
             service.close()
     assert result.seq == frame.seq and len(result.labels) >= 1
     assert result.masks.shape[1:] == frame.depth.shape
+
+
+def test_frames_of_two_robots_go_through_each_model_in_one_call_and_back_to_their_robot(backends) -> None:
+    """One ITM pass and one GroundingDINO pass for two robots' frames, each with its own targets;
+    each result goes to its robot's key with its frame's seq and that robot's targets."""
+    from services.perception.service import PerceptionService
+    from shared.fake_bus import FakeNetwork
+    from tests.perception_helpers import Robot
+
+    backend = backends["blip"]
+    calls = {"itm": 0, "detector": 0}
+    hooks = [model.register_forward_hook(lambda *_, role=role: calls.__setitem__(role, calls[role] + 1))
+             for role, model in (("itm", backend.scorer.loaded.model), ("detector", backend.detector.loaded.model))]
+    try:
+        network = FakeNetwork()
+        service = PerceptionService(network.bus("fleet", "perception"), PerceptionServiceConfig(
+            backend="hf", robots=["r1", "r2"], batch_size=2, batch_wait_ms=1000), backend)
+        service.start()
+        r1, r2 = Robot(network, "r1"), Robot(network, "r2")
+        network.pump()
+        r1.tasks.put(TaskSpec(task_id="a", targets=("fridge", "cup"), stamp=0.0))
+        r2.tasks.put(TaskSpec(task_id="b", targets=("chair",), stamp=0.0))
+        frames = render_frames(2)
+        r1.frames.put(frames[0].model_copy(update={"seq": 11}))
+        r2.frames.put(frames[1].model_copy(update={"seq": 22}))
+        network.pump()
+    finally:
+        for hook in hooks:
+            hook.remove()
+    assert calls == {"itm": 1, "detector": 1}
+    assert [(r.seq, r.targets) for r in r1.results] == [(11, ("fridge", "cup"))]
+    assert [(r.seq, r.targets) for r in r2.results] == [(22, ("chair",))]
+    # the same scores as each frame alone: no robot's frame or targets leaked into the other's
+    alone = backend.scorer(frames[1].rgb, ("chair",))
+    assert r2.results[0].score_map() == pytest.approx(alone, abs=1e-5)
