@@ -147,15 +147,19 @@ def run(service: Annotated[str, typer.Argument(help="Service to run.")],
         instance: Annotated[str, typer.Option(help="Instance name (unique per service).")] = "0",
         config: Annotated[Optional[Path], typer.Option(help="Service config (TOML or JSON).")] = None,
         zenoh_file: ZenohFile = None, connect: Connect = None, listen: Listen = None,
+        set_: Annotated[Optional[list[str]], typer.Option(
+            "--set", help="KEY=JSON: replace a top-level setting of the config (repeatable; a fleet "
+                          "profile tells each process its robots and scene this way).")] = None,
         log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Run one service until SIGINT / SIGTERM."""
     from ovamos.registry import UnknownServiceError, service_class
+    from shared.config import parse_overrides
     from shared.keys import KeyExprError
     from shared.service import ServiceConfigError, load_config, run_service
     setup_logging(json_lines=log_json, level=log_level)
     try:
         cls = service_class(service)
-        cfg = load_config(cls, config)
+        cfg = load_config(cls, config, parse_overrides(set_ or []))
         zcfg = build_config(file=zenoh_file, connect=connect or (), listen=listen or ())
         run_service(cls, zcfg, cfg, robot_id=robot_id, instance=instance, stop=threading.Event())
     except (UnknownServiceError, ServiceConfigError, ZenohConfigError, KeyExprError) as exc:
@@ -298,7 +302,13 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
                                                 "simulated device).")] = "kinematic",
          out: Annotated[Path, typer.Option(help="Folder for the report, map, configs and logs.")]
          = Path("out/demo"),
-         record: Annotated[bool, typer.Option(help="Record the run to OUT/run.mcap.")] = True) -> None:
+         record: Annotated[bool, typer.Option(help="Record the run to OUT/run.mcap (a fleet: "
+                                                   "OUT/run-ROBOT.mcap per robot).")] = True,
+         robots: Annotated[int, typer.Option(
+             min=1, max=16, help="Robots searching at once, each in its own home, through one perception "
+                                 "service and one gateway (from the default episode: episodes 5, 8, 13, 16, "
+                                 "14, 17, which the method solves; else EPISODE, EPISODE+1, ...).")] = 1
+         ) -> None:
     """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
     from ovamos.demo import BASES, DEMO_EPISODE, DEMO_SEED, run_demo
     seed = DEMO_SEED if seed is None else seed
@@ -308,7 +318,7 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
     try:
         code = run_demo(console, out_dir=out, seed=seed, episode=episode, targets=targets,
                         keep_running=keep_running, timeout_s=timeout, base=base,
-                        record=out / "run.mcap" if record else None)
+                        record=out / "run.mcap" if record else None, robots=robots)
     except (TimeoutError, OSError) as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)

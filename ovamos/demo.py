@@ -28,11 +28,16 @@ from bench.episode import scene_mapping
 from services.gateway.client import GatewayClient, GatewayError
 from services.gateway.models import TaskView
 from services.sim.episodes import make_episode
+from services.perception.config import PerceptionServiceConfig
 from services.sim.service import Motion
+from ovamos import fleet
 from ovamos.supervisor import Entry, Supervisor, port_open
 from shared.procs import free_port, loopback
 
 DEMO_SEED, DEMO_EPISODE = 0, 4
+#: a fleet's homes: episodes of seed 0 the method solves (in-process, default config), so a first
+#: fleet run shows a success for every robot
+FLEET_EPISODES = (4, 5, 8, 13, 16, 14)
 STARTUP_TIMEOUT_S = 90.0
 SERVICES = ("mapping", "perception", "planner", "sim", "gateway")
 
@@ -51,21 +56,26 @@ def default_timeout_s(base: str) -> float:
     return 600.0 if base == "kinematic" else 1500.0
 
 
-def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_port: int,
-                  width: int = 320, height: int = 240, base: str = "kinematic") -> dict[str, Path]:
-    """One JSON config per service, all describing the same episode (scene, start pose); ``base``
-    is how the simulated robot moves (see ``SimServiceConfig.motion``)."""
+FLEET_ID = "fleet"  # the robot id the fleet-wide services (perception, gateway) run under
+
+
+def fleet_robots(count: int) -> list[str]:
+    """The demo's robot ids: ``sim`` alone, ``sim1`` ... ``simN`` in a fleet."""
+    return ["sim"] if count == 1 else [f"sim{i + 1}" for i in range(count)]
+
+
+def _robot_configs(folder: Path, seed: int, episode: int, *, width: int, height: int,
+                   base: str) -> dict[str, dict[str, Any]]:
+    """The per-robot services' configs for a robot in episode (``seed``, ``episode``)."""
     _, scene, _ = make_episode(seed, episode)
     mapping = scene_mapping(scene)
     episode_keys = {"episode_seed": seed, "episode_index": episode}
-    configs: dict[str, dict[str, Any]] = {
-        "mapping": {"grid_cells": mapping.grid_cells, "center": list(mapping.center), "publish_hz": 5.0,
-                    "checkpoint_path": str(folder / "map.ckpt")},
-        "perception": {"backend": "sim", "sim": episode_keys},
-        "planner": {},
-        "sim": {**episode_keys, "motion": base, "lock_step": True, "width": width, "height": height},
-        "gateway": {"port": http_port, "robots": [robot_id], "state_dir": str(folder / "gateway")},
-    }
+    return {"mapping": {"grid_cells": mapping.grid_cells, "center": list(mapping.center), "publish_hz": 5.0,
+                        "checkpoint_path": str(folder / "map-{robot_id}.ckpt")},
+            "sim": {**episode_keys, "motion": base, "lock_step": True, "width": width, "height": height}}
+
+
+def _write(folder: Path, configs: dict[str, dict[str, Any]]) -> dict[str, Path]:
     folder.mkdir(parents=True, exist_ok=True)
     paths = {}
     for name, config in configs.items():
@@ -74,39 +84,114 @@ def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_
     return paths
 
 
+def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_port: int,
+                  width: int = 320, height: int = 240, base: str = "kinematic") -> dict[str, Path]:
+    """One JSON config per service, all describing the same episode (scene, start pose); ``base``
+    is how the simulated robot moves (see ``SimServiceConfig.motion``)."""
+    episode_keys = {"episode_seed": seed, "episode_index": episode}
+    return _write(folder, {**_robot_configs(folder, seed, episode, width=width, height=height, base=base),
+                           "perception": {"backend": "sim", "sim": episode_keys},
+                           "planner": {},
+                           "gateway": {"port": http_port, "robots": [robot_id],
+                                       "state_dir": str(folder / "gateway")}})
+
+
+def fleet_episodes(seed: int, episode: int, robots: int) -> dict[str, int]:
+    """Each robot of the demo's fleet and its episode: from the default episode, the episodes of
+    :data:`FLEET_EPISODES`; from another, that one and those after it."""
+    ids = fleet_robots(robots)
+    if (seed, episode) == (DEMO_SEED, DEMO_EPISODE) and robots <= len(FLEET_EPISODES):
+        return dict(zip(ids, FLEET_EPISODES))
+    return {robot: episode + i for i, robot in enumerate(ids)}
+
+
+def write_fleet_configs(folder: Path, *, seed: int, episodes: dict[str, int], http_port: int,
+                        width: int = 320, height: int = 240, base: str = "kinematic") -> dict[str, Path]:
+    """A fleet's configs (:mod:`ovamos.fleet`): ``mapping-R`` and ``sim-R`` per robot R, each
+    robot in its own home (``episodes[R]``); one ``perception`` that batches across the robots,
+    reading each robot's frames in its scene; one ``planner`` config and one ``gateway`` for all."""
+    robots = list(episodes)
+    homes = {robot: fleet.scene(seed, index) for robot, index in episodes.items()}
+    configs: dict[str, dict[str, Any]] = {}
+    for robot, home in homes.items():
+        for name, config in _robot_configs(folder, seed, home["episode_index"], width=width, height=height,
+                                           base=base).items():
+            configs[f"{name}-{robot}"] = config
+    perception = PerceptionServiceConfig(backend="sim", batch_size=len(robots), batch_wait_ms=10.0)
+    configs["perception"] = {**perception.model_dump(mode="json", include={"backend", "batch_size", "batch_wait_ms"}),
+                             **fleet.fleet_wide_settings("perception", perception, robots, homes)}
+    configs["planner"] = {}
+    configs["gateway"] = {"port": http_port, "robots": robots, "state_dir": str(folder / "gateway")}
+    return _write(folder, configs)
+
+
 def demo_entries(configs: dict[str, Path], *, robot_id: str, zenoh_port: int,
                  record: Path | None = None) -> list[Entry]:
     """The router, a recorder writing ``record`` (if given; it starts before the services and stops
     after them, so it holds the whole run) and the services."""
-    router = Entry("router", ("router", "--listen", loopback(zenoh_port), "--log-level", "WARNING"),
-                   ready=("127.0.0.1", zenoh_port))
-    recorder = [] if record is None else [Entry("record", ("record", "--robot-id", robot_id, "--out", str(record),
-                                                           "--overwrite", "--connect", loopback(zenoh_port)))]
-    return [router, *recorder] + [Entry(name, ("run", name, "--robot-id", robot_id, "--config", str(configs[name]),
-                                               "--connect", loopback(zenoh_port)))
-                                  for name in SERVICES]
+    return [_router(zenoh_port), *_recorders([robot_id], zenoh_port, record)] + \
+        [_service(name, robot_id, configs[name], zenoh_port) for name in SERVICES]
 
 
-def _progress(view: TaskView | None, elapsed: float) -> Table:
-    table = Table(title=f"search task ({elapsed:.0f} s)", show_header=False)
-    if view is None:
-        table.add_row("status", "starting the services ...")
-        return table
-    table.add_row("status", view.status.value + (f" ({view.message})" if view.message else ""))
-    table.add_row("targets", ", ".join(view.targets))
-    table.add_row("found", ", ".join(f"{f.label} at ({f.x:.1f}, {f.y:.1f}) step {f.step}"
-                                     for f in view.found) or "-")
-    table.add_row("steps", f"{view.steps} / {view.max_steps}")
-    table.add_row("distance", f"{view.distance_m:.2f} m")
+def fleet_entries(configs: dict[str, Path], *, robots: list[str], zenoh_port: int,
+                  record: Path | None = None) -> list[Entry]:
+    """:func:`demo_entries` for a fleet (configs from :func:`write_fleet_configs`): per-robot
+    services as ``NAME-ROBOT``, perception and the gateway once, under :data:`FLEET_ID`; with
+    ``record``, one recording per robot (``run-R.mcap`` beside it)."""
+    entries = [_router(zenoh_port), *_recorders(robots, zenoh_port, record)]
+    for name in SERVICES:
+        if name in fleet.FLEET_WIDE:
+            entries.append(_service(name, FLEET_ID, configs[name], zenoh_port))
+        else:
+            entries += [_service(name, robot, configs.get(f"{name}-{robot}", configs.get(name)), zenoh_port,
+                                 entry=f"{name}-{robot}") for robot in robots]
+    return entries
+
+
+def _router(zenoh_port: int) -> Entry:
+    return Entry("router", ("router", "--listen", loopback(zenoh_port), "--log-level", "WARNING"),
+                 ready=("127.0.0.1", zenoh_port))
+
+
+def _recorders(robots: list[str], zenoh_port: int, record: Path | None) -> list[Entry]:
+    if record is None:
+        return []
+    return [Entry("record" if len(robots) == 1 else f"record-{robot}",
+                  ("record", "--robot-id", robot, "--out", str(_recording(record, robot, len(robots))),
+                   "--overwrite", "--connect", loopback(zenoh_port))) for robot in robots]
+
+
+def _recording(record: Path, robot: str, robots: int) -> Path:
+    return record if robots == 1 else record.with_name(f"{record.stem}-{robot}{record.suffix}")
+
+
+def _service(name: str, robot_id: str, config: Path | None, zenoh_port: int, *, entry: str | None = None) -> Entry:
+    return Entry(entry or name, ("run", name, "--robot-id", robot_id, *(("--config", str(config)) if config else ()),
+                                 "--connect", loopback(zenoh_port)))
+
+
+def _progress(views: dict[str, TaskView | None], elapsed: float) -> Table:
+    table = Table("robot", "status", "targets", "found", "steps", "distance",
+                  title=f"search tasks ({elapsed:.0f} s)")
+    for robot, view in views.items():
+        if view is None:
+            table.add_row(robot, "starting the services ...", "", "", "", "")
+            continue
+        table.add_row(robot, view.status.value + (f" ({view.message})" if view.message else ""),
+                      ", ".join(view.targets),
+                      ", ".join(f"{f.label} at ({f.x:.1f}, {f.y:.1f}) step {f.step}" for f in view.found) or "-",
+                      f"{view.steps} / {view.max_steps}", f"{view.distance_m:.2f} m")
     return table
 
 
-def _wait_for_services(client: GatewayClient, robot_id: str, deadline: float) -> None:
-    """Until every service of the robot shows its liveliness token (the gateway asks Zenoh)."""
+def wait_for_services(client: GatewayClient, robots: list[str], deadline: float) -> None:
+    """Until every service of each robot shows its liveliness token (the gateway asks Zenoh; a
+    fleet's gateway runs under the fleet's id, and answering is its sign of life)."""
+    wanted = set(SERVICES) if len(robots) == 1 else set(SERVICES) - {"gateway"}
     while time.monotonic() < deadline:
         try:
-            robot = client.health()["robots"][robot_id]
-            if {s["service"] for s in robot["services"]} >= set(SERVICES):
+            health = client.health()["robots"]
+            if all({s["service"] for s in health[robot]["services"]} >= wanted for robot in robots):
                 return
         except GatewayError:
             pass
@@ -117,65 +202,87 @@ def _wait_for_services(client: GatewayClient, robot_id: str, deadline: float) ->
 
 def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode: int = DEMO_EPISODE,
              targets: list[str] | None = None, robot_id: str = "sim", keep_running: bool = False,
-             timeout_s: float | None = None, base: str = "kinematic", record: Path | None = None) -> int:
-    """Run the demo; ``record``: the MCAP file to record the run to (None: no recording)."""
-    spec, _, _ = make_episode(seed, episode)
-    targets = targets or list(spec.targets)
+             timeout_s: float | None = None, base: str = "kinematic", record: Path | None = None,
+             robots: int = 1) -> int:
+    """Run the demo; ``record``: the MCAP file to record the run to (None: no recording).
+
+    ``robots`` > 1: a fleet (:func:`write_fleet_configs`), robot i searching episode
+    ``episode + i`` (its own home) for that episode's targets (or ``targets``), all at once."""
+    episodes = {robot_id: episode} if robots == 1 else fleet_episodes(seed, episode, robots)
+    fleet_ids = list(episodes)
+    tasks = {robot: targets or list(make_episode(seed, e)[0].targets) for robot, e in episodes.items()}
     http_port, zenoh_port = free_port(), free_port()
-    configs = write_configs(out_dir / "config", seed=seed, episode=episode, robot_id=robot_id,
-                            http_port=http_port, base=base)
     url = f"http://127.0.0.1:{http_port}"
-    console.print(f"episode {spec.episode_id}: {', '.join(targets)}; gateway {url}; "
-                  f"logs in {out_dir / 'logs'}")
+    if robots == 1:
+        configs = write_configs(out_dir / "config", seed=seed, episode=episode, robot_id=robot_id,
+                                http_port=http_port, base=base)
+        entries = demo_entries(configs, robot_id=robot_id, zenoh_port=zenoh_port, record=record)
+    else:
+        configs = write_fleet_configs(out_dir / "config", seed=seed, episodes=episodes,
+                                      http_port=http_port, base=base)
+        entries = fleet_entries(configs, robots=fleet_ids, zenoh_port=zenoh_port, record=record)
+    for robot, e in episodes.items():
+        console.print(f"{robot}: episode {seed}-{e}: {', '.join(tasks[robot])}")
+    console.print(f"gateway {url}; logs in {out_dir / 'logs'}")
     started = time.monotonic()
-    entries = demo_entries(configs, robot_id=robot_id, zenoh_port=zenoh_port, record=record)
     with Supervisor(entries, log_dir=out_dir / "logs") as supervisor, GatewayClient(url) as client:
         deadline = started + STARTUP_TIMEOUT_S
         while not port_open("127.0.0.1", http_port) and time.monotonic() < deadline:
             time.sleep(0.2)
-        _wait_for_services(client, robot_id, deadline)
-        view = _search(console, client, targets, robot_id, started,
-                       default_timeout_s(base) if timeout_s is None else timeout_s)
-        report = _write_results(console, client, view, out_dir, robot_id, seed, episode,
+        wait_for_services(client, fleet_ids, deadline)
+        views = _search(console, client, tasks, started,
+                        default_timeout_s(base) * robots if timeout_s is None else timeout_s)
+        report = _write_results(console, client, views, out_dir, seed, episodes,
                                 time.monotonic() - started, supervisor)
         if keep_running:
-            _serve_until_interrupted(console, url, robot_id)
+            _serve_until_interrupted(console, url, fleet_ids[0])
     if record is not None:  # complete once the supervisor stopped the recorder, after the services
-        console.print(f"recorded the run to {record} (ovamos replay {record}; or open it in Foxglove)")
-    return 0 if report["task"]["status"] == "done" else 1
+        for robot in fleet_ids:
+            path = _recording(record, robot, robots)
+            console.print(f"recorded the run to {path} (ovamos replay {path}; or open it in Foxglove)")
+    return 0 if all(v.status.value == "done" for v in views.values()) else 1
 
 
-def _search(console: Console, client: GatewayClient, targets: list[str], robot_id: str, started: float,
-            timeout_s: float) -> TaskView:
-    accepted = client.submit(targets, robot_id=robot_id)
-    view = client.get(accepted.id)
-    with Live(_progress(view, 0.0), console=console, refresh_per_second=4) as live:
+def _search(console: Console, client: GatewayClient, tasks: dict[str, list[str]], started: float,
+            timeout_s: float) -> dict[str, TaskView]:
+    """Submit each robot's task at once and follow them until all are over (or the time is up:
+    those still running are cancelled)."""
+    ids = {robot: client.submit(targets, robot_id=robot).id for robot, targets in tasks.items()}
+    views = {robot: client.get(task_id) for robot, task_id in ids.items()}
+    with Live(_progress(dict(views), 0.0), console=console, refresh_per_second=4) as live:
         deadline = time.monotonic() + timeout_s
-        while not view.final and time.monotonic() < deadline:
+        while not all(v.final for v in views.values()) and time.monotonic() < deadline:
             time.sleep(0.5)
-            view = client.get(accepted.id)
-            live.update(_progress(view, time.monotonic() - started))
-    if not view.final:
-        view = client.cancel(accepted.id)
-    return view
+            views = {robot: client.get(task_id) for robot, task_id in ids.items()}
+            live.update(_progress(dict(views), time.monotonic() - started))
+    return {robot: view if view.final else client.cancel(ids[robot]) for robot, view in views.items()}
 
 
-def _write_results(console: Console, client: GatewayClient, view: TaskView, out_dir: Path, robot_id: str,
-                   seed: int, episode: int, seconds: float, supervisor: Supervisor) -> dict[str, Any]:
+def _write_results(console: Console, client: GatewayClient, views: dict[str, TaskView], out_dir: Path,
+                   seed: int, episodes: dict[str, int], seconds: float, supervisor: Supervisor) -> dict[str, Any]:
+    """The report (one robot: its task at the top level, as before; a fleet: ``robots``, each
+    robot's episode and task), each robot's map, and one ``done: ...`` line per robot, last."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    map_path = out_dir / "demo_map.png"
-    try:
-        map_path.write_bytes(client.map_png(robot_id))
-    except GatewayError as exc:
-        console.print(f"[yellow]no map image:[/yellow] {exc}")
-    report = {"episode": f"{seed}-{episode}", "seconds": round(seconds, 1),
-              "task": json.loads(view.model_dump_json()),
-              "restarts": {s.name: s.restarts for s in supervisor.status()}}
-    (out_dir / "demo_report.json").write_text(json.dumps(report, indent=1))
-    found = ", ".join(f.label for f in view.found) or "nothing"
-    colour = "green" if view.status.value == "done" else "red"
-    console.print(f"[{colour}]{view.status.value}[/{colour}]: found {found} in {view.steps} steps, "
-                  f"{view.distance_m:.1f} m; report {out_dir / 'demo_report.json'}, map {map_path}")
+    single = len(views) == 1
+    maps = {robot: out_dir / ("demo_map.png" if single else f"demo_map-{robot}.png") for robot in views}
+    for robot, path in maps.items():
+        try:
+            path.write_bytes(client.map_png(robot))
+        except GatewayError as exc:
+            console.print(f"[yellow]no map image of {robot}:[/yellow] {exc}")
+    per_robot = {robot: {"episode": f"{seed}-{episodes[robot]}", "task": json.loads(view.model_dump_json())}
+                 for robot, view in views.items()}
+    restarts = {s.name: s.restarts for s in supervisor.status()}
+    report: dict[str, Any] = ({**next(iter(per_robot.values())), "seconds": round(seconds, 1), "restarts": restarts}
+                              if single else {"seconds": round(seconds, 1), "robots": per_robot, "restarts": restarts})
+    report_path = out_dir / "demo_report.json"
+    report_path.write_text(json.dumps(report, indent=1))
+    for robot, view in views.items():
+        found = ", ".join(f.label for f in view.found) or "nothing"
+        colour = "green" if view.status.value == "done" else "red"
+        who = "" if single else f"{robot} "
+        console.print(f"[{colour}]{view.status.value}[/{colour}]: {who}found {found} in {view.steps} steps, "
+                      f"{view.distance_m:.1f} m; report {report_path}, map {maps[robot]}")
     return report
 
 

@@ -17,11 +17,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, PrivateAttr, ValidationError
+from pydantic import Field, PrivateAttr, ValidationError, field_validator
 
 from ovamos.registry import SERVICES
 from ovamos.supervisor import DEFAULT_LOG_DIR, Backoff, Entry, Supervisor
-from shared.config import StrictModel
+from shared.config import StrictModel, format_override
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PROFILE_DIR = REPO_ROOT / "deploy" / "profiles"
@@ -62,15 +62,31 @@ class ServiceSpec(StrictModel):
 
 
 class Profile(StrictModel):
-    """What ``ovamos up`` runs on one host."""
+    """What ``ovamos up`` runs on one host.
+
+    ``robots`` makes it a fleet (:mod:`ovamos.fleet`): each per-robot service runs once per
+    robot (entry ``NAME-ROBOT``), each fleet-wide one (perception, gateway) once under
+    ``robot_id``, told the robots (``ovamos run --set``).
+    """
 
     description: str = ""
     robot_id: str = "robot1"
+    robots: list[str] = Field(default_factory=list, description="a fleet's robot ids; empty: one robot, robot_id")
     router: RouterSpec | None = None
     services: list[ServiceSpec] = Field(default_factory=list)
     restart: Backoff = Field(default_factory=Backoff)
     stop_timeout_s: float = Field(default=10.0, gt=0, description="SIGTERM, then SIGKILL after this")
     _source: Path = PrivateAttr(default=Path("<memory>"))
+
+    @field_validator("robots")
+    @classmethod
+    def _robot_ids(cls, robots: list[str]) -> list[str]:
+        from shared.keys import check_chunk
+        for robot in robots:
+            check_chunk(robot, "robot id")
+        if len(set(robots)) != len(robots):
+            raise ValueError("a robot is named twice")
+        return robots
 
     @property
     def source(self) -> Path:
@@ -89,7 +105,25 @@ class Profile(StrictModel):
         ``certs`` is the certificate folder of a router with a ``cert``.
         """
         found = [self._router_entry(router_connect, endpoint, certs, listen_link)] if self.router else []
-        return found + [self._service_entry(s, endpoint) for s in self.services]
+        if not self.robots:
+            return found + [self._service_entry(s, endpoint) for s in self.services]
+        return found + self._fleet_entries(endpoint)
+
+    def _fleet_entries(self, endpoint: str | None) -> list[Entry]:
+        """A fleet's processes, in the profile's order: per-robot services once per robot."""
+        from ovamos import fleet
+        sim = next((s for s in self.services if s.service == "sim"), None)
+        homes = fleet.scenes(_service_config(sim), self.robots) if sim is not None else {}
+        entries = []
+        for spec in self.services:
+            if spec.service in fleet.FLEET_WIDE:
+                settings = fleet.fleet_wide_settings(spec.service, _service_config(spec), self.robots, homes)
+                entries.append(self._service_entry(spec, endpoint, settings=settings))
+                continue
+            entries += [self._service_entry(spec, endpoint, robot=robot, name=f"{spec.entry_name}-{robot}",
+                                            settings=fleet.robot_settings(spec.service, homes.get(robot)))
+                        for robot in self.robots]
+        return entries
 
     def _router_entry(self, connect: Sequence[str] | None, endpoint: str | None, certs: Path | None,
                       listen_link: str | None) -> Entry:
@@ -132,11 +166,20 @@ class Profile(StrictModel):
         """Whether the router's links to other hosts are TLS (it has a certificate)."""
         return self.router is not None and self.router.cert is not None
 
-    def _service_entry(self, spec: ServiceSpec, endpoint: str | None) -> Entry:
-        argv = ["run", spec.service, "--robot-id", spec.robot_id or self.robot_id,
+    def _service_entry(self, spec: ServiceSpec, endpoint: str | None, *, robot: str | None = None,
+                       name: str | None = None, settings: dict[str, Any] | None = None) -> Entry:
+        argv = ["run", spec.service, "--robot-id", robot or spec.robot_id or self.robot_id,
                 "--instance", spec.instance, *_opt("--config", spec.config), *_opt("--zenoh", spec.zenoh),
-                *_repeat("--connect", [endpoint] if endpoint else spec.connect)]
-        return Entry(spec.entry_name, tuple(argv), delay_s=spec.delay_s)
+                *_repeat("--connect", [endpoint] if endpoint else spec.connect),
+                *_repeat("--set", [format_override(k, v) for k, v in (settings or {}).items()])]
+        return Entry(name or spec.entry_name, tuple(argv), delay_s=spec.delay_s)
+
+
+def _service_config(spec: ServiceSpec) -> Any:
+    """A service entry's config as its service's model (the fleet's settings are derived from it)."""
+    from ovamos.registry import service_class
+    from shared.service import load_config
+    return load_config(service_class(spec.service), spec.config)
 
 
 def _opt(flag: str, value: Path | None) -> list[str]:

@@ -287,6 +287,16 @@ class BusCore:
 
         self._declared.append(Subscription(self._watch_tokens(key_expr, on_change)))
 
+    def serve_robot(self, robot_id: str) -> None:
+        """Show this instance among ``robot_id``'s services too (its liveliness and its stats): a
+        fleet-wide service (perception) runs under one id and serves several robots."""
+        self.declare_token(keys.alive(robot_id, self.service, self.instance))
+        self._answer_stats(keys.stats(robot_id, self.service, self.instance))
+
+    def _answer_stats(self, key: str) -> None:
+        """Answer stats queries on ``key`` (a transport may answer them off the inbox)."""
+        self.queryable(key, self.stats)
+
     def declare_token(self, key: str) -> Subscription:
         """A liveliness token; ``undeclare()`` withdraws it (before the bus closes, if need be)."""
         handle = Subscription(self._token(key))
@@ -364,12 +374,8 @@ class Bus(BusCore):
         self.shm = shm
         self._dispatcher = (self.inbox.run_forever(f"bus:{service}/{instance}") if dispatch == "thread"
                             else None)
-        # Answered on Zenoh's thread, the one exception to enqueue-only: it reads only the
-        # thread-safe counters and the info snapshot, so a service busy for seconds (a model on
-        # a CPU) still shows up in `ovamos status` and the gateway's /health.
-        stats_key = self._stats_key = keys.stats(robot_id, service, instance)
-        self._declared.append(self.session.declare_queryable(
-            stats_key, lambda query: query.reply(stats_key, self.stats().to_bytes())))
+        self._stats_key = keys.stats(robot_id, service, instance)
+        self._answer_stats(self._stats_key)
         self._alive = session.liveliness().declare_token(keys.alive(robot_id, service, instance))
 
     @classmethod
@@ -431,6 +437,13 @@ class Bus(BusCore):
 
     def _transport_info(self) -> dict[str, Any]:
         return {} if self.shm is None else self.shm.info()
+
+    def _answer_stats(self, key: str) -> None:
+        # Answered on Zenoh's thread, the one exception to enqueue-only: it reads only the
+        # thread-safe counters and the info snapshot, so a service busy for seconds (a model on
+        # a CPU) still shows up in `ovamos status` and the gateway's /health.
+        self._declared.append(self.session.declare_queryable(
+            key, lambda query: query.reply(key, self.stats().to_bytes())))
 
     def get(self, key: str, msg_type: type[M], timeout_s: float = 1.0) -> M | None:
         """Ask the queryable(s) on ``key`` and wait (HTTP handlers, tools; never a service's loop):

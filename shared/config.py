@@ -15,7 +15,8 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-__all__ = ["StrictModel", "ServiceConfig", "ServiceConfigError", "read_config"]
+__all__ = ["StrictModel", "ServiceConfig", "ServiceConfigError", "read_config", "parse_overrides",
+           "format_override"]
 
 
 class ServiceConfigError(ValueError):
@@ -60,3 +61,23 @@ def read_config(model: type[C], path: str | Path | None, overrides: dict[str, An
     except ValidationError as exc:
         problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
         raise ServiceConfigError(f"invalid {what}: {problems}") from None
+
+
+def format_override(key: str, value: Any) -> str:
+    """``KEY=JSON``, as :func:`parse_overrides` reads it (``ovamos run --set``)."""
+    return f"{key}={json.dumps(value, separators=(',', ':'))}"
+
+
+def parse_overrides(items: list[str]) -> dict[str, Any]:
+    """``["robots=[\"r1\"]", "episode_index=2"]`` as a dict of top-level settings; a value that is
+    not JSON is refused (a string is written with its quotes: ``name="x"``)."""
+    overrides: dict[str, Any] = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        if not sep or not key.strip():
+            raise ServiceConfigError(f"--set {item!r}: write KEY=JSON")
+        try:
+            overrides[key.strip()] = json.loads(raw)
+        except ValueError as exc:
+            raise ServiceConfigError(f"--set {item!r}: the value is not JSON ({exc})") from None
+    return overrides

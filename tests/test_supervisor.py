@@ -330,18 +330,18 @@ def test_a_service_config_that_does_not_fit_its_service_is_refused(tmp_path: Pat
 
 def test_unknown_profile_names_list_the_shipped_ones() -> None:
     assert resolve_profile("all") == PROFILE_DIR / "all.toml"
-    with pytest.raises(ProfileError, match="all, laptop, laptop-secure, robot, robot-secure"):
+    with pytest.raises(ProfileError, match="all, fleet, laptop, laptop-secure, robot, robot-secure"):
         resolve_profile("everything")
 
 
 def test_shipped_profiles_are_complete_and_valid() -> None:
     """all / laptop / robot (and the secure two) parse, reference existing files, and say what the
     design asks."""
-    assert [p.stem for p in SHIPPED] == ["all", "laptop-secure", "laptop", "robot-secure", "robot"]
+    assert [p.stem for p in SHIPPED] == ["all", "fleet", "laptop-secure", "laptop", "robot-secure", "robot"]
     wanted = {"all": {"gateway", "perception", "mapping", "planner", "sim"},
               "laptop": {"gateway", "perception", "mapping", "planner"},
               "robot": {"base_driver", "camera"}}
-    wanted |= {"laptop-secure": wanted["laptop"], "robot-secure": wanted["robot"]}
+    wanted |= {"laptop-secure": wanted["laptop"], "robot-secure": wanted["robot"], "fleet": wanted["all"]}
     for path in SHIPPED:
         profile = load_profile(path)  # also checks that every referenced file exists
         check_service_configs(profile)  # registered services: configs fit their models
@@ -365,7 +365,42 @@ def test_shipped_service_configs_fit_their_services() -> None:
         load_config(service_class(path.stem.split("-")[0]), path)
         checked.append(path.stem)
     assert checked == ["base_driver-kobuki", "base_driver-opencr", "base_driver", "camera", "gateway-laptop",
-                       "gateway", "mapping", "perception-hf", "perception-sim", "planner", "sim"]
+                       "gateway", "mapping", "perception-fleet", "perception-hf", "perception-sim", "planner", "sim"]
+
+
+def test_a_fleet_profile_runs_per_robot_services_per_robot_and_tells_the_others_the_robots() -> None:
+    """The shipped fleet: mapping, planner and a simulated robot per robot, each robot in its own
+    home (the episode after the previous robot's), one perception told each robot's scene, one
+    gateway; each process's settings parse as its service's config."""
+    from ovamos.registry import service_class
+    from shared.config import parse_overrides
+    entries = {e.name: e for e in load_profile(resolve_profile("fleet")).entries()}
+    assert sorted(entries) == sorted(["router", "gateway", "perception",
+                                      *(f"{s}-{r}" for s in ("mapping", "planner", "sim") for r in ("r1", "r2", "r3"))])
+
+    def settings(entry: Entry) -> dict:
+        argv = list(entry.argv)
+        service, config = argv[1], Path(argv[argv.index("--config") + 1])
+        sets = parse_overrides([argv[i + 1] for i, a in enumerate(argv) if a == "--set"])
+        load_config(service_class(service), config, sets)  # the process would accept them
+        return {"robot": argv[argv.index("--robot-id") + 1], **sets}
+
+    assert settings(entries["sim-r3"]) == {"robot": "r3", "episode_seed": 0, "episode_index": 2}
+    assert settings(entries["mapping-r2"]) == {"robot": "r2"}
+    assert settings(entries["gateway"]) == {"robot": "fleet", "robots": ["r1", "r2", "r3"]}
+    perception = settings(entries["perception"])
+    assert perception["robots"] == ["r1", "r2", "r3"]
+    assert {r: s["episode_index"] for r, s in perception["sim"]["robots"].items()} == {"r1": 0, "r2": 1, "r3": 2}
+
+
+def test_override_settings_are_json_and_a_bad_one_is_refused() -> None:
+    from shared.config import ServiceConfigError, format_override, parse_overrides
+    assert parse_overrides([format_override("robots", ["a", "b"]), "batch_wait_ms=2.5"]) == \
+        {"robots": ["a", "b"], "batch_wait_ms": 2.5}
+    with pytest.raises(ServiceConfigError, match="not JSON"):
+        parse_overrides(["robots=[a"])
+    with pytest.raises(ServiceConfigError, match="KEY=JSON"):
+        parse_overrides(["robots"])
 
 
 def test_a_profile_built_in_code_with_an_unknown_service_is_refused() -> None:

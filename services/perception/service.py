@@ -35,8 +35,8 @@ Replicas: membership is the set of ``ready`` liveliness tokens under this
 service's own robot id (a fleet's perception runs under one id, e.g. ``fleet``),
 watched through the inbox like messages; this replica declares its own once the
 backend is loaded and its inputs are wired, and withdraws it first when it
-stops. For each robot it serves by name it also holds an ``alive`` token under
-that robot, so the robot's health (``ovamos status``, the gateway) shows it.
+stops. Each robot it serves by name also sees it among its own services (an
+``alive`` token and stats under that robot: ``ovamos status``, the gateway's health).
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ class PerceptionService(Service):
         self._last_ms: float | None = None
         self._last_batch = 0
         self._last_rejection = ""
-        self._tokens: list[Any] = []
+        self._ready: Any = None
 
     def start(self) -> None:
         robot = self.bus.robot_id
@@ -88,11 +88,12 @@ class PerceptionService(Service):
                                        "rgbd": self._on_frame},
                          keep={"rgbd": self.config.queue_frames})
         self.bus.watch_liveliness(keys.ready(robot, self.name), self._on_member)
-        self._tokens = [self.bus.declare_token(keys.alive(r, self.name, self.bus.instance))
-                        for r in self.robots if r not in (robot, keys.ANY)]
+        for other in self.robots:
+            if other not in (robot, keys.ANY):
+                self.bus.serve_robot(other)
         # Last: the backend is loaded (in __init__) and frames are taken, so the others may now
         # hand this replica its share.
-        self._tokens.insert(0, self.bus.declare_token(keys.ready(robot, self.name, self.bus.instance)))
+        self._ready = self.bus.declare_token(keys.ready(robot, self.name, self.bus.instance))
 
     # -- inputs --------------------------------------------------------------------------------
     def _on_member(self, key: str, alive: bool) -> None:
@@ -162,6 +163,6 @@ class PerceptionService(Service):
     def stop(self) -> None:
         """Withdraw the ``ready`` token first: the others take over this replica's share at once
         (the loop has ended, so no frame is in progress; the bus closes the rest)."""
-        tokens, self._tokens = self._tokens, []
-        for token in tokens:
+        if self._ready is not None:
+            token, self._ready = self._ready, None
             token.undeclare()
