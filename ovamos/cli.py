@@ -306,8 +306,9 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
                                                    "OUT/run-ROBOT.mcap per robot).")] = True,
          robots: Annotated[int, typer.Option(
              min=1, max=16, help="Robots searching at once, each in its own home, through one perception "
-                                 "service and one gateway (from the default episode: episodes 5, 8, 13, 16, "
-                                 "14, 17, which the method solves; else EPISODE, EPISODE+1, ...).")] = 1
+                                 "service and one gateway (from the default episode: the episodes in "
+                                 "ovamos.demo.FLEET_EPISODES, which the method solves; else EPISODE, "
+                                 "EPISODE+1, ...).")] = 1
          ) -> None:
     """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
     from ovamos.demo import BASES, DEMO_EPISODE, DEMO_SEED, run_demo
@@ -546,6 +547,29 @@ def bench_perception(frames: Annotated[int, typer.Option(help="hf frames per run
     from bench.perception import print_table, run_benchmark
     result = run_benchmark(frames=frames, runs=runs, sim_frames=sim_frames, hf=hf,
                            progress=None if as_json else err)
+    _report(result, as_json, print_table)
+
+
+@bench_app.command("fleet")
+def bench_fleet(robots: Annotated[str, typer.Option(help="Robot counts, comma-separated (each robot in its "
+                                                         "own home).")] = "1,2,4",
+                window: Annotated[float, typer.Option(help="Seconds the running fleet is measured.")] = 15.0,
+                warmup: Annotated[float, typer.Option(help="Seconds of search before the window.")] = 5.0,
+                sim_rounds: Annotated[int, typer.Option(help="Rounds of sim perception frames (one per "
+                                                             "robot each).")] = 10,
+                hf: Annotated[bool, typer.Option("--hf/--no-hf", help="Also time the real models (CPU, "
+                                                                     "full size, random weights).")] = True,
+                hf_detect: Annotated[bool, typer.Option(help="hf with boxes and masks too (~80 s a frame "
+                                                             "on 2 CPU cores), not scores only.")] = False,
+                as_json: AsJson = False) -> None:
+    """Perception frames/s (batch 1 vs batched), planner decisions/s and step latency per robot count."""
+    from bench.fleet import print_table, run_benchmark
+    try:
+        counts = [int(n) for n in robots.split(",") if n.strip()]
+        result = run_benchmark(counts, window_s=window, warmup_s=warmup, sim_rounds=sim_rounds, hf=hf,
+                               hf_detect=hf_detect, progress=None if as_json else err)
+    except ValueError as exc:
+        raise _fail(str(exc)) from None
     _report(result, as_json, print_table)
 
 

@@ -3,7 +3,7 @@
 The demo's fleet processes (router; per robot mapping, planner and simulated
 robot; one perception with the sim backend, batching across robots; one
 gateway) under the supervisor on free loopback ports. Tasks are one target each,
-one the method finds within ~40 steps from the start, so the test is about the
+one the method finds within ~60 steps from the start, so the test is about the
 fleet, not the search.
 """
 
@@ -30,10 +30,11 @@ from shared.zconfig import build_config
 from tests.polling import wait_for
 
 SEED = 0
-EPISODES = {"sim1": 5, "sim2": 8, "sim3": 13}
-#: per robot a target of its episode found early (in-process: step 26, 41, 27), then one found later
-FIRST = {"sim1": "cup", "sim2": "candle", "sim3": "garbage_can"}
-SECOND = {"sim1": "garbage_can", "sim2": "bottle", "sim3": "toilet_paper"}
+EPISODES = {"sim1": 4, "sim2": 1, "sim3": 2}
+#: per robot a target of its episode found early (in-process, alone, from the start: step 26, 16, 58),
+#: then another one (from the start: 137, 49, 93)
+FIRST = {"sim1": "floor_lamp", "sim2": "spray_bottle", "sim3": "cup"}
+SECOND = {"sim1": "plate", "sim2": "candle", "sim3": "toilet_paper"}
 
 
 class Fleet:
@@ -61,17 +62,19 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
 
 
 def _home_agreement(snapshot: MapSnapshot, episode: int) -> float:
-    """The share of the map's obstacle cells that lie on (within 15 cm of) walls or floor-standing
-    objects of episode ``episode``'s home, or outside it."""
+    """The share of the map's obstacle cells that lie on (within 15 cm of) the walls or the
+    floor-standing objects of episode ``episode``'s home."""
     _, scene, _ = make_episode(SEED, episode)
     grid = grid_for(scene)
-    truth = binary_dilation(rasterize(scene, grid), iterations=max(1, round(0.15 / grid.resolution)))
+    xs, ys = grid.cell_centres()
+    house = (xs >= 0) & (xs <= scene.width) & (ys >= 0) & (ys <= scene.depth)  # not the outside
+    truth = binary_dilation(rasterize(scene, grid) & house, iterations=max(1, round(0.15 / grid.resolution)))
     rows, cols = np.nonzero(snapshot.obstacle)
     x = snapshot.origin[0] + (cols + 0.5) * snapshot.resolution
     y = snapshot.origin[1] + (rows + 0.5) * snapshot.resolution
     r, c = grid.to_cell(x, y)
     inside = (r >= 0) & (r < grid.rows) & (c >= 0) & (c < grid.cols)
-    hits = np.ones(len(x), bool)  # beyond the raster: outside the house, occupied
+    hits = np.zeros(len(x), bool)
     hits[inside] = truth[r[inside], c[inside]]
     return float(hits.mean())
 
@@ -88,10 +91,10 @@ def test_three_robots_complete_their_tasks_at_once_each_mapping_only_its_home(fl
     for robot, snapshot in maps.items():
         assert snapshot is not None and snapshot.obstacle.any()
         agreement = {other: _home_agreement(snapshot, episode) for other, episode in EPISODES.items()}
-        # its own home explains its obstacles; another home's free floor would hold many of them
-        # (measured: 0.71-0.87 of them fit another home)
+        # its own home explains its obstacles; another home does not (measured: 0.02-0.59 of them
+        # lie on another home's walls or furniture)
         assert agreement[robot] >= 0.95, (robot, agreement)
-        assert all(agreement[robot] > a + 0.1 for other, a in agreement.items() if other != robot), \
+        assert all(agreement[robot] > a + 0.3 for other, a in agreement.items() if other != robot), \
             (robot, agreement)
 
 

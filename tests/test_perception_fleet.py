@@ -97,3 +97,18 @@ def test_batches_take_the_robots_in_turn() -> None:
         taken += [robot for robot, _ in slots.take(1)]
     assert taken.count("b") == 4 and taken.count("c") == 4 and taken.count("a") == 4
     assert slots.replaced["a"] > 0 and slots.replaced["b"] == 0
+
+
+def test_the_fleet_benchmark_times_a_step_from_capture_to_the_next_command() -> None:
+    from bench.fleet import StepClock
+    from shared.messages import PlanCommand
+    clock, frame = StepClock(), render_frames(1)[0]
+    clock.on_frame("r1", frame.model_copy(update={"after_action": 3, "stamp": 10.0}))
+    clock.on_frame("r1", frame.model_copy(update={"after_action": 3, "stamp": 11.0}))  # re-published
+    clock.on_command("r1", PlanCommand(action_id=4, stamp=10.25))  # before the window: not counted
+    clock.open = True
+    clock.on_frame("r1", frame.model_copy(update={"after_action": 4, "stamp": 12.0}))
+    clock.on_command("r1", PlanCommand(action_id=5, stamp=12.5))
+    clock.on_command("r1", PlanCommand(action_id=5, stamp=12.8))  # a re-sent copy
+    clock.on_command("r2", PlanCommand(action_id=1, stamp=13.0))  # no frame seen before it
+    assert clock.decisions == {"r1": 1} and clock.latencies == {"r1": [0.5]}
