@@ -232,15 +232,23 @@ def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode:
         wait_for_services(client, fleet_ids, deadline)
         views = _search(console, client, tasks, started,
                         default_timeout_s(base) * robots if timeout_s is None else timeout_s)
-        report = _write_results(console, client, views, out_dir, seed, episodes,
-                                time.monotonic() - started, supervisor)
+        outcome = _write_results(console, client, views, out_dir, seed, episodes,
+                                 time.monotonic() - started, supervisor)
         if keep_running:
+            _print(console, outcome)
             _serve_until_interrupted(console, url, fleet_ids[0])
     if record is not None:  # complete once the supervisor stopped the recorder, after the services
         for robot in fleet_ids:
             path = _recording(record, robot, robots)
             console.print(f"recorded the run to {path} (ovamos replay {path}; or open it in Foxglove)")
+    if not keep_running:
+        _print(console, outcome)  # last: one line per robot
     return 0 if all(v.status.value == "done" for v in views.values()) else 1
+
+
+def _print(console: Console, lines: list[str]) -> None:
+    for line in lines:
+        console.print(line)
 
 
 def _search(console: Console, client: GatewayClient, tasks: dict[str, list[str]], started: float,
@@ -259,9 +267,9 @@ def _search(console: Console, client: GatewayClient, tasks: dict[str, list[str]]
 
 
 def _write_results(console: Console, client: GatewayClient, views: dict[str, TaskView], out_dir: Path,
-                   seed: int, episodes: dict[str, int], seconds: float, supervisor: Supervisor) -> dict[str, Any]:
-    """The report (one robot: its task at the top level, as before; a fleet: ``robots``, each
-    robot's episode and task), each robot's map, and one ``done: ...`` line per robot, last."""
+                   seed: int, episodes: dict[str, int], seconds: float, supervisor: Supervisor) -> list[str]:
+    """Write the report (one robot: its task at the top level, as before; a fleet: ``robots``, each
+    robot's episode and task) and each robot's map; return one ``done: ...`` line per robot."""
     out_dir.mkdir(parents=True, exist_ok=True)
     single = len(views) == 1
     maps = {robot: out_dir / ("demo_map.png" if single else f"demo_map-{robot}.png") for robot in views}
@@ -277,13 +285,14 @@ def _write_results(console: Console, client: GatewayClient, views: dict[str, Tas
                               if single else {"seconds": round(seconds, 1), "robots": per_robot, "restarts": restarts})
     report_path = out_dir / "demo_report.json"
     report_path.write_text(json.dumps(report, indent=1))
+    lines = []
     for robot, view in views.items():
         found = ", ".join(f.label for f in view.found) or "nothing"
         colour = "green" if view.status.value == "done" else "red"
         who = "" if single else f"{robot} "
-        console.print(f"[{colour}]{view.status.value}[/{colour}]: {who}found {found} in {view.steps} steps, "
-                      f"{view.distance_m:.1f} m; report {report_path}, map {maps[robot]}")
-    return report
+        lines.append(f"[{colour}]{view.status.value}[/{colour}]: {who}found {found} in {view.steps} steps, "
+                     f"{view.distance_m:.1f} m; report {report_path}, map {maps[robot]}")
+    return lines
 
 
 def _serve_until_interrupted(console: Console, url: str, robot_id: str) -> None:

@@ -88,6 +88,7 @@ def test_demo_finds_every_target_through_the_http_api_and_cleans_up(tmp_path: Pa
     goes in over HTTP and comes back done with every target found."""
     out = ovamos("demo", "--out", str(tmp_path), timeout=400)
     assert out.returncode == 0, out.stdout + out.stderr
+    assert out.stdout.rindex("done: found") > out.stdout.rindex("recorded the run")  # the last line
     report = json.loads((tmp_path / "demo_report.json").read_text())
     task = report["task"]
     assert task["status"] == "done" and sorted(f["label"] for f in task["found"]) == sorted(task["targets"])

@@ -112,3 +112,20 @@ def test_the_fleet_benchmark_times_a_step_from_capture_to_the_next_command() -> 
     clock.on_command("r1", PlanCommand(action_id=5, stamp=12.8))  # a re-sent copy
     clock.on_command("r2", PlanCommand(action_id=1, stamp=13.0))  # no frame seen before it
     assert clock.decisions == {"r1": 1} and clock.latencies == {"r1": [0.5]}
+
+
+def test_new_targets_rescore_only_that_robots_latest_frame(frames, backend) -> None:
+    network = FakeNetwork()
+    service = start(network, backend, robots=["r1", "r2"])
+    r1, r2 = Robot(network, "r1"), Robot(network, "r2")
+    network.pump()
+    r1.frames.put(frames[0].model_copy(update={"seq": 5}))
+    r2.frames.put(frames[1].model_copy(update={"seq": 9}))
+    network.pump()
+    task = TaskSpec(task_id="a", targets=("fridge",), stamp=0.0)
+    r1.tasks.put(task)
+    r1.tasks.put(task)  # re-sent: nothing new to score
+    network.pump()
+    assert [(r.seq, r.targets) for r in r1.results] == [(5, ()), (5, ("fridge",))]
+    assert [(r.seq, r.targets) for r in r2.results] == [(9, ())]
+    assert service.info()["rescored"] == 1

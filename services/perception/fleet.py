@@ -26,21 +26,23 @@ class RobotTargets:
         self._found: frozenset[str] = frozenset()
         self.targets: tuple[str, ...] = ()
 
-    def on_task(self, task: TaskSpec) -> None:
-        """A task (or its cancellation: no targets any more)."""
+    def on_task(self, task: TaskSpec) -> bool:
+        """A task (or its cancellation: no targets any more); whether the list gained a target."""
         if task.task_id != self._task_id:
             self._task_id, self._found = task.task_id, frozenset()
         self._spec = () if task.cancelled else task.targets
-        self._retarget()
+        return self._retarget()
 
-    def on_event(self, event: TaskEvent) -> None:
+    def on_event(self, event: TaskEvent) -> bool:
         """A found target is not looked for any more (its map layer goes with it)."""
-        if event.task_id == self._task_id:
-            self._found = frozenset(f.label for f in event.found)
-            self._retarget()
+        if event.task_id != self._task_id:
+            return False
+        self._found = frozenset(f.label for f in event.found)
+        return self._retarget()
 
-    def _retarget(self) -> None:
-        self.targets = tuple(t for t in self._spec if t not in self._found)
+    def _retarget(self) -> bool:
+        before, self.targets = self.targets, tuple(t for t in self._spec if t not in self._found)
+        return bool(set(self.targets) - set(before))
 
 
 class FrameSlots:
@@ -63,6 +65,10 @@ class FrameSlots:
 
     def __len__(self) -> int:
         return len(self._slots)
+
+    def __contains__(self, robot: str) -> bool:
+        """Whether ``robot`` has a frame waiting."""
+        return robot in self._slots
 
     def due(self, batch_size: int, wait_s: float, now: float) -> bool:
         """A batch should run now: ``batch_size`` frames wait, or one has waited ``wait_s``."""

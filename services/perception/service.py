@@ -25,7 +25,11 @@ less the targets its ``task/events`` report found. Without a task (or once it
 is cancelled) there are no targets: each frame still gets a result, with no
 scores and no detections and without running a model. The map then fuses the
 frame at once instead of waiting out its match timeout, and drops its value
-layers when a task ends.
+layers when a task ends. When a robot's list gains a target (a task starts,
+targets are added), the latest frame this replica processed of that robot goes
+back into its slot, unless a newer one waits there, and is scored again for the
+new list: the view in front of a robot standing still is not lost for the new
+targets (the map fuses only the values of targets it had not fused that frame for).
 
 A frame no backend can use (wrong size, or a camera frame sent to the sim
 backend) is rejected: counted as ``malformed`` on its frame key (as the bus
@@ -74,7 +78,8 @@ class PerceptionService(Service):
         self.slots = FrameSlots()
         self._targets: defaultdict[str, RobotTargets] = defaultdict(RobotTargets)
         self._processed: defaultdict[str, int] = defaultdict(int)
-        self._rejected = self._batches = 0
+        self._latest: dict[str, RgbdFrame] = {}  # per robot the newest frame processed: re-scored on new targets
+        self._rejected = self._batches = self._rescored = 0
         self._last_seq: int | None = None
         self._last_ms: float | None = None
         self._last_batch = 0
@@ -83,10 +88,11 @@ class PerceptionService(Service):
 
     def start(self) -> None:
         robot = self.bus.robot_id
-        self.wire_robots(self.robots, {"task_current": lambda r, task: self._targets[r].on_task(task),
-                                       "task_events": lambda r, event: self._targets[r].on_event(event),
-                                       "rgbd": self._on_frame},
-                         keep={"rgbd": self.config.queue_frames})
+        targets = self._targets
+        self.wire_robots(self.robots, {
+            "task_current": lambda r, task: self._retarget(r, targets[r].on_task(task)),
+            "task_events": lambda r, event: self._retarget(r, targets[r].on_event(event)),
+            "rgbd": self._on_frame}, keep={"rgbd": self.config.queue_frames})
         self.bus.watch_liveliness(keys.ready(robot, self.name), self._on_member)
         for other in self.robots:
             if other not in (robot, keys.ANY):
@@ -103,6 +109,15 @@ class PerceptionService(Service):
         else:
             self.replicas.leave(instance)
         self.log.info("perception replicas now %s", self.replicas.members())
+
+    def _retarget(self, robot: str, gained: bool) -> None:
+        """A robot's list gained a target: its latest processed frame is scored again (unless a
+        newer frame of it is waiting, which will be scored for the new list anyway)."""
+        latest = self._latest.get(robot)
+        if gained and latest is not None and robot not in self.slots:
+            self._rescored += 1
+            self.slots.put(robot, latest, time.monotonic())
+            self.tick()
 
     def _on_frame(self, robot: str, frame: RgbdFrame) -> None:
         if self.replicas.owns(frame.seq):
@@ -134,6 +149,7 @@ class PerceptionService(Service):
             self.output("perception_result", job.robot_id).put(PerceptionResult.build(
                 job.frame.seq, job.frame.stamp, outcome.scores, outcome.detections, job.frame.depth.shape))
             self._processed[job.robot_id] += 1
+            self._latest[job.robot_id] = job.frame
             self._last_seq = job.frame.seq
         self._batches += 1
         self._last_batch = len(batch)
@@ -155,7 +171,8 @@ class PerceptionService(Service):
                 "targets": {r: list(t.targets) for r, t in self._targets.items()},
                 "replicas": members, "replica_index": members.index(self.bus.instance),
                 "processed": sum(self._processed.values()), "processed_by_robot": dict(self._processed),
-                "replaced_by_robot": dict(self.slots.replaced), "batches": self._batches,
+                "replaced_by_robot": dict(self.slots.replaced), "rescored": self._rescored,
+                "batches": self._batches,
                 "last_batch": self._last_batch, "rejected": self._rejected,
                 "last_rejection": self._last_rejection, "last_seq": self._last_seq,
                 "last_ms": None if self._last_ms is None else round(self._last_ms, 1)}
