@@ -64,14 +64,14 @@ def fleet_robots(count: int) -> list[str]:
     return ["sim"] if count == 1 else [f"sim{i + 1}" for i in range(count)]
 
 
-def _robot_configs(folder: Path, seed: int, episode: int, *, width: int, height: int,
-                   base: str) -> dict[str, dict[str, Any]]:
+def _robot_configs(folder: Path, seed: int, episode: int, *, width: int, height: int, base: str,
+                   checkpoint: str = "map.ckpt") -> dict[str, dict[str, Any]]:
     """The per-robot services' configs for a robot in episode (``seed``, ``episode``)."""
     _, scene, _ = make_episode(seed, episode)
     mapping = scene_mapping(scene)
     episode_keys = {"episode_seed": seed, "episode_index": episode}
     return {"mapping": {"grid_cells": mapping.grid_cells, "center": list(mapping.center), "publish_hz": 5.0,
-                        "checkpoint_path": str(folder / "map-{robot_id}.ckpt")},
+                        "checkpoint_path": str(folder / checkpoint)},
             "sim": {**episode_keys, "motion": base, "lock_step": True, "width": width, "height": height}}
 
 
@@ -115,7 +115,7 @@ def write_fleet_configs(folder: Path, *, seed: int, episodes: dict[str, int], ht
     configs: dict[str, dict[str, Any]] = {}
     for robot, home in homes.items():
         for name, config in _robot_configs(folder, seed, home["episode_index"], width=width, height=height,
-                                           base=base).items():
+                                           base=base, checkpoint=f"map-{robot}.ckpt").items():
             configs[f"{name}-{robot}"] = config
     perception = PerceptionServiceConfig(backend="sim", batch_size=len(robots), batch_wait_ms=10.0)
     configs["perception"] = {**perception.model_dump(mode="json", include={"backend", "batch_size", "batch_wait_ms"}),
