@@ -58,7 +58,7 @@ from services.perception.replicas import ReplicaSet
 from shared import keys
 from shared.bus import BusCore
 from shared.log import fields, sampled
-from shared.messages import PerceptionResult, RgbdFrame, TaskEvent, TaskSpec
+from shared.messages import PerceptionResult, RgbdFrame
 from shared.service import Service
 
 
