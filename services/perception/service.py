@@ -147,7 +147,8 @@ class PerceptionService(Service):
                 self._reject(job.robot_id, job.frame, str(outcome))
                 continue
             self.output("perception_result", job.robot_id).put(PerceptionResult.build(
-                job.frame.seq, job.frame.stamp, outcome.scores, outcome.detections, job.frame.depth.shape))
+                job.frame.seq, job.frame.stamp, outcome.scores, outcome.detections, job.frame.depth.shape,
+                job.frame.odom_session))
             self._processed[job.robot_id] += 1
             self._latest[job.robot_id] = job.frame
             self._last_seq = job.frame.seq
