@@ -406,6 +406,31 @@ def test_a_goal_the_map_keeps_blocking_is_given_up_after_max_replans() -> None:
     assert nav.replans == 3
 
 
+@pytest.mark.parametrize("same_goal_m", [0.25, 0.0])
+def test_a_goal_that_moves_by_centimetres_is_still_given_up(same_goal_m: float) -> None:
+    """An object's position is refined by every detection, so its goal moves by centimetres; the
+    navigator must keep counting re-plans for it (it once started afresh on every move, and an
+    unreachable object was chased for 600 commands)."""
+    pose = Pose(x=0.5, y=1.5, yaw=0.0)
+    nav = Navigator(NavigationConfig(max_replans=2, same_goal_m=same_goal_m))
+    obs = np.zeros((60, 100), dtype=bool)
+    error = ""
+    for i in range(10):
+        try:
+            assert nav.next_command(nav_map(obs), pose, (4.5 + 0.01 * i, 1.5)) is not Action.STOP
+        except Unreachable as exc:
+            error = str(exc)
+            break
+        xs, ys = nav.path[0]
+        obs = obs.copy()
+        r, c = nav_map(obs).grid.to_cell(xs, ys)
+        obs[max(r - 6, 0):r + 7, c] = True
+    if same_goal_m > 0:
+        assert "2 re-plans" in error and i == 3
+    else:  # every move started afresh: the re-plans were never counted (walls ended it, much later)
+        assert "re-plans" not in error and i > 3
+
+
 def test_heading_slack_trades_turns_for_straighter_runs() -> None:
     obs = np.zeros((80, 80), dtype=bool)
     start, goal = Pose(x=0.3, y=0.3, yaw=0.0), (3.6, 3.6)  # 45 deg: between two headings

@@ -65,6 +65,12 @@ class NavigationConfig(BaseModel):
         description="re-plans for one goal (the map invalidated the path, the robot left it) "
                     "before it is reported unreachable: a goal revealed to be walled off bit "
                     "by bit must not keep the robot busy forever")
+    same_goal_m: float = Field(
+        default=0.25, ge=0,
+        description="a goal this close to the one being pursued is the same goal (plan and counters "
+                    "kept): an object's estimate moves by centimetres as detections refine it, and "
+                    "starting afresh on each move reset the stall and re-plan counters, so an "
+                    "unreachable object was chased for hundreds of commands")
     stall_commands: int = Field(
         default=40, ge=1,
         description="commands in a row without getting closer to the goal (by path length) "
@@ -263,8 +269,8 @@ class Navigator:
     a cell the new map blocks, or the robot is outside the field; a robot knocked off the path
     needs no re-plan, since every cell of the field knows its way. It returns STOP within
     ``goal_tolerance_m`` and raises :class:`Unreachable` (with the reason) when the goal cannot
-    be reached, after a bounded number of calls in every case. Any change of the goal starts
-    afresh (plan and counters): pass the same goal while pursuing it.
+    be reached, after a bounded number of calls in every case. A goal moved farther than
+    ``same_goal_m`` starts afresh (plan and counters); a nearer one is the goal being pursued.
 
     MOVE_FORWARD is only returned when every cell the 0.25 m segment crosses is traversable on
     the inflated map. The one exception is a robot that is already inside the inflation (the
@@ -329,9 +335,10 @@ class Navigator:
         x, y, yaw = (pose.x, pose.y, pose.yaw) if isinstance(pose, Pose) else map(float, pose)
         goal = (float(goal[0]), float(goal[1]))
         snap = cfg.snap_radius_m if snap_radius_m is None else snap_radius_m
-        if goal != self._goal or snap != self._snap:
+        if self._goal is None or snap != self._snap or math.dist(goal, self._goal) > cfg.same_goal_m:
             self.reset()
             self._goal, self._snap = goal, snap
+        goal = self._goal
         tol = cfg.goal_tolerance_m
         if math.hypot(goal[0] - x, goal[1] - y) <= tol:
             return Action.STOP
