@@ -263,6 +263,8 @@ def _search(console: Console, client: GatewayClient, tasks: dict[str, list[str]]
             time.sleep(0.5)
             views = {robot: client.get(task_id) for robot, task_id in ids.items()}
             live.update(_progress(dict(views), time.monotonic() - started))
+    if not console.is_terminal:  # Live's last frame ends without a newline when piped: done lines start one
+        console.line()
     return {robot: view if view.final else client.cancel(ids[robot]) for robot, view in views.items()}
 
 
