@@ -127,7 +127,7 @@ def run_tls_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
                         rtt = link.round_trip(LOST_AFTER_S)
                         if rtt is None:  # dropped on the way (a full queue drops a frame): counted
                             lost[variant] += 1
-                            if lost[variant] > frames * runs // 10:
+                            if lost[variant] > (WARMUP + frames) * runs // 10:  # of all sent
                                 raise RuntimeError(f"{variant}: over 10 % of the frames lost")
                         elif i >= WARMUP:
                             samples[variant].append(rtt)
