@@ -372,7 +372,7 @@ def _interrupted_task(dep: Deployment, interrupt: Callable[[], None], resume: Ca
 
 def test_netns_a_link_cut_stops_the_wheels_and_the_task_completes_when_it_returns(deployment: Deployment) -> None:
     dep = deployment
-    final, t0, rest, starts = _interrupted_task(dep, dep.hosts.cut, dep.hosts.restore, ("spray_bottle", "candle"))
+    final, t0, rest, starts = _interrupted_task(dep, dep.hosts.cut, dep.hosts.restore, ("spray_bottle", "countertop"))
     bound = COMMAND_TIMEOUT_S + _ramp(DriverConfig()) + 0.3  # 0.3 s: odometry period, scheduling
     print(f"link cut: wheels at rest {None if rest is None else round(rest - t0, 2)} s after it (bound {bound:.2f} s)")
     assert rest is not None and rest - t0 <= bound, \
