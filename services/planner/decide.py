@@ -274,10 +274,8 @@ def _plus(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Seque
         if len(frontiers) else np.zeros(0)
     best = np.argsort(-scores, kind="stable")[:plus.frontiers]
     offered, offered_values = frontiers[best], scores[best]
-    if len(cands.points) == 0:
-        if not len(offered):
-            return None
-        cands = Candidates(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
+    if len(cands.points) == 0 and not len(offered):
+        return None
     bonuses = frontier_bonuses(offered_values, cands, plus, config.pomdp.lambda_frontier)
     return _pouct(cands, offered, offered_values, robot_xy, snapshot, config, bonuses)
 
