@@ -43,6 +43,11 @@ LAPTOP_FROM_INTRUDER, ROBOT_FROM_INTRUDER = LINKS["il"][3], LINKS["ir"][3]
 LINK_PORT, OPERATOR_PORT = 7450, 7451
 COMMAND_TIMEOUT_S = 0.5
 TASK_TIMEOUT_S = 240.0
+#: an interrupted task's budget: it must go on to its end (all found, or this many steps) after the
+#: interruption. How long a later task's search takes depends on where the earlier ones left the
+#: robot and what its map has decayed (16 to 70 steps here, at ~1.5 s a step); the budget keeps
+#: these tests about the link, at ~40 s at most.
+INTERRUPTED_STEPS = 25
 
 _reason = unavailable_reason()
 pytestmark = pytest.mark.skipif(_reason is not None, reason=f"no network namespaces here: {_reason}")
@@ -203,9 +208,10 @@ class Deployment:
                                   f"tcp/127.0.0.1:{port}", "--robot-id", ROBOT, "--timeout", "1"])
         return json.loads(done.stdout) if done.returncode == 0 and done.stdout.strip() else []
 
-    def submit(self, *targets: str) -> str:
+    def submit(self, *targets: str, max_steps: int = 150) -> str:
         done = self.run_in("laptop", [sys.executable, "-m", "ovamos.cli", "submit", *targets, "--gateway",
-                                      f"http://127.0.0.1:{HTTP_PORT}", "--robot-id", ROBOT, "--max-steps", "150"])
+                                      f"http://127.0.0.1:{HTTP_PORT}", "--robot-id", ROBOT,
+                                      "--max-steps", str(max_steps)])
         assert done.returncode == 0, done.stderr
         return done.stdout.split()[1].rstrip(":")
 
@@ -352,25 +358,30 @@ def test_netns_an_intruder_cannot_make_the_robot_move(deployment: Deployment) ->
 
 def _interrupted_task(dep: Deployment, interrupt: Callable[[], None], resume: Callable[[], None],
                       targets: tuple[str, ...]) -> tuple[dict[str, Any], float, float | None, dict[str, int]]:
-    """Submit, and once the wheels turn mid-task interrupt the link for 5 s; the final event, when
-    the interruption began, when the wheels came to rest after it, and the processes' start counts
-    from before."""
+    """Submit, and once the wheels turn mid-task interrupt the link for 5 s; the task must go on to
+    its end: every target found or its :data:`INTERRUPTED_STEPS` used, more than 5 steps of them
+    after the interruption. The final event, when the interruption began, when the wheels came to
+    rest after it, and the processes' start counts from before."""
     starts = dep.starts()
-    task = dep.submit(*targets)
+    task = dep.submit(*targets, max_steps=INTERRUPTED_STEPS)
     dep.wait_steps(task, 3)
     dep.wait_moving()
     interrupt()
     t0 = time.monotonic()
+    at_interrupt = max(e["steps"] for e in dep.events(task))
     time.sleep(5.0)
     resume()
     rest = dep.stopped_at(t0, t0 + 4.5)
     final = dep.wait_task(task)
-    assert final["status"] == "done", final["message"]
-    assert sorted(f["label"] for f in final["found"]) == sorted(targets)
+    if final["status"] == "done":
+        assert sorted(f["label"] for f in final["found"]) == sorted(targets)
+    else:
+        assert final["message"] == f"step limit {INTERRUPTED_STEPS} reached", final
+    assert final["steps"] > at_interrupt + 5, f"the task did not go on: {final}"
     return final, t0, rest, starts
 
 
-def test_netns_a_link_cut_stops_the_wheels_and_the_task_completes_when_it_returns(deployment: Deployment) -> None:
+def test_netns_a_link_cut_stops_the_wheels_and_the_task_goes_on_when_it_returns(deployment: Deployment) -> None:
     dep = deployment
     final, t0, rest, starts = _interrupted_task(dep, dep.hosts.cut, dep.hosts.restore, ("spray_bottle", "countertop"))
     bound = COMMAND_TIMEOUT_S + _ramp(DriverConfig()) + 0.3  # 0.3 s: odometry period, scheduling
@@ -395,7 +406,7 @@ def test_netns_the_laptop_router_killed_and_restarted_mid_task(deployment: Deplo
         assert len(routers) == 1, routers
         os.kill(routers[0], signal.SIGKILL)
 
-    final, t0, rest, starts = _interrupted_task(dep, kill_router, lambda: None, ("countertop",))
+    final, t0, rest, starts = _interrupted_task(dep, kill_router, lambda: None, ("spray_bottle", "countertop"))
     bound = COMMAND_TIMEOUT_S + _ramp(DriverConfig()) + 0.3
     print(f"router killed: wheels at rest {None if rest is None else round(rest - t0, 2)} s after it")
     assert rest is not None and rest - t0 <= bound, \
