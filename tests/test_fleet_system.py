@@ -9,6 +9,8 @@ fleet, not the search.
 
 from __future__ import annotations
 
+import os
+import signal
 import time
 from collections.abc import Iterator
 
@@ -109,3 +111,33 @@ def test_a_killed_planner_stops_only_its_robot_and_is_restarted(fleet: Fleet) ->
         assert view.status.value == "done", (robot, view.message)
     assert fleet.restarts("planner-sim2") >= 1
     assert all(s.restarts == 0 for s in fleet.supervisor.status() if s.name != "planner-sim2")
+
+
+def test_a_robot_whose_link_hangs_does_not_stop_the_others_and_finishes_when_it_returns(fleet: Fleet) -> None:
+    """sim3's simulated robot (its camera and base) frozen for 6 s (SIGSTOP: its Zenoh session stays
+    open and says nothing, as over a dead Wi-Fi link, until the router's 3 s lease drops it): sim1
+    and sim2 keep stepping through the stall, sim3's task says the robot is unreachable, and once
+    the process runs again its task goes on and ends done."""
+    ids = fleet.submit(FIRST)
+    wait_for(lambda: all(fleet.client.get(i).steps >= 2 for i in ids.values()), timeout=120, what="all moving")
+    frozen = fleet.supervisor.process("sim-sim3")
+    assert frozen is not None
+    others = {robot: fleet.client.get(ids[robot]).steps for robot in ("sim1", "sim2")}
+    said: list[str] = []
+    os.killpg(frozen.pid, signal.SIGSTOP)
+    try:
+        deadline = time.monotonic() + 6.0
+        while time.monotonic() < deadline:
+            said.append(fleet.client.get(ids["sim3"]).message)
+            time.sleep(0.2)
+        during = {robot: fleet.client.get(ids[robot]) for robot in others}
+    finally:
+        os.killpg(frozen.pid, signal.SIGCONT)
+    assert "robot unreachable" in said, set(said)
+    for robot, view in during.items():  # stepping on through the stall (or already done)
+        assert view.status.value == "done" or view.steps >= others[robot] + 3, (robot, others[robot], view)
+    wait_for(lambda: all(fleet.client.get(i).final for i in ids.values()), timeout=300, what="three tasks end")
+    for robot, task_id in ids.items():
+        view = fleet.client.get(task_id)
+        assert view.status.value == "done", (robot, view.message)
+    assert all(s.restarts == 0 for s in fleet.supervisor.status() if s.name not in ("planner-sim2",))
