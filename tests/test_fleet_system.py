@@ -140,4 +140,5 @@ def test_a_robot_whose_link_hangs_does_not_stop_the_others_and_finishes_when_it_
     for robot, task_id in ids.items():
         view = fleet.client.get(task_id)
         assert view.status.value == "done", (robot, view.message)
-    assert all(s.restarts == 0 for s in fleet.supervisor.status() if s.name not in ("planner-sim2",))
+    # no restart but the previous test's (the fixture serves the module)
+    assert all(s.restarts == 0 for s in fleet.supervisor.status() if s.name != "planner-sim2")

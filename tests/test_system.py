@@ -27,8 +27,8 @@ TARGET = "floor_lamp"  # of the demo episode's targets
 
 
 class System:
-    def __init__(self, supervisor: Supervisor, client: GatewayClient, config: Path) -> None:
-        self.supervisor, self.client, self.config = supervisor, client, config
+    def __init__(self, supervisor: Supervisor, client: GatewayClient, checkpoint: Path) -> None:
+        self.supervisor, self.client, self.checkpoint = supervisor, client, checkpoint
 
     def ready(self) -> bool:
         try:
@@ -52,7 +52,7 @@ def system(tmp_path: Path) -> Iterator[System]:
     with Supervisor(entries, log_dir=tmp_path / "logs", backoff=Backoff(initial_s=0.2, max_s=1.0)) as sup, \
             GatewayClient(f"http://127.0.0.1:{http_port}") as client:
         wait_for(lambda: port_open("127.0.0.1", http_port), timeout=60, what="the gateway")
-        running = System(sup, client, tmp_path / "config")
+        running = System(sup, client, Path(mapping["checkpoint_path"]))
         wait_for(running.ready, timeout=90, what="every service alive")
         yield running
 
@@ -81,7 +81,7 @@ def _restarted(system: System, name: str) -> int:
 
 def test_a_killed_mapping_process_is_restarted_from_its_checkpoint_and_the_task_completes(system) -> None:
     final = _run_with_a_kill(system, "mapping", before_kill=lambda task_id: wait_for(
-        lambda: (system.config / "map.ckpt").exists(), timeout=10, what="a checkpoint (every 1 s here)"))
+        lambda: system.checkpoint.exists(), timeout=10, what="a checkpoint (every 1 s here)"))
     assert final.status.value == "done", final.message
     assert sorted(f.label for f in final.found) == sorted(final.targets)
     assert _restarted(system, "mapping") >= 1
