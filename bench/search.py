@@ -9,6 +9,11 @@ The runner is deterministic, so the per-episode JSONL is sorted by (policy, epis
 without the wall-clock field: two runs with one seed give byte-identical files whatever the
 worker count; timings go to their own file.
 
+Each result is appended to ``episodes.jsonl`` as it finishes, beside a ``run.json`` naming the
+run's settings, so a run cut short (a crash, a closed laptop) loses at most the episodes in flight:
+``--resume`` keeps what the folder holds and runs only the missing (policy, episode) pairs. The
+same mechanism adds policies or episodes to a finished run; its tables then cover all of them.
+
 ``replay`` draws one episode from above so that a person can see why it failed.
 """
 
@@ -39,8 +44,10 @@ from services.sim.perception_presets import perception_preset
 
 TIMING_FIELDS = {"seconds"}  # wall clock: kept out of the comparable JSONL
 
-EPISODES_FILE, TIMINGS_FILE, SUMMARY_FILE, CHART_FILE = (
-    "episodes.jsonl", "timings.jsonl", "summary.json", "chart.png")
+EPISODES_FILE, TIMINGS_FILE, SUMMARY_FILE, CHART_FILE, RUN_FILE = (
+    "episodes.jsonl", "timings.jsonl", "summary.json", "chart.png", "run.json")
+#: What an episode's outcome depends on besides the code, policy and index: a resumed run must match.
+RUN_SETTINGS = ("seed", "perception", "homes", "max_steps")
 
 
 class SearchError(ValueError):
@@ -96,6 +103,7 @@ class SearchRun:
     seconds: float
     perception: str = "ideal"
     homes: str = "default"
+    resumed: int = 0  # results read back from the folder, not run (and not timed) by this run
 
 
 def sort_results(results: Iterable[EpisodeResult]) -> list[EpisodeResult]:
@@ -135,24 +143,87 @@ def _progress(console: Console | None, total: int) -> Iterator[Callable[[Episode
 
 def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_POLICIES, workers: int = 2,
                max_steps: int | None = None, progress: Console | None = None, perception: str = "ideal",
-               homes: str = "default") -> SearchRun:
+               homes: str = "default", out: Path | None = None, resume: bool = False) -> SearchRun:
     """Run every (policy, episode) pair with the simulated perception ``perception`` (a preset
     name) in homes of tier ``homes``; ``max_steps`` overrides the paper's 500 (quick runs and
-    tests only: the tables need the paper's limit)."""
+    tests only: the tables need the paper's limit).
+
+    With ``out`` each result is appended to its ``episodes.jsonl`` as it finishes; with ``resume``
+    the pairs that file already holds are kept, not run again, and the run covers them too."""
     if episodes < 1 or workers < 1 or (max_steps is not None and max_steps < 1):
         raise SearchError(f"need episodes >= 1, workers >= 1 and max steps >= 1 "
                           f"(got {episodes}, {workers}, {max_steps})")
+    if resume and out is None:
+        raise SearchError("--resume needs --out DIR: the folder of the run to go on with")
     policies = parse_policies(policies)
     check_settings(perception, homes)
-    jobs = jobs_for(episodes, seed, policies, max_steps, perception, homes)
+    settings = {"seed": seed, "perception": perception, "homes": homes, "max_steps": max_steps}
+    kept = held_results(out, settings) if resume and out is not None else []
+    done = {(r.policy, r.episode_id) for r in kept}
+    jobs = [j for j in jobs_for(episodes, seed, policies, max_steps, perception, homes)
+            if (j.policy, f"{seed}-{j.index}") not in done]
+    if progress is not None and kept:
+        progress.print(f"resuming {out}: {len(kept)} episodes kept, {len(jobs)} to run", highlight=False,
+                       soft_wrap=True)
+    append = _start_file(out, settings, kept) if out is not None else None
     started = time.perf_counter()
-    results = []
+    results = list(kept)
     with _progress(progress, len(jobs)) as advance:
         for result in iter_results(jobs, workers):
             results.append(result)
+            if append is not None:
+                append(result)
             advance(result)
-    return SearchRun(seed, episodes, policies, workers, max_steps, sort_results(results),
-                     time.perf_counter() - started, perception, homes)
+    return SearchRun(seed, max([episodes, *(_episode_index(r) + 1 for r in kept)]),
+                     parse_policies([*policies, *(r.policy for r in kept)]), workers, max_steps,
+                     sort_results(results), time.perf_counter() - started, perception, homes, len(kept))
+
+
+def held_results(out: Path, settings: dict[str, Any]) -> list[EpisodeResult]:
+    """The episodes a run in ``out`` already finished, if it ran with ``settings`` (else a
+    :class:`SearchError` naming what differs: mixing them would make a table of two benchmarks).
+    A last line cut short by a crash is dropped; that episode runs again."""
+    episodes = out / EPISODES_FILE
+    if not episodes.exists():
+        return []
+    try:
+        held = json.loads((out / RUN_FILE).read_text())
+    except (OSError, ValueError) as exc:
+        raise SearchError(f"cannot resume {out}: its {RUN_FILE} does not say which settings its episodes were "
+                          f"run with ({exc})") from None
+    differ = [f"{k} {held.get(k)!r} there, {settings[k]!r} here" for k in RUN_SETTINGS if held.get(k) != settings[k]]
+    if differ:
+        raise SearchError(f"cannot resume {out}: its episodes were run with other settings ({'; '.join(differ)})")
+    return read_results(episodes, torn_tail=True)
+
+
+def _start_file(out: Path, settings: dict[str, Any], kept: Sequence[EpisodeResult]
+                ) -> Callable[[EpisodeResult], None]:
+    """Write run.json, the kept episodes and their timings; return the function that appends
+    each new result to both files."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / RUN_FILE).write_text(json.dumps(settings) + "\n")
+    episodes, timings = out / EPISODES_FILE, out / TIMINGS_FILE
+    pairs = {(r.episode_id, r.policy) for r in kept}
+    old = timings.read_text().splitlines() if kept and timings.exists() else []
+    timings.write_text("".join(f"{line}\n" for line in old if _timing_pair(line) in pairs))
+    episodes.write_text("".join(jsonl_line(r) for r in kept))
+
+    def append(result: EpisodeResult) -> None:
+        with timings.open("a") as file:
+            file.write(json.dumps({"episode_id": result.episode_id, "policy": result.policy,
+                                   "seconds": result.seconds, "steps": result.steps}) + "\n")
+        with episodes.open("a") as file:
+            file.write(jsonl_line(result))
+    return append
+
+
+def _timing_pair(line: str) -> tuple[str, str] | None:
+    try:
+        timing = json.loads(line)
+        return timing["episode_id"], timing["policy"]
+    except (ValueError, KeyError, TypeError):
+        return None  # a line cut short: its episode was not kept either
 
 
 def summary(run: SearchRun) -> dict[str, Any]:
@@ -161,7 +232,8 @@ def summary(run: SearchRun) -> dict[str, Any]:
             "vs_plus": paired_differences(run.results, reference="ovamos-plus"),
             "missed": miss_reasons(run.results),
             "seconds": round(run.seconds, 1),
-            "episodes_per_min": round(60 * len(run.results) / max(run.seconds, 1e-9), 2),
+            "episodes_per_min": round(60 * (len(run.results) - run.resumed) / max(run.seconds, 1e-9), 2),
+            "resumed": run.resumed,
             "seed": run.seed, "episodes": run.episodes, "workers": run.workers,
             "max_steps": run.max_steps, "perception": run.perception, "homes": run.homes}
 
@@ -172,13 +244,17 @@ def jsonl_line(result: EpisodeResult) -> str:
     return result.model_dump_json(exclude=TIMING_FIELDS) + "\n"
 
 
-def read_results(path: Path) -> list[EpisodeResult]:
-    """Episodes from a JSONL this module wrote (wall clock absent: 0); a bad line names itself."""
+def read_results(path: Path, torn_tail: bool = False) -> list[EpisodeResult]:
+    """Episodes from a JSONL this module wrote (wall clock absent: 0); a bad line names itself.
+    With ``torn_tail`` a last line without its newline (a write cut short) is dropped, not refused."""
     results = []
     try:
-        lines = Path(path).read_text().splitlines()
+        text = Path(path).read_text()
     except OSError as exc:
         raise SearchError(f"cannot read {path}: {exc}") from None
+    lines = text.splitlines()
+    if torn_tail and text and not text.endswith("\n"):
+        lines.pop()
     for n, line in enumerate(lines, 1):
         if line.strip():
             try:
@@ -189,15 +265,13 @@ def read_results(path: Path) -> list[EpisodeResult]:
 
 
 def write_outputs(out: Path, run: SearchRun, result: dict[str, Any]) -> list[Path]:
-    """episodes.jsonl (comparable across runs), timings.jsonl, summary.json and chart.png."""
+    """episodes.jsonl sorted (comparable across runs), summary.json and chart.png; timings.jsonl
+    was written as the episodes finished."""
     out.mkdir(parents=True, exist_ok=True)
-    episodes, timings, summary_file = out / EPISODES_FILE, out / TIMINGS_FILE, out / SUMMARY_FILE
+    episodes, summary_file = out / EPISODES_FILE, out / SUMMARY_FILE
     episodes.write_text("".join(jsonl_line(r) for r in run.results))
-    timings.write_text("".join(json.dumps({"episode_id": r.episode_id, "policy": r.policy,
-                                           "seconds": r.seconds, "steps": r.steps}) + "\n"
-                               for r in run.results))
     summary_file.write_text(json.dumps(result, indent=2) + "\n")
-    return [episodes, timings, summary_file, write_png(out / CHART_FILE, draw_chart(result["policies"]))]
+    return [episodes, out / TIMINGS_FILE, summary_file, write_png(out / CHART_FILE, draw_chart(result["policies"]))]
 
 
 def find_result(results: Iterable[EpisodeResult], episode_id: str, policy: str) -> EpisodeResult:
@@ -234,7 +308,7 @@ def replay(episode_id: str, out: Path, policy: str = "ovamos", source: Path | No
 def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT_POLICIES), workers: int = 2,
          as_json: bool = False, out: Path | None = None, max_steps: int | None = None,
          replay_id: str | None = None, policy: str = "ovamos", source: Path | None = None,
-         perception: str = "ideal", homes: str = "default",
+         perception: str = "ideal", homes: str = "default", resume: bool = False,
          console: Console | None = None, err: Console | None = None) -> int:
     """``ovamos bench search``: the benchmark, or with ``replay_id`` one episode's picture.
     Raises :class:`SearchError` for bad arguments; returns the exit code."""
@@ -252,7 +326,7 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
                           f"{list(result.targets)}, {result.steps} steps -> {path}")
         return 0
     run = run_search(episodes, seed, parse_policies(policies), workers, max_steps, progress=err,
-                     perception=perception, homes=homes)
+                     perception=perception, homes=homes, out=out, resume=resume)
     result = summary(run)
     if out is not None:
         written = write_outputs(out, run, result)

@@ -606,6 +606,9 @@ def bench_search(
                                                      "(services/sim/perception_presets.py).")] = "ideal",
         homes: Annotated[str, typer.Option(help="Home tier: default (40-150 m2, 3-7 rooms) or large "
                                                 "(150-300 m2, 8-12 rooms).")] = "default",
+        resume: Annotated[bool, typer.Option(help="Keep the episodes --out already holds (a run cut short, "
+                                                  "or one to add policies or episodes to) and run the rest.")
+                          ] = False,
         as_json: AsJson = False) -> None:
     """Search benchmark: SR and MSPL per policy (the paper's Tables I and II), or one episode's picture."""
     from bench.search import SearchError
@@ -613,7 +616,7 @@ def bench_search(
     try:
         code = search_main(episodes=episodes, seed=seed, policies=policies, workers=workers, as_json=as_json,
                            out=out, max_steps=max_steps, replay_id=replay, policy=policy, source=source,
-                           perception=perception, homes=homes, console=console, err=err)
+                           perception=perception, homes=homes, resume=resume, console=console, err=err)
     except SearchError as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)

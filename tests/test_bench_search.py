@@ -20,7 +20,7 @@ from bench.draw import draw_chart, legend_lines
 from bench.episode import EpisodeResult
 from bench.funnel import StopRecord, TargetFunnel
 from bench.jobs import EpisodeFailed, Job, iter_results
-from bench.search import (CHART_FILE, EPISODES_FILE, SUMMARY_FILE, TIMINGS_FILE, SearchError, SearchRun, jsonl_line,
+from bench.search import (CHART_FILE, EPISODES_FILE, RUN_FILE, SUMMARY_FILE, TIMINGS_FILE, SearchError, SearchRun, jsonl_line,
                           main, parse_episode_id, parse_policies, read_results, replay, run_search, summary,
                           write_outputs)
 from bench.stats import miss_reasons, paired_differences, policy_scores
@@ -199,6 +199,37 @@ def test_jsonl_reads_back_to_the_same_results(run: SearchRun, tmp_path: Path) ->
     with pytest.raises(SearchError, match="bad.jsonl:2"):
         read_results(tmp_path / "bad.jsonl")
 
+
+
+def test_a_run_cut_short_resumes_to_the_files_of_an_uninterrupted_one(run: SearchRun, tmp_path: Path,
+                                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    main(episodes=1, seed=SEED, policies="random", workers=1, out=tmp_path, max_steps=STEPS,
+         as_json=True, err=Console(file=io.StringIO()))
+    capsys.readouterr()
+    with (tmp_path / EPISODES_FILE).open("a") as file:  # a crash in the middle of the next write
+        file.write(jsonl_line(run.results[-1])[:40])
+    log = io.StringIO()
+    main(episodes=EPISODES, seed=SEED, policies=",".join(POLICIES), workers=1, out=tmp_path, max_steps=STEPS,
+         as_json=True, resume=True, err=Console(file=log))
+    result = json.loads(capsys.readouterr().out)
+    assert "1 episodes kept, 3 to run" in log.getvalue() and log.getvalue().count("\n[") == 3
+    assert (tmp_path / EPISODES_FILE).read_text() == jsonl(run)
+    assert result["resumed"] == 1 and result["policies"] == policy_scores(run.results)
+    timed = [(t["episode_id"], t["policy"]) for t in map(json.loads, (tmp_path / TIMINGS_FILE).read_text().splitlines())]
+    assert sorted(timed) == sorted((r.episode_id, r.policy) for r in run.results)
+
+
+def test_a_resume_with_other_settings_or_no_settings_file_is_refused(tmp_path: Path) -> None:
+    main(episodes=1, seed=SEED, policies="random", workers=1, out=tmp_path, max_steps=STEPS, as_json=True,
+         err=Console(file=io.StringIO()))
+    with pytest.raises(SearchError, match="perception 'ideal' there, 'realistic' here"):
+        run_search(1, SEED, ("random",), workers=1, max_steps=STEPS, perception="realistic", out=tmp_path,
+                   resume=True)
+    (tmp_path / RUN_FILE).unlink()
+    with pytest.raises(SearchError, match="run.json does not say"):
+        run_search(1, SEED, ("random",), workers=1, max_steps=STEPS, out=tmp_path, resume=True)
+    with pytest.raises(SearchError, match="--resume needs --out"):
+        run_search(1, SEED, ("random",), workers=1, max_steps=STEPS, resume=True)
 
 # -- pictures ------------------------------------------------------------------------------------
 def test_chart_bars_grow_with_the_scores() -> None:
