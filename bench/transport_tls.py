@@ -28,7 +28,7 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from bench.transport import AckedSender
+from bench.transport import AckedSender, measure, print_lost
 from services.diag.testpattern import pattern_frame
 from shared import keys
 from shared.certs import init_ca, issue
@@ -38,8 +38,6 @@ from shared.zconfig import build_config, open_session
 ROBOT = "bench"
 FRAME, ACK = keys.rgbd(ROBOT), keys.task_events(ROBOT)
 VARIANTS = ("tcp", "tls", "tls+acl")
-WARMUP = 20
-LOST_AFTER_S = 2.0
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -107,8 +105,6 @@ def run_tls_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
     ctx = mp.get_context("spawn")
     stop_echo = ctx.Event()
     links: dict[str, _Link] = {}
-    medians: dict[str, list[float]] = {v: [] for v in VARIANTS}
-    lost = {v: 0 for v in VARIANTS}
     with tempfile.TemporaryDirectory(prefix="ovamos-bench-tls-") as tmp:
         certs = Path(tmp)
         init_ca(certs)
@@ -119,23 +115,7 @@ def run_tls_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
                 links[variant] = _Link(variant, certs, frame, ctx, stop_echo)
             for link in links.values():
                 link.wait_ready(60.0, 0.3, f"{link.variant}: no frame crossed the link within 60 s")
-            for run in range(runs):
-                samples: dict[str, list[float]] = {v: [] for v in VARIANTS}
-                for i in range(WARMUP + frames):
-                    for variant, link in links.items():
-                        time.sleep(gap_ms / 1e3)
-                        rtt = link.round_trip(LOST_AFTER_S)
-                        if rtt is None:  # dropped on the way (a full queue drops a frame): counted
-                            lost[variant] += 1
-                            if lost[variant] > (WARMUP + frames) * runs // 10:  # of all sent
-                                raise RuntimeError(f"{variant}: over 10 % of the frames lost")
-                        elif i >= WARMUP:
-                            samples[variant].append(rtt)
-                for variant, s in samples.items():
-                    medians[variant].append(statistics.median(s))
-                if progress:
-                    progress.print(f"run {run + 1}/{runs}: " + ", ".join(
-                        f"{v} {m[-1] * 1e3:.2f} ms" for v, m in medians.items()))
+            medians, lost = measure(links, frames, runs, gap_ms / 1e3, progress, lambda s: f"{s * 1e3:.2f} ms")
         finally:
             stop_echo.set()
             for link in links.values():
@@ -162,7 +142,6 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
         value = result[f"{v.replace('+', '_')}_median_us"]
         table.add_row(v, f"{value / 1e3:.2f}", f"{value / tcp:.3f}")
     console.print(table)
-    if any(result["lost"].values()):
-        console.print(f"frames lost (no ack within {LOST_AFTER_S:g} s, not in the medians): {result['lost']}")
+    print_lost(console, result["lost"])
     console.print(f"TLS overhead ratio (tls / tcp): {result['tls_overhead_ratio']:.3f}; with access control: "
                   f"{result['tls_acl_overhead_ratio']:.3f}")

@@ -112,6 +112,7 @@ def test_transport_benchmark_reports_both_paths_with_and_without_shared_memory()
         assert result[f"{path}_median_us"] > 0
     assert result["overhead_ratio"] == round(result["ovamos_median_us"] / result["raw_median_us"], 3)
     assert result["shm_overhead_ratio"] == round(result["ovamos_shm_median_us"] / result["raw_shm_median_us"], 3)
+    assert set(result["lost"]) == {"raw", "ovamos", "raw+shm", "ovamos+shm", "raw+zpool"}  # counted, each
 
 
 def test_tls_transport_benchmark_compares_the_links() -> None:
