@@ -7,7 +7,7 @@ import random
 import numpy as np
 import pytest
 
-from services.planner.agent import AgentConfig, SearchAgent
+from services.planner.agent import AgentConfig, SearchAgent, Step
 from services.planner.candidates import Candidates
 from services.planner.decide import DecisionConfig, GoalKind, Policy, decide
 from services.planner.plus import ManyFrontierPOMDP, PlusConfig, frontier_bonuses, goal_budget
@@ -88,3 +88,36 @@ def test_a_goal_is_given_up_after_its_budget_even_across_redecisions() -> None:
         step = paper.next_step(snap, pose)
         paper.executed(step, 0.0, pose=pose)
     assert step.action is Action.MOVE_FORWARD and (step.goal.x, step.goal.y) == (9.0, 5.0)
+
+
+
+def cup(hits: int, views: int, confirmed: bool = True, x: float = 5.5, y: float = 5.0) -> ObjectInstance:
+    """A cup the map confirmed (by its rule: 2 hits in 30 % of the views) or not."""
+    return ObjectInstance(label="cup", x=x, y=y, score=0.45, hits=hits, views=views, confirmed=confirmed)
+
+
+def first_step(decision: DecisionConfig, obj: ObjectInstance) -> Step:
+    """The first step of an agent at (5, 5) whose map holds ``obj`` and a weak value peak at (6, 5)."""
+    agent = SearchAgent(SearchTask("t", ["cup"]), AgentConfig(initial_turns=0, decision=decision))
+    return agent.next_step(snapshot({(6.0, 5.0): 0.3}, [], objects=[obj]), Pose(x=5.0, y=5.0, yaw=0.0))
+
+
+STRICT = plus(strict_stop=True)
+
+
+def test_a_strict_plus_stops_only_at_an_instance_detected_often_and_in_most_of_its_views() -> None:
+    few = cup(hits=2, views=3)
+    assert first_step(DecisionConfig(), few).action is Action.STOP
+    assert first_step(PLUS, few).action is Action.STOP  # strict_stop is off by default
+    ours = first_step(STRICT, few)
+    assert ours.action is not Action.STOP and (ours.goal.x, ours.goal.y) == (5.5, 5.0)  # to verify: look again
+    assert first_step(STRICT, cup(hits=3, views=7)).action is not Action.STOP  # 43 % < 50 %
+    assert first_step(STRICT, cup(hits=4, views=7)).action is Action.STOP
+
+
+def test_a_strict_plus_leaves_alone_an_instance_seen_often_and_rarely_detected() -> None:
+    assert first_step(DecisionConfig(), cup(hits=3, views=8, x=8.0, y=8.0)).goal.kind is GoalKind.OBJECT
+    verify = first_step(STRICT, cup(hits=3, views=7, x=8.0, y=8.0)).goal  # too few views to call it false
+    assert verify.kind is GoalKind.CANDIDATE and (8.0, 8.0) in [(o.x, o.y) for o in verify.options]
+    rejected = first_step(STRICT, cup(hits=3, views=8, x=8.0, y=8.0)).goal
+    assert rejected.kind is GoalKind.CANDIDATE and (8.0, 8.0) not in [(o.x, o.y) for o in rejected.options]

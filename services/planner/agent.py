@@ -32,7 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from services.planner.decide import (Decision, DecisionConfig, GoalKind, Policy, away, decide,
                                      targets_to_search)
 from services.planner.navigator import NavigationConfig, NavMap, Navigator, Unreachable
-from services.planner.plus import goal_budget
+from services.planner.plus import goal_budget, strict_objects
 from services.planner.task import SearchTask
 from shared.messages import MapSnapshot, TaskStatus
 from shared.motion import Action, Pose
@@ -149,6 +149,9 @@ class SearchAgent:
         if self._scan_left > 0:
             return Step(Action.TURN_LEFT, Reason.SCAN)
         remaining = targets_to_search(self.task.remaining, self.config.decision.policy)
+        plus = self.config.decision.plus
+        if self.config.decision.policy is Policy.OVAMOS_PLUS and plus.strict_stop:  # a stricter idea of found
+            snapshot = snapshot.model_copy(update={"objects": strict_objects(snapshot.objects, plus)})
         if self.goal is None or self._goal_expired() or (
                 self.goal.kind is not GoalKind.OBJECT and self._object_seen(snapshot, remaining)):
             self._decide(snapshot, pose, remaining)

@@ -269,7 +269,7 @@ def _plus(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Seque
     each with a value-scaled bonus, and unconfirmed detections as candidates, into POUCT."""
     plus = config.plus
     if plus.verify_detections:
-        cands = detection_candidates(snapshot.objects, remaining, cands, allowed)
+        cands = detection_candidates(snapshot.objects, remaining, cands, allowed, plus)
     scores = frontier_scores(frontiers, values, grid, config.candidates.frontier_radius_m) \
         if len(frontiers) else np.zeros(0)
     best = np.argsort(-scores, kind="stable")[:plus.frontiers]
