@@ -48,12 +48,12 @@ def paired_differences(results: Sequence[EpisodeResult], reference: str = "ovamo
 
     Why: with 120 episodes one episode is 0.8 points of SR, and policies share episodes, so an
     ordering is only worth reporting when the paired interval excludes zero. The resampling is
-    seeded: the same results give the same intervals."""
+    seeded afresh for each pair: the same two policies' results give the same interval whatever
+    other policies the run had (a table merged from runs with other policies agrees with one run)."""
     by_policy: dict[str, dict[str, EpisodeResult]] = {}
     for r in results:
         by_policy.setdefault(r.policy, {})[r.episode_id] = r
     ref = by_policy.get(reference, {})
-    rng = np.random.default_rng(seed)
     out: dict[str, dict[str, Any]] = {}
     for policy in sorted(by_policy, key=policy_rank):
         shared = sorted(set(ref) & set(by_policy[policy]))
@@ -61,7 +61,8 @@ def paired_differences(results: Sequence[EpisodeResult], reference: str = "ovamo
             continue
         diff = np.array([[ref[e].success - by_policy[policy][e].success,
                           ref[e].spl - by_policy[policy][e].spl] for e in shared], dtype=float)
-        means = diff[rng.integers(0, len(shared), (resamples, len(shared)))].mean(axis=1)
+        resampled = np.random.default_rng(seed).integers(0, len(shared), (resamples, len(shared)))
+        means = diff[resampled].mean(axis=1)
         lo, hi = np.percentile(means, [2.5, 97.5], axis=0)
         mean = diff.mean(axis=0)
         out[policy] = {"episodes": len(shared),

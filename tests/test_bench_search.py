@@ -20,9 +20,9 @@ from bench.draw import draw_chart, legend_lines
 from bench.episode import EpisodeResult
 from bench.funnel import StopRecord, TargetFunnel
 from bench.jobs import EpisodeFailed, Job, iter_results
-from bench.search import (CHART_FILE, EPISODES_FILE, RUN_FILE, SUMMARY_FILE, TIMINGS_FILE, SearchError, SearchRun, jsonl_line,
-                          main, parse_episode_id, parse_policies, read_results, replay, run_search, summary,
-                          write_outputs)
+from bench.search import (CHART_FILE, EPISODES_FILE, RUN_FILE, SUMMARY_FILE, TIMINGS_FILE, SearchError, SearchRun,
+                          jsonl_line, main, parse_episode_id, parse_policies, read_results, replay, run_search,
+                          summary, write_outputs)
 from bench.stats import miss_reasons, paired_differences, policy_scores
 from bench.tables import print_table
 
@@ -128,6 +128,11 @@ def test_paired_differences_compare_the_same_episodes_with_a_seeded_interval() -
     assert finder["episodes"] == 6 and finder["sr_diff"] == 50.0
     assert 0.0 <= finder["sr_ci"][0] < 50.0 < finder["sr_ci"][1] <= 100.0
     assert paired_differences(ovamos + always + half) == paired  # seeded
+    many = [fake(p, i, (i * (3 + k)) % 5 < 2, 0.03 * ((i * (7 + k)) % 11))
+            for k, p in enumerate(("ovamos", "vlfm", "finder")) for i in range(30)]
+    alone = paired_differences([r for r in many if r.policy != "vlfm"])
+    assert alone["finder"]["mspl_ci"][0] < alone["finder"]["mspl_diff"] < alone["finder"]["mspl_ci"][1]
+    assert paired_differences(many)["finder"] == alone["finder"]  # whatever other policies ran
     assert paired_differences(always + half) == {}  # no reference policy, nothing to compare
 
 
@@ -215,7 +220,8 @@ def test_a_run_cut_short_resumes_to_the_files_of_an_uninterrupted_one(run: Searc
     assert "1 episodes kept, 3 to run" in log.getvalue() and log.getvalue().count("\n[") == 3
     assert (tmp_path / EPISODES_FILE).read_text() == jsonl(run)
     assert result["resumed"] == 1 and result["policies"] == policy_scores(run.results)
-    timed = [(t["episode_id"], t["policy"]) for t in map(json.loads, (tmp_path / TIMINGS_FILE).read_text().splitlines())]
+    timings = (tmp_path / TIMINGS_FILE).read_text().splitlines()
+    timed = [(t["episode_id"], t["policy"]) for t in map(json.loads, timings)]
     assert sorted(timed) == sorted((r.episode_id, r.policy) for r in run.results)
 
 
