@@ -159,9 +159,9 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     check_settings(perception, homes)
     settings = {"seed": seed, "perception": perception, "homes": homes, "max_steps": max_steps}
     kept = held_results(out, settings) if resume and out is not None else []
-    done = {(r.policy, r.episode_id) for r in kept}
+    done = {(r.policy, _episode_index(r)) for r in kept}  # run.json vouched for their seed
     jobs = [j for j in jobs_for(episodes, seed, policies, max_steps, perception, homes)
-            if (j.policy, f"{seed}-{j.index}") not in done]
+            if (j.policy, j.index) not in done]
     if progress is not None and kept:
         progress.print(f"resuming {out}: {len(kept)} episodes kept, {len(jobs)} to run", highlight=False,
                        soft_wrap=True)
