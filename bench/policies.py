@@ -8,13 +8,15 @@ from typing import Any
 #: Every policy, in the order the tables list them: the paper's (baselines, ablations, the method),
 #: then ours and its ablations.
 POLICY_ORDER = ("random", "vlfm", "finder", "ovamos-greedy", "ovamos-nodecay", "ovamos", "ovamos-plus",
-                "ovamos-plus-1frontier", "ovamos-plus-noverify", "ovamos-plus-strictstop", "ovamos-plus-budget")
+                "ovamos-plus-1frontier", "ovamos-plus-noverify", "ovamos-plus-strictstop", "ovamos-plus-look",
+                "ovamos-plus-budget")
 #: What ``ovamos bench search`` runs unless told: the paper's Tables I and II and ours.
 DEFAULT_POLICIES = POLICY_ORDER[:7]
 LABELS = {"random": "Random", "vlfm": "VLFM", "finder": "Finder", "ovamos": "OVAMOS",
           "ovamos-greedy": "w/o POMDP", "ovamos-nodecay": "w/o value decay", "ovamos-plus": "OVAMOS-plus",
           "ovamos-plus-1frontier": "plus w/o frontiers", "ovamos-plus-noverify": "plus w/o verifying",
-          "ovamos-plus-strictstop": "plus with a stricter stop", "ovamos-plus-budget": "plus with a goal budget"}
+          "ovamos-plus-strictstop": "plus with a stricter stop", "ovamos-plus-look": "plus looking before a stop",
+          "ovamos-plus-budget": "plus with a goal budget"}
 #: The paper's numbers: (SR in %, MSPL).
 PAPER = {"random": (0.0, 0.0), "vlfm": (12.5, 0.075), "finder": (28.3, 0.198),
          "ovamos": (55.0, 0.497), "ovamos-greedy": (27.5, 0.154), "ovamos-nodecay": (45.0, 0.410)}
@@ -25,6 +27,7 @@ PLUS_ABLATIONS: dict[str, dict[str, Any]] = {
     "ovamos-plus-noverify": {"verify_detections": False},
     "ovamos-plus-budget": {"goal_commands_per_m": 12.0},
     "ovamos-plus-strictstop": {"strict_stop": True},
+    "ovamos-plus-look": {"look_before_stop": 4},
 }
 
 

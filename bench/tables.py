@@ -15,7 +15,7 @@ TABLE_I = ("random", "vlfm", "finder", "ovamos")
 TABLE_II = ("ovamos-greedy", "ovamos-nodecay", "ovamos")
 #: Ours: the planner of services/planner/plus.py, its ablations, and the paper's best three to beat.
 TABLE_PLUS = ("finder", "ovamos-greedy", "ovamos", "ovamos-plus-1frontier", "ovamos-plus-noverify",
-              "ovamos-plus-strictstop", "ovamos-plus-budget", "ovamos-plus")
+              "ovamos-plus-strictstop", "ovamos-plus-look", "ovamos-plus-budget", "ovamos-plus")
 
 
 def print_table(console: Console, result: dict[str, Any]) -> None:

@@ -7,7 +7,7 @@ import random
 import numpy as np
 import pytest
 
-from services.planner.agent import AgentConfig, SearchAgent, Step
+from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
 from services.planner.candidates import Candidates
 from services.planner.decide import DecisionConfig, GoalKind, Policy, decide
 from services.planner.plus import ManyFrontierPOMDP, PlusConfig, frontier_bonuses, goal_budget
@@ -121,3 +121,60 @@ def test_a_strict_plus_leaves_alone_an_instance_seen_often_and_rarely_detected()
     assert verify.kind is GoalKind.CANDIDATE and (8.0, 8.0) in [(o.x, o.y) for o in verify.options]
     rejected = first_step(STRICT, cup(hits=3, views=8, x=8.0, y=8.0)).goal
     assert rejected.kind is GoalKind.CANDIDATE and (8.0, 8.0) not in [(o.x, o.y) for o in rejected.options]
+
+
+LOOK = plus(look_before_stop=3)
+
+
+def looking_agent() -> SearchAgent:
+    return SearchAgent(SearchTask("t", ["cup"]), AgentConfig(initial_turns=0, decision=LOOK))
+
+
+def test_a_looking_plus_faces_the_object_and_stops_once_it_is_detected_again() -> None:
+    agent, snap = looking_agent(), snapshot({}, [(9.0, 9.0)], objects=[cup(hits=2, views=3)])
+    back_to_it = Pose(x=5.0, y=5.0, yaw=np.pi * 0.75)  # the cup at (5.5, 5) is behind, to the right
+    step = agent.next_step(snap, back_to_it)
+    assert step.action is Action.TURN_RIGHT and step.reason is Reason.CHECK and step.goal.kind is GoalKind.OBJECT
+    agent.executed(step, 0.0, pose=back_to_it)
+    facing = Pose(x=5.0, y=5.0, yaw=0.1)
+    step = agent.next_step(snap, facing)  # facing it, no new hit yet: swing off for another view
+    assert step.action is Action.TURN_LEFT and step.reason is Reason.CHECK
+    agent.executed(step, 0.0, pose=facing)
+    seen_again = snapshot({}, [(9.0, 9.0)], objects=[cup(hits=3, views=5)])
+    step = agent.next_step(seen_again, facing)
+    assert step.action is Action.STOP and step.reason is Reason.FOUND
+
+
+def test_a_looking_plus_leaves_alone_an_object_seen_again_from_close_by_without_a_detection() -> None:
+    agent, facing = looking_agent(), Pose(x=5.0, y=5.0, yaw=0.0)
+    for views in (3, 4):  # the views of its place grow, its hits do not
+        step = agent.next_step(snapshot({}, [(9.0, 9.0)], objects=[cup(hits=2, views=views)]), facing)
+        assert step.reason is Reason.CHECK
+        agent.executed(step, 0.0, pose=facing)
+    snap = snapshot({}, [(9.0, 9.0)], objects=[cup(hits=2, views=5)])
+    step = agent.next_step(snap, facing)  # two views from close by, no new hit: not the cup
+    assert step.action is not Action.STOP and step.goal.kind is GoalKind.FRONTIER
+    assert agent.rejected == [(5.5, 5.0)]
+    agent.executed(step, 0.25, pose=facing)
+    for _ in range(5):  # still confirmed on the map, but not chosen again
+        step = agent.next_step(snap, facing)
+        assert step.goal.kind is GoalKind.FRONTIER
+        agent.executed(step, 0.25, pose=facing)
+
+
+def test_a_looking_plus_stops_when_its_turns_add_no_view() -> None:
+    """Too close to see it (under the depth camera's range, above its view): the look is no evidence."""
+    agent, facing = looking_agent(), Pose(x=5.0, y=5.0, yaw=0.0)
+    snap = snapshot({}, [(9.0, 9.0)], objects=[cup(hits=2, views=3)])
+    for _ in range(3):
+        step = agent.next_step(snap, facing)
+        assert step.reason is Reason.CHECK
+        agent.executed(step, 0.0, pose=facing)
+    step = agent.next_step(snap, facing)
+    assert step.action is Action.STOP and step.reason is Reason.FOUND and agent.rejected == []
+
+
+def test_only_plus_looks_before_a_stop() -> None:
+    paper = DecisionConfig().model_copy(update={"plus": PlusConfig(look_before_stop=3)})
+    assert first_step(paper, cup(hits=2, views=3)).action is Action.STOP
+    assert first_step(LOOK, cup(hits=2, views=3)).reason is Reason.CHECK

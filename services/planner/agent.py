@@ -34,7 +34,7 @@ from services.planner.decide import (Decision, DecisionConfig, GoalKind, Policy,
 from services.planner.navigator import NavigationConfig, NavMap, Navigator, Unreachable
 from services.planner.plus import goal_budget, strict_objects
 from services.planner.task import SearchTask
-from shared.messages import MapSnapshot, TaskStatus
+from shared.messages import MapSnapshot, ObjectInstance, TaskStatus
 from shared.motion import Action, Pose
 from shared.robot import PRIMITIVES, Primitives
 
@@ -83,6 +83,7 @@ class Reason(str, Enum):
     LOOK = "look"              # goal reached, nothing new chosen: turn to see more
     IDLE = "idle"              # nowhere to go (yet): turn in place
     WANDER = "wander"          # the random baseline's walk
+    CHECK = "check"            # beside a confirmed object: face it and look again (ovamos-plus)
     FOUND = "found"            # STOP beside a confirmed object
     OVER = "over"              # the task is no longer searching
 
@@ -130,6 +131,8 @@ class SearchAgent:
         self.decisions = 0
         self.unreachable = ExpiringPlaces(self.config.memory_steps)
         self.visited: list[tuple[float, float]] = []   # candidates reached
+        self.rejected: list[tuple[float, float]] = []  # confirmed objects a close look did not bear out
+        self._look: tuple[Decision, int, int, int] | None = None  # looked at: hits, views then; turns
         self._scan_left = self.config.initial_turns
         self._toward_goal = 0
         self._goal_commands = 0                 # commands towards the same goal, across re-decisions
@@ -161,8 +164,16 @@ class SearchAgent:
             goal = self.goal
             if goal.kind is GoalKind.OBJECT and math.hypot(goal.x - pose.x, goal.y - pose.y) \
                     <= self.config.object_stop_m:
-                if self._still_confirmed(snapshot, goal):
-                    return Step(Action.STOP, Reason.FOUND, goal)
+                obj = self._confirmed_at(snapshot, goal)
+                if obj is not None:
+                    turn = self._look_turn(obj, pose, goal)
+                    if turn is None:
+                        return Step(Action.STOP, Reason.FOUND, goal)
+                    if turn is not Action.STOP:
+                        return Step(turn, Reason.CHECK, goal)
+                    log.info("step %d: %s at (%.2f, %.2f) not detected again from close by: left alone",
+                             self.task.steps, goal.label, goal.x, goal.y)
+                    self.rejected.append((goal.x, goal.y))
                 self._decide(snapshot, pose, remaining)  # the close views unconfirmed it
                 continue
             if self._goal_budget is not None and self._goal_commands >= self._goal_budget:
@@ -222,7 +233,7 @@ class SearchAgent:
         visited = self.visited + ([(reached.x, reached.y)] if reached else [])
         previous = self.goal
         self.goal = decide(snapshot, (pose.x, pose.y), remaining, self.config.decision,
-                           np.array(self.unreachable.points(self.task.steps), float), np.array(visited, float))
+                           np.array(self._avoided(), float).reshape(-1, 2), np.array(visited, float))
         g, same_place = self.goal, self.config.decision.avoid_radius_m
         if g is not None and (previous is None or (g.kind, g.label) != (previous.kind, previous.label)
                               or math.hypot(g.x - previous.x, g.y - previous.y) > same_place):
@@ -270,8 +281,13 @@ class SearchAgent:
     def _object_seen(self, snapshot: MapSnapshot, remaining: list[str]) -> bool:
         """A confirmed object of a remaining target that is not known to be unreachable."""
         seen = np.array([(o.x, o.y) for o in snapshot.objects if o.confirmed and o.label in remaining])
-        unreachable = np.array(self.unreachable.points(self.task.steps)).reshape(-1, 2)
-        return bool(len(seen)) and bool(away(seen, unreachable, self.config.decision.avoid_radius_m).any())
+        avoided = np.array(self._avoided()).reshape(-1, 2)
+        return bool(len(seen)) and bool(away(seen, avoided, self.config.decision.avoid_radius_m).any())
+
+    def _avoided(self) -> list[tuple[float, float]]:
+        """Goals not to choose: those found unreachable (for a while) and the objects a close look
+        did not bear out (for the rest of the task)."""
+        return self.unreachable.points(self.task.steps) + self.rejected
 
     def _goal_expired(self) -> bool:
         """Time to decide again. A candidate is the POMDP's macro action MoveTo(candidate): it is
@@ -295,12 +311,39 @@ class SearchAgent:
         nav = self.config.navigation
         return max(nav.snap_radius_m, self.config.object_stop_m)
 
-    def _still_confirmed(self, snapshot: MapSnapshot, goal: Decision) -> bool:
-        """The map still holds a confirmed ``goal.label`` at the goal: a STOP is irrevocable, and
-        the views on the way in may have shown a detection to be a false one."""
+    def _confirmed_at(self, snapshot: MapSnapshot, goal: Decision) -> ObjectInstance | None:
+        """The confirmed ``goal.label`` the map still holds at the goal (None: none any more): a
+        STOP is irrevocable, and the views on the way in may have shown a detection to be a false one."""
         radius = self.config.decision.avoid_radius_m
-        return any(o.confirmed and o.label == goal.label and math.hypot(o.x - goal.x, o.y - goal.y) <= radius
-                   for o in snapshot.objects)
+        return next((o for o in snapshot.objects if o.confirmed and o.label == goal.label
+                     and math.hypot(o.x - goal.x, o.y - goal.y) <= radius), None)
+
+    def _look_turn(self, obj: ObjectInstance, pose: Pose, goal: Decision) -> Action | None:
+        """ovamos-plus's look before a STOP (``look_before_stop`` turns): None to STOP now (no look
+        wanted, a hit came since the robot arrived, or the turns are spent without the map
+        counting ``look_views`` views of its place: too close to see it, say), STOP to leave
+        the object alone (that many views, none with a hit), else the turn to make. A
+        look-alike is confirmed from detections at any distance, mostly from afar; the right
+        object is detected again from close by, where the detector is at its best. The robot
+        turns to face it, then swings 30 degrees off and back, so each frame is a new view (79
+        degree field of view: the object stays in it)."""
+        plus = self.config.decision.plus
+        if self.config.decision.policy is not Policy.OVAMOS_PLUS or plus.look_before_stop == 0:
+            return None
+        if self._look is None or self._look[0] is not goal:
+            self._look = (goal, obj.hits, obj.views, 0)
+        _, hits, views, used = self._look
+        if obj.hits > hits:
+            return None
+        if obj.views - views >= plus.look_views:
+            return Action.STOP
+        if used >= plus.look_before_stop:
+            return None
+        self._look = (goal, hits, views, used + 1)
+        off = (math.atan2(goal.y - pose.y, goal.x - pose.x) - pose.yaw + math.pi) % (2 * math.pi) - math.pi
+        if abs(math.degrees(off)) <= self.config.navigation.turn_deg / 2:
+            return Action.TURN_LEFT
+        return Action.TURN_LEFT if off > 0 else Action.TURN_RIGHT
 
     def _wander(self) -> Step:
         """The random baseline's step: forward half the time, else a turn (seeded per step)."""
@@ -310,13 +353,14 @@ class SearchAgent:
 
     def _idle_turn(self) -> Step:
         """Turn in place with nowhere to go; after a full turn, give the goals once found
-        unreachable or visited another chance (the map has changed since), then fail."""
+        unreachable, visited or rejected another chance (the map has changed since), then fail."""
         self._idle += 1
         if self._idle > self.config.max_idle_turns:
-            if not self.unreachable.points(self.task.steps) and not self.visited:
+            if not self._avoided() and not self.visited:
                 self.task.fail("nothing left to explore and no target seen")
                 return Step(None, Reason.OVER)
             self.unreachable.clear()
             self.visited.clear()
+            self.rejected.clear()
             self._idle = 0
         return Step(Action.TURN_LEFT, Reason.IDLE)
