@@ -23,7 +23,7 @@ import json
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +36,7 @@ from bench.draw import draw_chart, draw_replay
 from bench.episode import EpisodeResult
 from bench.jobs import Job, init_worker, iter_results, jobs_for, load_episode, run_job
 from bench.policies import DEFAULT_POLICIES, POLICY_ORDER
+from bench.provenance import code_version
 from bench.stats import miss_reasons, paired_differences, policy_scores
 from bench.tables import print_table
 from services.mapping.render import write_png
@@ -48,6 +49,8 @@ EPISODES_FILE, TIMINGS_FILE, SUMMARY_FILE, CHART_FILE, RUN_FILE = (
     "episodes.jsonl", "timings.jsonl", "summary.json", "chart.png", "run.json")
 #: What an episode's outcome depends on besides the code, policy and index: a resumed run must match.
 RUN_SETTINGS = ("seed", "perception", "homes", "max_steps")
+#: the code version of an episode whose timing line does not name one
+UNRECORDED = "unrecorded"
 
 
 class SearchError(ValueError):
@@ -104,6 +107,7 @@ class SearchRun:
     perception: str = "ideal"
     homes: str = "default"
     resumed: int = 0  # results read back from the folder, not run (and not timed) by this run
+    code: dict[str, int] = field(default_factory=dict)  # episodes per code version that ran them
 
 
 def sort_results(results: Iterable[EpisodeResult]) -> list[EpisodeResult]:
@@ -162,10 +166,12 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     done = {(r.policy, _episode_index(r)) for r in kept}  # run.json vouched for their seed
     jobs = [j for j in jobs_for(episodes, seed, policies, max_steps, perception, homes)
             if (j.policy, j.index) not in done]
+    code, kept_code = code_version(), _kept_code(out, kept) if kept else {}
     if progress is not None and kept:
-        progress.print(f"resuming {out}: {len(kept)} episodes kept, {len(jobs)} to run", highlight=False,
-                       soft_wrap=True)
-    append = _start_file(out, settings, kept) if out is not None else None
+        versions = ", ".join(f"{v}: {n}" for v, n in kept_code.items())
+        progress.print(f"resuming {out}: {len(kept)} episodes kept (by code version: {versions}), "
+                       f"{len(jobs)} to run on {code}", highlight=False, soft_wrap=True)
+    append = _start_file(out, settings, kept, code) if out is not None else None
     started = time.perf_counter()
     results = list(kept)
     with _progress(progress, len(jobs)) as advance:
@@ -174,9 +180,11 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
             if append is not None:
                 append(result)
             advance(result)
+    ran = {code: len(results) - len(kept)} if len(results) > len(kept) else {}
     return SearchRun(seed, max([episodes, *(_episode_index(r) + 1 for r in kept)]),
                      parse_policies([*policies, *(r.policy for r in kept)]), workers, max_steps,
-                     sort_results(results), time.perf_counter() - started, perception, homes, len(kept))
+                     sort_results(results), time.perf_counter() - started, perception, homes, len(kept),
+                     {v: kept_code.get(v, 0) + ran.get(v, 0) for v in {**kept_code, **ran}})
 
 
 def held_results(out: Path, settings: dict[str, Any]) -> list[EpisodeResult]:
@@ -197,10 +205,27 @@ def held_results(out: Path, settings: dict[str, Any]) -> list[EpisodeResult]:
     return read_results(episodes, torn_tail=True)
 
 
-def _start_file(out: Path, settings: dict[str, Any], kept: Sequence[EpisodeResult]
+def _kept_code(out: Path | None, kept: Sequence[EpisodeResult]) -> dict[str, int]:
+    """How many of the ``kept`` episodes each code version ran, from their timing lines
+    ("unrecorded": a line from before versions were recorded, or none)."""
+    versions: dict[tuple[str, str], str] = {}
+    timings = None if out is None else out / TIMINGS_FILE
+    if timings is not None and timings.exists():
+        for line in timings.read_text().splitlines():
+            pair = _timing_pair(line)
+            if pair is not None:
+                versions[pair] = str(json.loads(line).get("code", UNRECORDED))
+    counts: dict[str, int] = {}
+    for r in kept:
+        version = versions.get((r.episode_id, r.policy), UNRECORDED)
+        counts[version] = counts.get(version, 0) + 1
+    return counts
+
+
+def _start_file(out: Path, settings: dict[str, Any], kept: Sequence[EpisodeResult], code: str
                 ) -> Callable[[EpisodeResult], None]:
     """Write run.json, the kept episodes and their timings; return the function that appends
-    each new result to both files."""
+    each new result to both files (its timing line naming ``code``, the version running it)."""
     out.mkdir(parents=True, exist_ok=True)
     (out / RUN_FILE).write_text(json.dumps(settings) + "\n")
     episodes, timings = out / EPISODES_FILE, out / TIMINGS_FILE
@@ -212,7 +237,7 @@ def _start_file(out: Path, settings: dict[str, Any], kept: Sequence[EpisodeResul
     def append(result: EpisodeResult) -> None:
         with timings.open("a") as file:
             file.write(json.dumps({"episode_id": result.episode_id, "policy": result.policy,
-                                   "seconds": result.seconds, "steps": result.steps}) + "\n")
+                                   "seconds": result.seconds, "steps": result.steps, "code": code}) + "\n")
         with episodes.open("a") as file:
             file.write(jsonl_line(result))
     return append
@@ -233,7 +258,7 @@ def summary(run: SearchRun) -> dict[str, Any]:
             "missed": miss_reasons(run.results),
             "seconds": round(run.seconds, 1),
             "episodes_per_min": round(60 * (len(run.results) - run.resumed) / max(run.seconds, 1e-9), 2),
-            "resumed": run.resumed,
+            "resumed": run.resumed, "code": run.code,
             "seed": run.seed, "episodes": run.episodes, "workers": run.workers,
             "max_steps": run.max_steps, "perception": run.perception, "homes": run.homes}
 

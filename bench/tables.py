@@ -48,6 +48,9 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
         for policy, m in missed.items():
             table.add_row(LABELS.get(policy, policy), str(m["targets"]), *(str(m[k.value]) for k in Miss))
         console.print(table)
+    if result.get("code"):
+        console.print("episodes by the code version that ran them: "
+                      + ", ".join(f"{v} {n}" for v, n in result["code"].items()), highlight=False)
     total = sum(s["episodes"] for s in scores.values())
     console.print(f"{total} episodes in {result['seconds']:.0f} s on {result['workers']} worker(s): "
                   f"{result['episodes_per_min']:.1f} episodes/min")

@@ -20,8 +20,9 @@ from bench.draw import draw_chart, legend_lines
 from bench.episode import EpisodeResult
 from bench.funnel import StopRecord, TargetFunnel
 from bench.jobs import EpisodeFailed, Job, iter_results
-from bench.search import (CHART_FILE, EPISODES_FILE, RUN_FILE, SUMMARY_FILE, TIMINGS_FILE, SearchError, SearchRun,
-                          jsonl_line, main, parse_episode_id, parse_policies, read_results, replay, run_search,
+from bench.provenance import code_version
+from bench.search import (CHART_FILE, EPISODES_FILE, RUN_FILE, SUMMARY_FILE, TIMINGS_FILE, UNRECORDED, SearchError,
+                          SearchRun, jsonl_line, main, parse_episode_id, parse_policies, read_results, replay, run_search,
                           summary, write_outputs)
 from bench.stats import miss_reasons, paired_differences, policy_scores
 from bench.tables import print_table
@@ -211,18 +212,24 @@ def test_a_run_cut_short_resumes_to_the_files_of_an_uninterrupted_one(run: Searc
     main(episodes=1, seed=SEED, policies="random", workers=1, out=tmp_path, max_steps=STEPS,
          as_json=True, err=Console(file=io.StringIO()))
     capsys.readouterr()
+    timings = tmp_path / TIMINGS_FILE  # as written before timing lines named the code version
+    timings.write_text("".join(json.dumps({k: v for k, v in json.loads(line).items() if k != "code"}) + "\n"
+                               for line in timings.read_text().splitlines()))
     with (tmp_path / EPISODES_FILE).open("a") as file:  # a crash in the middle of the next write
         file.write(jsonl_line(run.results[-1])[:40])
     log = io.StringIO()
     main(episodes=EPISODES, seed=SEED, policies=",".join(POLICIES), workers=1, out=tmp_path, max_steps=STEPS,
          as_json=True, resume=True, err=Console(file=log))
     result = json.loads(capsys.readouterr().out)
-    assert "1 episodes kept, 3 to run" in log.getvalue() and log.getvalue().count("\n[") == 3
+    code = code_version()
+    assert f"1 episodes kept (by code version: {UNRECORDED}: 1), 3 to run on {code}" in log.getvalue()
+    assert log.getvalue().count("\n[") == 3
     assert (tmp_path / EPISODES_FILE).read_text() == jsonl(run)
     assert result["resumed"] == 1 and result["policies"] == policy_scores(run.results)
-    timings = (tmp_path / TIMINGS_FILE).read_text().splitlines()
-    timed = [(t["episode_id"], t["policy"]) for t in map(json.loads, timings)]
-    assert sorted(timed) == sorted((r.episode_id, r.policy) for r in run.results)
+    assert result["code"] == {UNRECORDED: 1, code: 3}
+    lines = [json.loads(line) for line in timings.read_text().splitlines()]
+    assert sorted((t["episode_id"], t["policy"]) for t in lines) == sorted((r.episode_id, r.policy) for r in run.results)
+    assert [t.get("code") for t in lines] == [None, code, code, code]  # the kept line as it was
 
 
 def test_a_resume_with_other_settings_or_no_settings_file_is_refused(tmp_path: Path) -> None:
