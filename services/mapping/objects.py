@@ -42,7 +42,7 @@ from typing import Self
 import numpy as np
 
 from services.mapping.config import MappingConfig
-from shared.detections import Detection
+from shared.detections import Detection, often_detected
 from shared.messages import ObjectInstance, RgbdFrame
 
 __all__ = ["ObjectMap", "mask_points", "detection_position"]
@@ -205,8 +205,8 @@ class ObjectMap:
 
     def _instance(self, track: _Track) -> ObjectInstance:
         x, y, z = (float(c) for c in track.position)
-        confirmed = (track.hits >= self.confirm_hits and track.score >= self.decision_threshold
-                     and track.hits >= self.min_hit_ratio * track.views)
+        confirmed = (often_detected(track.hits, track.views, self.confirm_hits, self.min_hit_ratio)
+                     and track.score >= self.decision_threshold)
         return ObjectInstance(label=track.label, x=x, y=y, z=z, score=track.score,
                               hits=track.hits, views=track.views, confirmed=confirmed)
 

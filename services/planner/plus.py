@@ -62,6 +62,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.planner.candidates import Candidates
 from services.planner.pomdp import SearchPOMDP, State
+from shared.detections import often_detected
 from shared.messages import ObjectInstance
 
 
@@ -98,12 +99,13 @@ class PlusConfig(BaseModel):
 
 def stop_worthy(obj: ObjectInstance, config: PlusConfig) -> bool:
     """Confirmed by the map and by ovamos-plus's stricter rule: an instance to stop at."""
-    return obj.confirmed and obj.hits >= config.stop_min_hits and obj.hits >= config.stop_min_hit_ratio * obj.views
+    return obj.confirmed and often_detected(obj.hits, obj.views, config.stop_min_hits, config.stop_min_hit_ratio)
 
 
 def rejected(obj: ObjectInstance, config: PlusConfig) -> bool:
     """Seen ``reject_views`` times and detected in too few of them: a false detection."""
-    return config.strict_stop and obj.views >= config.reject_views and obj.hits < config.stop_min_hit_ratio * obj.views
+    return config.strict_stop and obj.views >= config.reject_views \
+        and not often_detected(obj.hits, obj.views, 0, config.stop_min_hit_ratio)
 
 
 def strict_objects(objects: Sequence[ObjectInstance], config: PlusConfig) -> tuple[ObjectInstance, ...]:
