@@ -14,7 +14,7 @@ from services.gateway.client import GatewayClient, GatewayError
 from shared import keys
 from shared.messages import FoundObject, TaskStatus
 from tests.polling import wait_for
-from tests.gateway_mocks import ROBOT, MockPlanner, RunningGateway, gateway_config
+from tests.gateway_mocks import ODOM_SESSION, ROBOT, MockPlanner, RunningGateway, gateway_config
 
 CHAIR = FoundObject(label="chair", x=1.5, y=-0.5, step=3)
 FRIDGE = FoundObject(label="fridge", x=4.0, y=2.25, step=7)
@@ -143,6 +143,7 @@ def test_tasks_survive_a_gateway_restart(inproc_router: str, tmp_path: Path,
         with GatewayClient(second_run.url) as api:
             task = api.get(active.id)
             assert task.status is TaskStatus.SEARCHING and task.found == [CHAIR] and task.steps == 3
+            assert task.odom_session == ODOM_SESSION  # the frame its path and found chair are in
             assert api.get(queued.id).status is TaskStatus.QUEUED
             sent_before = len(planner.specs(active.id))
             wait_for(lambda: len(planner.specs(active.id)) >= sent_before + 2,

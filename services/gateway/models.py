@@ -96,7 +96,7 @@ class TaskView(BaseModel):
     odom_session: str | None = Field(
         default=None, description="the odometry session of the planner's latest report: its "
                                   "position and goal, and the map it searches on, are in that "
-                                  "session's frame (null: no report since the gateway started)")
+                                  "session's frame (null: no report yet)")
     queue_position: int | None = Field(description="1 = next to start; null unless queued")
     created_at: datetime
     started_at: datetime | None
@@ -225,8 +225,8 @@ def timestamp(seconds: float | None) -> datetime | None:
     return None if seconds is None else datetime.fromtimestamp(seconds, UTC)
 
 
-def task_view(record: TaskRecord, queue_position: int | None, odom_session: str | None = None) -> TaskView:
-    """The API's picture of a stored task (``odom_session``: of the planner's latest report)."""
+def task_view(record: TaskRecord, queue_position: int | None) -> TaskView:
+    """The API's picture of a stored task."""
     position = record.position
     return TaskView(
         id=record.id, robot_id=record.robot_id, status=record.status, targets=record.targets,
@@ -234,6 +234,6 @@ def task_view(record: TaskRecord, queue_position: int | None, odom_session: str 
         found=record.found, max_steps=record.max_steps, steps=record.steps,
         distance_m=record.distance_m, message=record.message,
         position=None if position is None else Position(x=position[0], y=position[1]),
-        odom_session=odom_session, queue_position=queue_position, created_at=timestamp(record.created),
+        odom_session=record.odom_session, queue_position=queue_position, created_at=timestamp(record.created),
         started_at=timestamp(record.started), updated_at=timestamp(record.updated),
         finished_at=timestamp(record.finished))

@@ -43,8 +43,7 @@ class Gateway:
     monitor: RobotMonitor
 
     def view(self, record: TaskRecord) -> TaskView:
-        return task_view(record, self.store.queue_position(record),
-                         self.manager.odom_session(record.robot_id, record.id))
+        return task_view(record, self.store.queue_position(record))
 
     def find(self, task_id: str) -> TaskRecord:
         record = self.store.get(task_id)

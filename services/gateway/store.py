@@ -52,6 +52,7 @@ CREATE TABLE IF NOT EXISTS tasks (
     distance_m REAL NOT NULL DEFAULT 0,
     message TEXT NOT NULL DEFAULT '',
     path TEXT NOT NULL DEFAULT '[]',
+    odom_session TEXT,
     created REAL NOT NULL,
     started REAL,
     updated REAL NOT NULL,
@@ -60,6 +61,8 @@ CREATE TABLE IF NOT EXISTS tasks (
 CREATE UNIQUE INDEX IF NOT EXISTS one_search_per_robot ON tasks(robot_id) WHERE status = 'searching';
 CREATE INDEX IF NOT EXISTS by_robot_status ON tasks(robot_id, status, seq);
 """
+#: columns added since the first schema, with their type: added to a file made before them
+_ADDED_COLUMNS = {"odom_session": "TEXT"}
 
 
 class StoreError(RuntimeError):
@@ -81,6 +84,7 @@ class TaskRecord:
     distance_m: float = 0.0
     message: str = ""
     path: list[tuple[float, float]] = field(default_factory=list)
+    odom_session: str | None = None  # of the planner's latest report: the frame of path and found
     created: float = 0.0
     started: float | None = None
     updated: float = 0.0
@@ -97,7 +101,8 @@ def _record(row: sqlite3.Row) -> TaskRecord:
         targets=json.loads(row["targets"]), max_steps=row["max_steps"], seq=row["seq"],
         found=[FoundObject.model_validate(f) for f in json.loads(row["found"])],
         steps=row["steps"], distance_m=row["distance_m"], message=row["message"],
-        path=[tuple(p) for p in json.loads(row["path"])], created=row["created"],
+        path=[tuple(p) for p in json.loads(row["path"])], odom_session=row["odom_session"],
+        created=row["created"],
         started=row["started"], updated=row["updated"], finished=row["finished"])
 
 
@@ -138,6 +143,10 @@ class TaskStore:
             self._db = self._connect()
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.executescript(_SCHEMA)
+            have = {row["name"] for row in self._db.execute("PRAGMA table_info(tasks)")}
+            for name, kind in _ADDED_COLUMNS.items():
+                if name not in have:  # a file written by an older gateway: its tasks keep NULL
+                    self._db.execute(f"ALTER TABLE tasks ADD COLUMN {name} {kind}")
         except (OSError, sqlite3.Error) as exc:
             os.close(self._owner)
             raise StoreError(f"cannot open the task store {path}: {exc}") from None
@@ -254,8 +263,9 @@ class TaskStore:
                     "updated = ? WHERE id = ?", (status.value, message, now, now, task_id))
 
     def progress(self, task_id: str, *, found: tuple[FoundObject, ...], steps: int, distance_m: float,
-                 message: str, position: tuple[float, float] | None) -> None:
-        """Record the planner's latest report; ``position`` extends the task's path."""
+                 message: str, position: tuple[float, float] | None, odom_session: str | None = None) -> None:
+        """Record the planner's latest report; ``position`` extends the task's path, whose points
+        (and the found objects') are in the frame of ``odom_session``."""
         with self._write_lock, self._db:
             row = self._db.execute("SELECT path FROM tasks WHERE id = ?", (task_id,)).fetchone()
             if row is None:
@@ -265,6 +275,6 @@ class TaskStore:
                 path = (path + [list(position)])[-MAX_PATH_POINTS:]
             self._db.execute(
                 "UPDATE tasks SET found = ?, steps = ?, distance_m = ?, message = ?, path = ?, "
-                "updated = ? WHERE id = ?",
+                "odom_session = COALESCE(?, odom_session), updated = ? WHERE id = ?",
                 (json.dumps([f.model_dump() for f in found]), steps, distance_m, message,
-                 json.dumps(path), time.time(), task_id))
+                 json.dumps(path), odom_session, time.time(), task_id))

@@ -79,10 +79,10 @@ class TaskManager:
         self._waiting_lock = threading.Lock()
         self._waiting: set[Future[Any]] = set()  # requests handed to the owner thread, not answered
         self._closed = False
-        # robot -> (task id, the planner's goal and odometry session in its latest event): live
-        # state, not stored; replaced whole on the owner thread, read by HTTP threads (one dict
-        # item, no lock needed)
-        self._live: dict[str, tuple[str, Goal | None, str]] = {}
+        # robot -> (task id, the planner's goal in its latest event): live state, not stored (the
+        # event's odometry session is, with the position); replaced whole on the owner thread,
+        # read by HTTP threads (one dict item, no lock needed)
+        self._live: dict[str, tuple[str, Goal | None]] = {}
 
     def start(self) -> None:
         """Declare the gateway's ports (:data:`shared.topology.TOPOLOGY`) for every robot it
@@ -201,10 +201,10 @@ class TaskManager:
             self._count("events_not_active")
             return
         position = (event.x, event.y) if event.x is not None and event.y is not None else None
-        self.store.progress(record.id, found=event.found, steps=event.steps,
-                            distance_m=event.distance_m, message=event.message, position=position)
+        self.store.progress(record.id, found=event.found, steps=event.steps, distance_m=event.distance_m,
+                            message=event.message, position=position, odom_session=event.odom_session)
         self._count("events_applied")
-        self._live[robot_id] = (record.id, event.goal, event.odom_session)
+        self._live[robot_id] = (record.id, event.goal)
         if event.status in FINAL:
             self.store.finish(record.id, event.status)
             self._changed(record.id)
@@ -216,11 +216,6 @@ class TaskManager:
         """Where the planner last said it takes the robot for ``task_id`` (any thread)."""
         entry = self._live.get(robot_id)
         return entry[1] if entry is not None and entry[0] == task_id else None
-
-    def odom_session(self, robot_id: str, task_id: str) -> str | None:
-        """The odometry session of the planner's latest event for ``task_id`` (any thread)."""
-        entry = self._live.get(robot_id)
-        return entry[2] if entry is not None and entry[0] == task_id else None
 
     # -- periodic (owner thread) ---------------------------------------------------------------
     def republish(self) -> None:
