@@ -322,11 +322,12 @@ class SearchAgent:
         """ovamos-plus's look before a STOP (``look_before_stop`` turns): None to STOP now (no look
         wanted, a hit came since the robot arrived, or the turns are spent without the map
         counting ``look_views`` views of its place: too close to see it, say), STOP to leave
-        the object alone (that many views, none with a hit), else the turn to make. A
-        look-alike is confirmed from detections at any distance, mostly from afar; the right
-        object is detected again from close by, where the detector is at its best. The robot
-        turns to face it, then swings 30 degrees off and back, so each frame is a new view (79
-        degree field of view: the object stays in it)."""
+        the object alone (that many views, none with a hit), else the turn to make. The idea: a
+        look-alike is confirmed from detections at any distance, mostly from afar, and the right
+        object is detected again from close by. The robot turns to face it, then swings 30
+        degrees off and back, so each frame is a new view (79 degree field of view: the object
+        stays in it). Off by default: large objects fill the image from that close and are
+        rarely detected there (numbers in services/planner/plus.py)."""
         plus = self.config.decision.plus
         if self.config.decision.policy is not Policy.OVAMOS_PLUS or plus.look_before_stop == 0:
             return None
