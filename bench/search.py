@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -166,7 +167,8 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     done = {(r.policy, _episode_index(r)) for r in kept}  # run.json vouched for their seed
     jobs = [j for j in jobs_for(episodes, seed, policies, max_steps, perception, homes)
             if (j.policy, j.index) not in done]
-    code, kept_code = code_version(), _kept_code(out, kept) if kept else {}
+    code = code_version()
+    kept_code = _kept_code(out, kept) if out is not None and kept else Counter[str]()
     if progress is not None and kept:
         versions = ", ".join(f"{v}: {n}" for v, n in kept_code.items())
         progress.print(f"resuming {out}: {len(kept)} episodes kept (by code version: {versions}), "
@@ -180,11 +182,11 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
             if append is not None:
                 append(result)
             advance(result)
-    ran = {code: len(results) - len(kept)} if len(results) > len(kept) else {}
+    codes = kept_code + Counter({code: len(results) - len(kept)})  # (a count of 0 is dropped)
     return SearchRun(seed, max([episodes, *(_episode_index(r) + 1 for r in kept)]),
                      parse_policies([*policies, *(r.policy for r in kept)]), workers, max_steps,
                      sort_results(results), time.perf_counter() - started, perception, homes, len(kept),
-                     {v: kept_code.get(v, 0) + ran.get(v, 0) for v in {**kept_code, **ran}})
+                     dict(codes))
 
 
 def held_results(out: Path, settings: dict[str, Any]) -> list[EpisodeResult]:
@@ -205,21 +207,13 @@ def held_results(out: Path, settings: dict[str, Any]) -> list[EpisodeResult]:
     return read_results(episodes, torn_tail=True)
 
 
-def _kept_code(out: Path | None, kept: Sequence[EpisodeResult]) -> dict[str, int]:
+def _kept_code(out: Path, kept: Sequence[EpisodeResult]) -> Counter[str]:
     """How many of the ``kept`` episodes each code version ran, from their timing lines
     ("unrecorded": a line from before versions were recorded, or none)."""
-    versions: dict[tuple[str, str], str] = {}
-    timings = None if out is None else out / TIMINGS_FILE
-    if timings is not None and timings.exists():
-        for line in timings.read_text().splitlines():
-            pair = _timing_pair(line)
-            if pair is not None:
-                versions[pair] = str(json.loads(line).get("code", UNRECORDED))
-    counts: dict[str, int] = {}
-    for r in kept:
-        version = versions.get((r.episode_id, r.policy), UNRECORDED)
-        counts[version] = counts.get(version, 0) + 1
-    return counts
+    timings = out / TIMINGS_FILE
+    lines = timings.read_text().splitlines() if timings.exists() else []
+    versions = dict(t for t in map(_timing, lines) if t is not None)
+    return Counter(versions.get((r.episode_id, r.policy), UNRECORDED) for r in kept)
 
 
 def _start_file(out: Path, settings: dict[str, Any], kept: Sequence[EpisodeResult], code: str
@@ -231,7 +225,7 @@ def _start_file(out: Path, settings: dict[str, Any], kept: Sequence[EpisodeResul
     episodes, timings = out / EPISODES_FILE, out / TIMINGS_FILE
     pairs = {(r.episode_id, r.policy) for r in kept}
     old = timings.read_text().splitlines() if kept and timings.exists() else []
-    timings.write_text("".join(f"{line}\n" for line in old if _timing_pair(line) in pairs))
+    timings.write_text("".join(f"{line}\n" for line in old if (t := _timing(line)) is not None and t[0] in pairs))
     episodes.write_text("".join(jsonl_line(r) for r in kept))
 
     def append(result: EpisodeResult) -> None:
@@ -243,10 +237,11 @@ def _start_file(out: Path, settings: dict[str, Any], kept: Sequence[EpisodeResul
     return append
 
 
-def _timing_pair(line: str) -> tuple[str, str] | None:
+def _timing(line: str) -> tuple[tuple[str, str], str] | None:
+    """A timing line's (episode id, policy) and the code version that ran it."""
     try:
         timing = json.loads(line)
-        return timing["episode_id"], timing["policy"]
+        return (timing["episode_id"], timing["policy"]), str(timing.get("code", UNRECORDED))
     except (ValueError, KeyError, TypeError):
         return None  # a line cut short: its episode was not kept either
 
