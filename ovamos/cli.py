@@ -466,10 +466,17 @@ def bench_transport(
         tls: Annotated[bool, typer.Option(
             "--tls", help="Instead: the frame over the link between two routers, plain TCP vs mTLS "
                           "(and mTLS with the secure profiles' access control).")] = False,
+        stages: Annotated[bool, typer.Option(
+            "--stages", help="Instead: where the round trip's time goes (encode, put, link, hand-off "
+                             "and decode, ack, wake-up), raw Zenoh beside the bus, shared memory off.")] = False,
         as_json: AsJson = False
 ) -> None:
     """Latency of a 640x480 RGB-D frame through a router: raw Zenoh vs. the ovamos bus (--tls: over
-    the laptop-robot link, plain TCP vs mTLS)."""
+    the laptop-robot link, plain TCP vs mTLS; --stages: the round trip split into stages)."""
+    if stages:
+        from bench.transport_stages import print_stages, run_stages
+        _report(run_stages(frames=frames, gap_ms=gap_ms), as_json, print_stages)
+        return
     if tls:
         from bench.transport_tls import print_table as print_tls, run_tls_benchmark
         result = run_tls_benchmark(frames=frames, runs=runs, gap_ms=gap_ms, progress=None if as_json else err)

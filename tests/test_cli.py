@@ -115,6 +115,18 @@ def test_transport_benchmark_reports_both_paths_with_and_without_shared_memory()
     assert set(result["lost"]) == {"raw", "ovamos", "raw+shm", "ovamos+shm", "raw+zpool"}  # counted, each
 
 
+def test_transport_stages_split_each_round_trip_across_the_processes() -> None:
+    from bench.transport_stages import STAGES, run_stages
+    result = run_stages(frames=5, gap_ms=1.0)
+    assert set(result["median_us"]) == {"raw", "ovamos"} and set(result["lost"]) == {"raw", "ovamos"}
+    raw, ours = result["median_us"]["raw"], result["median_us"]["ovamos"]
+    for path in (raw, ours):
+        assert set(path) == {*STAGES, "round trip"}
+        # the echo's clock is the sender's (CLOCK_MONOTONIC): its stamps fall inside the round trip
+        assert 0 < path["to echo"] < path["round trip"] and 0 <= path["to handler"] < path["round trip"]
+    assert ours["encode"] > raw["encode"]  # raw puts bytes encoded once, before the first round trip
+
+
 def test_tls_transport_benchmark_compares_the_links() -> None:
     from bench.transport_tls import run_tls_benchmark
     result = run_tls_benchmark(frames=5, runs=1, gap_ms=1.0)

@@ -1,0 +1,230 @@
+"""Where a frame round trip's time goes, stage by stage: raw Zenoh beside the ovamos bus.
+
+``ovamos bench transport`` gives one number per path; this splits the round trip of the
+benchmark's network-path variants (``raw`` and ``ovamos``, shared memory off) into stages
+timed across the two processes with ``time.perf_counter`` (CLOCK_MONOTONIC on Linux: one
+clock for every process of the host). The echo sends its own timestamps back in the ack, so
+each round trip's stages come from one frame. The bus is timed through its transport hooks
+(:class:`StageBus` overrides ``_listen`` and ``_publish``), so the bus code measured is the
+one the services run, plus two clock reads per message.
+
+Stages (raw has no encode, hand-off or decode; its "to handler" is the payload copy its
+callback makes, as the bus's read does):
+
+* ``encode``: the sender's ``put`` call until the payload reaches Zenoh's put;
+* ``put``: Zenoh's put of the 2.15 MB payload (fragments queued for the link);
+* ``to echo``: Zenoh's put started until the echo's subscriber callback ran;
+* ``to handler``: the echo's callback until its handler has the decoded frame (hand-off to the
+  node's thread, payload copy, decode and validation);
+* ``ack``: the echo's handler until the sender's ack callback (encode and put the ack, the link);
+* ``to waiter``: the sender's ack callback until the waiting thread runs again.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import statistics
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+from rich.console import Console
+from rich.table import Table
+
+from bench.transport import WARMUP, LOST_AFTER_S, VARIANTS, Variant
+from services.diag.testpattern import pattern_frame
+from shared import keys
+from shared.bus import Bus
+from shared.messages import JsonMessage, RgbdFrame
+from shared.procs import free_port, loopback, start_cli, stop
+from shared.zconfig import open_session
+
+__all__ = ["STAGES", "StageBus", "run_stages", "print_stages"]
+
+STAGES = ("encode", "put", "to echo", "to handler", "ack", "to waiter")
+#: the benchmark's network-path variants (shared memory off): raw Zenoh and the bus
+_PATHS = tuple(v for v in VARIANTS if v.shm == "off")
+
+
+class StampedAck(JsonMessage):
+    """The echo's acknowledgement with its timestamps: callback ran, handler ran."""
+
+    arrived: float
+    handled: float
+
+
+class StageBus(Bus):
+    """The bus with clock reads at its transport hooks: when each key's latest sample arrived
+    (before the inbox), and when each payload reached and left Zenoh's put."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.arrived: dict[str, float] = {}
+        self.put_started = self.put_ended = 0.0
+        super().__init__(*args, **kwargs)
+
+    def _listen(self, key_expr: str, on_payload: Callable[[str, Callable[[], bytes]], None]
+                ) -> Callable[[], None]:
+        def stamped(key: str, read: Callable[[], bytes]) -> None:
+            self.arrived[key] = time.perf_counter()
+            on_payload(key, read)
+
+        return super()._listen(key_expr, stamped)
+
+    def _publish(self, key: str, block: bool = False
+                 ) -> tuple[Callable[[bytes | bytearray], None], Callable[[], None]]:
+        put, undeclare = super()._publish(key, block)
+
+        def stamped(payload: bytes | bytearray) -> None:
+            self.put_started = time.perf_counter()
+            put(payload)
+            self.put_ended = time.perf_counter()
+
+        return stamped, undeclare
+
+
+def _echo(variant: Variant, endpoint: str, stop_event: Any) -> None:
+    """Acknowledge every frame with the times its callback and its handler ran."""
+    cfg = variant.config(endpoint)
+    frame_key, ack_key = keys.rgbd(variant.robot), keys.bench(variant.robot, "ack")
+    if variant.path == "raw":
+        session = open_session(cfg)
+        ack = session.declare_publisher(ack_key)
+
+        def on_frame(sample: zenoh.Sample) -> None:
+            arrived = time.perf_counter()
+            sample.payload.to_bytes()
+            ack.put(StampedAck(arrived=arrived, handled=time.perf_counter()).to_bytes())
+
+        sub = session.declare_subscriber(frame_key, on_frame)
+        stop_event.wait()
+        sub.undeclare()
+        session.close()
+        return
+    with StageBus(open_session(cfg), variant.robot, "bench-echo", "0") as bus:
+        pub = bus.publisher(ack_key, StampedAck)
+        bus.subscribe(frame_key, RgbdFrame, lambda _f: pub.put(StampedAck(
+            arrived=bus.arrived[frame_key], handled=time.perf_counter())), keep=1)
+        stop_event.wait()
+
+
+class _StageSender:
+    """Sends frames on one path and splits each round trip into :data:`STAGES`."""
+
+    def __init__(self, variant: Variant, endpoint: str, frame: RgbdFrame) -> None:
+        self._acked = threading.Event()
+        self._ack: bytes | StampedAck | None = None  # raw: decoded after the waiter woke
+        self._ack_arrived = 0.0
+        cfg = variant.config(endpoint)
+        frame_key, ack_key = keys.rgbd(variant.robot), keys.bench(variant.robot, "ack")
+        if variant.path == "raw":
+            session = open_session(cfg)
+            payload = bytes(frame.to_bytes())
+            pub = session.declare_publisher(frame_key)
+
+            def on_ack(sample: zenoh.Sample) -> None:
+                self._ack_arrived = time.perf_counter()
+                self._ack = sample.payload.to_bytes()
+                self._acked.set()
+
+            session.declare_subscriber(ack_key, on_ack)
+
+            def send() -> tuple[float, float]:
+                started = time.perf_counter()
+                pub.put(payload)
+                return started, time.perf_counter()
+
+            self._send: Callable[[], tuple[float, float]] = send
+            self.close: Callable[[], None] = session.close
+        else:
+            bus = StageBus(open_session(cfg), variant.robot, "bench-client", "0")
+            frame_pub = bus.publisher(frame_key, RgbdFrame)
+
+            def on_bus_ack(ack: StampedAck) -> None:
+                self._ack_arrived, self._ack = bus.arrived[ack_key], ack
+                self._acked.set()
+
+            bus.subscribe(ack_key, StampedAck, on_bus_ack)
+
+            def send_bus() -> tuple[float, float]:
+                frame_pub.put(frame)
+                return bus.put_started, bus.put_ended
+
+            self._send, self.close = send_bus, bus.close
+
+    def round_trip(self, timeout: float) -> dict[str, float] | None:
+        """Each stage's seconds and the whole round trip's ("round trip"); None when no ack came."""
+        self._acked.clear()
+        start = time.perf_counter()
+        put_started, put_ended = self._send()
+        if not self._acked.wait(timeout):
+            return None
+        woke = time.perf_counter()
+        ack = StampedAck.from_bytes(self._ack) if isinstance(self._ack, bytes) else self._ack
+        assert ack is not None
+        return {"encode": put_started - start, "put": put_ended - put_started,
+                "to echo": ack.arrived - put_started, "to handler": ack.handled - ack.arrived,
+                "ack": self._ack_arrived - ack.handled, "to waiter": woke - self._ack_arrived,
+                "round trip": woke - start}
+
+
+def run_stages(frames: int = 200, gap_ms: float = 5.0, ready_timeout_s: float = 30.0) -> dict[str, Any]:
+    """Median seconds of each stage per path, over ``frames`` round trips per path after
+    :data:`~bench.transport.WARMUP`, the paths alternating, ``gap_ms`` apart; and frames lost."""
+    endpoint = loopback(free_port())
+    frame = pattern_frame(0, time.time())
+    ctx = mp.get_context("spawn")
+    stop_echo = ctx.Event()
+    router = start_cli(["router", "--listen", endpoint, "--log-level", "WARNING"])
+    echoes = [ctx.Process(target=_echo, args=(v, endpoint, stop_echo)) for v in _PATHS]
+    senders: dict[str, _StageSender] = {}
+    samples: dict[str, list[dict[str, float]]] = {v.name: [] for v in _PATHS}
+    lost = {v.name: 0 for v in _PATHS}
+    try:
+        for proc in echoes:
+            proc.start()
+        senders = {v.name: _StageSender(v, endpoint, frame) for v in _PATHS}
+        deadline = time.monotonic() + ready_timeout_s
+        for sender in senders.values():
+            while sender.round_trip(0.2) is None:
+                if time.monotonic() > deadline:
+                    raise TimeoutError("the echo process never answered")
+        for i in range(WARMUP + frames):
+            for name, sender in senders.items():
+                time.sleep(gap_ms / 1e3)
+                stages = sender.round_trip(LOST_AFTER_S)
+                if stages is None:
+                    lost[name] += 1
+                elif i >= WARMUP:
+                    samples[name].append(stages)
+    finally:
+        for sender in senders.values():
+            sender.close()
+        stop_echo.set()
+        for proc in echoes:
+            proc.join(10)
+            if proc.is_alive():
+                proc.kill()
+        stop(router)
+    medians = {name: {stage: round(statistics.median(s[stage] for s in rows) * 1e6, 1)
+                      for stage in (*STAGES, "round trip")}
+               for name, rows in samples.items() if rows}
+    return {"frame_bytes": len(frame.to_bytes()), "frames": frames, "gap_ms": gap_ms,
+            "median_us": medians, "lost": lost}
+
+
+def print_stages(console: Console, result: dict[str, Any]) -> None:
+    medians = result["median_us"]
+    paths = list(medians)
+    table = Table("stage", *(f"{p} (us)" for p in paths), *(["ovamos - raw (us)"] if len(paths) == 2 else []),
+                  title=f"Where a {result['frame_bytes']} B frame's round trip goes: medians of "
+                        f"{result['frames']} round trips per path, {result['gap_ms']:g} ms apart "
+                        f"(stages are medians each: they need not add up to the round trip)")
+    for stage in (*STAGES, "round trip"):
+        cells = [medians[p][stage] for p in paths]
+        extra = [f"{cells[1] - cells[0]:+.0f}"] if len(cells) == 2 else []
+        table.add_row(stage, *(f"{c:.0f}" for c in cells), *extra)
+    console.print(table)
+    if any(result["lost"].values()):
+        console.print(f"frames lost (no ack within {LOST_AFTER_S:g} s): {result['lost']}")
