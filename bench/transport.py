@@ -24,8 +24,9 @@ import statistics
 import threading
 import time
 from dataclasses import dataclass
+from contextlib import contextmanager
 from typing import Any
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 
 import zenoh
 from rich.console import Console
@@ -180,31 +181,42 @@ def print_lost(console: Console, lost: dict[str, int]) -> None:
         console.print(f"frames lost (no ack within {LOST_AFTER_S:g} s, not in the medians): {lost}")
 
 
-def run_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
-                  progress: Console | None = None) -> dict[str, Any]:
+@contextmanager
+def echo_processes(echo: Callable[[Variant, str, Any], None], variants: Sequence[Variant]) -> Iterator[str]:
+    """A router on a free loopback port and a spawned ``echo(variant, endpoint, stop_event)``
+    process per variant; yields the router's endpoint, and stops the echoes and the router on
+    exit (close the senders first)."""
     endpoint = loopback(free_port())
-    frame = pattern_frame(0, time.time())
     ctx = mp.get_context("spawn")
     stop_echo = ctx.Event()
     router = start_cli(["router", "--listen", endpoint, "--log-level", "WARNING"])
-    echoes = [ctx.Process(target=_echo, args=(v, endpoint, stop_echo)) for v in VARIANTS]
-    pingers: dict[str, _Pinger] = {}
+    echoes = [ctx.Process(target=echo, args=(v, endpoint, stop_echo)) for v in variants]
     try:
         for proc in echoes:
             proc.start()
-        pingers = {v.name: _Pinger(v, endpoint, frame) for v in VARIANTS}
-        for pinger in pingers.values():
-            pinger.wait_ready(30.0, 0.2, "the echo process never answered")
-        medians, lost = measure(pingers, frames, runs, gap_ms / 1e3, progress, lambda s: f"{s * 1e6:.0f} us")
+        yield endpoint
     finally:
-        for pinger in pingers.values():
-            pinger.close()
         stop_echo.set()
         for proc in echoes:
             proc.join(10)
             if proc.is_alive():
                 proc.kill()
         stop(router)
+
+
+def run_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
+                  progress: Console | None = None) -> dict[str, Any]:
+    frame = pattern_frame(0, time.time())
+    with echo_processes(_echo, VARIANTS) as endpoint:
+        pingers: dict[str, _Pinger] = {}
+        try:
+            pingers = {v.name: _Pinger(v, endpoint, frame) for v in VARIANTS}
+            for pinger in pingers.values():
+                pinger.wait_ready(30.0, 0.2, "the echo process never answered")
+            medians, lost = measure(pingers, frames, runs, gap_ms / 1e3, progress, lambda s: f"{s * 1e6:.0f} us")
+        finally:
+            for pinger in pingers.values():
+                pinger.close()
     size = len(frame.to_bytes())
     result: dict[str, Any] = {"frame_bytes": size, "frames_per_run": frames, "runs": runs, "gap_ms": gap_ms}
     for name, ms in medians.items():

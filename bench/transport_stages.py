@@ -22,7 +22,6 @@ callback makes, as the bus's read does):
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import statistics
 import threading
 import time
@@ -33,12 +32,11 @@ import zenoh
 from rich.console import Console
 from rich.table import Table
 
-from bench.transport import WARMUP, LOST_AFTER_S, VARIANTS, Variant
+from bench.transport import LOST_AFTER_S, VARIANTS, WARMUP, Variant, echo_processes
 from services.diag.testpattern import pattern_frame
 from shared import keys
 from shared.bus import Bus
 from shared.messages import JsonMessage, RgbdFrame
-from shared.procs import free_port, loopback, start_cli, stop
 from shared.zconfig import open_session
 
 __all__ = ["STAGES", "StageBus", "run_stages", "print_stages"]
@@ -170,43 +168,31 @@ class _StageSender:
 
 
 def run_stages(frames: int = 200, gap_ms: float = 5.0, ready_timeout_s: float = 30.0) -> dict[str, Any]:
-    """Median seconds of each stage per path, over ``frames`` round trips per path after
+    """Median microseconds of each stage per path, over ``frames`` round trips per path after
     :data:`~bench.transport.WARMUP`, the paths alternating, ``gap_ms`` apart; and frames lost."""
-    endpoint = loopback(free_port())
     frame = pattern_frame(0, time.time())
-    ctx = mp.get_context("spawn")
-    stop_echo = ctx.Event()
-    router = start_cli(["router", "--listen", endpoint, "--log-level", "WARNING"])
-    echoes = [ctx.Process(target=_echo, args=(v, endpoint, stop_echo)) for v in _PATHS]
-    senders: dict[str, _StageSender] = {}
     samples: dict[str, list[dict[str, float]]] = {v.name: [] for v in _PATHS}
     lost = {v.name: 0 for v in _PATHS}
-    try:
-        for proc in echoes:
-            proc.start()
-        senders = {v.name: _StageSender(v, endpoint, frame) for v in _PATHS}
-        deadline = time.monotonic() + ready_timeout_s
-        for sender in senders.values():
-            while sender.round_trip(0.2) is None:
-                if time.monotonic() > deadline:
-                    raise TimeoutError("the echo process never answered")
-        for i in range(WARMUP + frames):
-            for name, sender in senders.items():
-                time.sleep(gap_ms / 1e3)
-                stages = sender.round_trip(LOST_AFTER_S)
-                if stages is None:
-                    lost[name] += 1
-                elif i >= WARMUP:
-                    samples[name].append(stages)
-    finally:
-        for sender in senders.values():
-            sender.close()
-        stop_echo.set()
-        for proc in echoes:
-            proc.join(10)
-            if proc.is_alive():
-                proc.kill()
-        stop(router)
+    with echo_processes(_echo, _PATHS) as endpoint:
+        senders: dict[str, _StageSender] = {}
+        try:
+            senders = {v.name: _StageSender(v, endpoint, frame) for v in _PATHS}
+            deadline = time.monotonic() + ready_timeout_s
+            for sender in senders.values():
+                while sender.round_trip(0.2) is None:
+                    if time.monotonic() > deadline:
+                        raise TimeoutError("the echo process never answered")
+            for i in range(WARMUP + frames):
+                for name, sender in senders.items():
+                    time.sleep(gap_ms / 1e3)
+                    stages = sender.round_trip(LOST_AFTER_S)
+                    if stages is None:
+                        lost[name] += 1
+                    elif i >= WARMUP:
+                        samples[name].append(stages)
+        finally:
+            for sender in senders.values():
+                sender.close()
     medians = {name: {stage: round(statistics.median(s[stage] for s in rows) * 1e6, 1)
                       for stage in (*STAGES, "round trip")}
                for name, rows in samples.items() if rows}
