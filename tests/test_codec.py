@@ -638,10 +638,12 @@ def test_hostile_layout_raises_decode_error(layout: bytes) -> None:
             RgbdFrame.from_bytes(assemble(0, body, layout))
 
 
-def test_deeply_nested_fields_raise_decode_error() -> None:
+@pytest.mark.parametrize("fields", [b"[" * 100_000, b'{"seq": 1', b'{"odom_session": "\\ud800"}', b"\xff\xfe{}"],
+                         ids=["deeply-nested", "truncated", "lone-surrogate", "not-utf8"])
+def test_malformed_fields_raise_decode_error(fields: bytes) -> None:
     parts = split(sample_frame().to_bytes())
-    with pytest.raises(DecodeError):
-        RgbdFrame.from_bytes(assemble(parts.flags, parts.body, parts.layout, b"[" * 100_000))
+    with pytest.raises(DecodeError, match="fields are not valid JSON"):
+        RgbdFrame.from_bytes(assemble(parts.flags, parts.body, parts.layout, fields))
 
 
 def test_zip_bomb_declaring_an_empty_body_is_not_inflated() -> None:
