@@ -3,7 +3,9 @@
 Each round trip sends a frame from this process to an echo process and waits
 for a small acknowledgement. ``raw`` puts pre-encoded bytes with plain Zenoh
 calls; ``ovamos`` goes through the service layer (encode, typed publisher,
-latest-only subscription with its worker thread, validated decode, JSON ack).
+latest-only subscription, one hand-off from Zenoh's thread to the node's event
+loop in each process, validated decode, JSON ack; the measuring thread is the
+sender's event loop, as a service's main thread is).
 Each comes in three transports (:data:`VARIANTS`), all in the same run through the same
 router (shared memory on, as shipped): shared memory off in both clients (the
 network path, as between two hosts); on, with the frame in a buffer of the
@@ -107,12 +109,16 @@ class AckedSender:
     def send(self) -> None:
         raise NotImplementedError
 
+    def wait_ack(self, timeout: float) -> bool:
+        """Wait until ``acked`` is set (by a Zenoh callback); False after ``timeout``."""
+        return self.acked.wait(timeout)
+
     def round_trip(self, timeout: float) -> float | None:
         """Seconds from sending a frame to its ack; None when no ack came within ``timeout``."""
         self.acked.clear()
         start = time.perf_counter()
         self.send()
-        if not self.acked.wait(timeout):
+        if not self.wait_ack(timeout):
             return None
         return time.perf_counter() - start
 
@@ -143,10 +149,18 @@ class _Pinger(AckedSender):
                 self.send = lambda: pub.put(payload)  # type: ignore[method-assign]
             self.close: Callable[[], None] = self._session.close
         else:
-            bus = Bus.open(cfg, variant.robot, "bench-client")
+            # As a service runs (shared.service): the measuring thread is the node's event loop and
+            # takes the ack from the inbox itself, one thread hand-off as raw's callback -> waiter.
+            bus = Bus.open(cfg, variant.robot, "bench-client", dispatch="caller")
             pub = bus.publisher(frame_key, RgbdFrame)
             bus.subscribe(ack_key, Ack, lambda _a: self.acked.set())
             self.send = lambda: pub.put(frame)  # type: ignore[method-assign]
+
+            def take_ack(timeout: float) -> bool:
+                bus.inbox.run_until(time.monotonic() + timeout, self.acked)
+                return self.acked.is_set()
+
+            self.wait_ack = take_ack  # type: ignore[method-assign]
             self.close = bus.close
 
 

@@ -17,7 +17,8 @@ callback makes, as the bus's read does):
 * ``to handler``: the echo's callback until its handler has the decoded frame (hand-off to the
   node's thread, payload copy, decode and validation);
 * ``ack``: the echo's handler until the sender's ack callback (encode and put the ack, the link);
-* ``to waiter``: the sender's ack callback until the waiting thread runs again.
+* ``to waiter``: the sender's ack callback until the waiting thread runs again (for the bus:
+  the sender's event loop has taken the ack from the inbox and decoded it).
 """
 
 from __future__ import annotations
@@ -134,9 +135,11 @@ class _StageSender:
                 return started, time.perf_counter()
 
             self._send: Callable[[], tuple[float, float]] = send
+            self._wait: Callable[[float], bool] = self._acked.wait
             self.close: Callable[[], None] = session.close
         else:
-            bus = StageBus(open_session(cfg), variant.robot, "bench-client", "0")
+            # The measuring thread is the sender's event loop, as in bench.transport.
+            bus = StageBus(open_session(cfg), variant.robot, "bench-client", "0", dispatch="caller")
             frame_pub = bus.publisher(frame_key, RgbdFrame)
 
             def on_bus_ack(ack: StampedAck) -> None:
@@ -149,14 +152,18 @@ class _StageSender:
                 frame_pub.put(frame)
                 return bus.put_started, bus.put_ended
 
-            self._send, self.close = send_bus, bus.close
+            def take_ack(timeout: float) -> bool:
+                bus.inbox.run_until(time.monotonic() + timeout, self._acked)
+                return self._acked.is_set()
+
+            self._send, self._wait, self.close = send_bus, take_ack, bus.close
 
     def round_trip(self, timeout: float) -> dict[str, float] | None:
         """Each stage's seconds and the whole round trip's ("round trip"); None when no ack came."""
         self._acked.clear()
         start = time.perf_counter()
         put_started, put_ended = self._send()
-        if not self._acked.wait(timeout):
+        if not self._wait(timeout):
             return None
         woke = time.perf_counter()
         ack = StampedAck.from_bytes(self._ack) if isinstance(self._ack, bytes) else self._ack
