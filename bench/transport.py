@@ -27,7 +27,7 @@ import threading
 import time
 from dataclasses import dataclass
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, TypeVar
 from collections.abc import Callable, Iterator, Mapping, Sequence
 
 import zenoh
@@ -45,6 +45,7 @@ from shared.zconfig import build_config, open_session
 WARMUP = 20
 #: a frame not acknowledged within this is lost (a full queue dropped it): counted, not in the medians
 LOST_AFTER_S = 2.0
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -124,10 +125,26 @@ class AckedSender:
 
     def wait_ready(self, timeout: float, probe_s: float, failure: str) -> None:
         """Probe until a round trip succeeds (routes and the echo are up); TimeoutError(failure)."""
-        deadline = time.monotonic() + timeout
-        while self.round_trip(probe_s) is None:
-            if time.monotonic() > deadline:
-                raise TimeoutError(failure)
+        wait_ready(self.round_trip, timeout, probe_s, failure)
+
+
+def wait_ready(round_trip: Callable[[float], object | None], timeout: float, probe_s: float,
+               failure: str) -> None:
+    """Probe ``round_trip(probe_s)`` until it gives a result; TimeoutError(failure) after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while round_trip(probe_s) is None:
+        if time.monotonic() > deadline:
+            raise TimeoutError(failure)
+
+
+def loop_waiter(bus: Bus, event: threading.Event) -> Callable[[float], bool]:
+    """Wait for ``event`` as a service's event loop does (a ``dispatch="caller"`` bus): this
+    thread takes the bus's events itself until a handler sets it; False after the timeout."""
+    def wait(timeout: float) -> bool:
+        bus.inbox.run_until(time.monotonic() + timeout, event)
+        return event.is_set()
+
+    return wait
 
 
 class _Pinger(AckedSender):
@@ -155,34 +172,39 @@ class _Pinger(AckedSender):
             pub = bus.publisher(frame_key, RgbdFrame)
             bus.subscribe(ack_key, Ack, lambda _a: self.acked.set())
             self.send = lambda: pub.put(frame)  # type: ignore[method-assign]
-
-            def take_ack(timeout: float) -> bool:
-                bus.inbox.run_until(time.monotonic() + timeout, self.acked)
-                return self.acked.is_set()
-
-            self.wait_ack = take_ack  # type: ignore[method-assign]
+            self.wait_ack = loop_waiter(bus, self.acked)  # type: ignore[method-assign]
             self.close = bus.close
+
+
+def interleave(round_trips: Mapping[str, Callable[[float], T | None]], frames: int, gap_s: float,
+               lost: dict[str, int], max_lost: int) -> dict[str, list[T]]:
+    """One run: ``frames`` measured round trips per sender after :data:`WARMUP` unmeasured ones,
+    interleaved between the senders, ``gap_s`` apart; each sender's results in order. A round trip
+    without an ack in :data:`LOST_AFTER_S` is counted in ``lost``; more than ``max_lost`` lost by one
+    sender fails the run: its median would describe the survivors, not the path."""
+    samples: dict[str, list[T]] = {v: [] for v in round_trips}
+    for i in range(WARMUP + frames):
+        for variant, round_trip in round_trips.items():
+            time.sleep(gap_s)
+            result = round_trip(LOST_AFTER_S)
+            if result is None:
+                lost[variant] += 1
+                if lost[variant] > max_lost:
+                    raise RuntimeError(f"{variant}: over 10 % of the frames lost")
+            elif i >= WARMUP:
+                samples[variant].append(result)
+    return samples
 
 
 def measure(senders: Mapping[str, AckedSender], frames: int, runs: int, gap_s: float,
             progress: Console | None, show: Callable[[float], str]) -> tuple[dict[str, list[float]], dict[str, int]]:
-    """Each sender's median round trip per run, over ``frames`` round trips interleaved between the
-    senders after :data:`WARMUP` unmeasured ones, and how many frames each lost. Over 10 % of one
-    sender's frames lost fails the run: its median would describe the survivors, not the path."""
+    """Each sender's median round trip per run (:func:`interleave`), and how many frames each lost;
+    over 10 % of all one sender sent lost fails."""
     medians: dict[str, list[float]] = {v: [] for v in senders}
     lost = {v: 0 for v in senders}
+    round_trips = {v: sender.round_trip for v, sender in senders.items()}
     for run in range(runs):
-        samples: dict[str, list[float]] = {v: [] for v in senders}
-        for i in range(WARMUP + frames):
-            for variant, sender in senders.items():
-                time.sleep(gap_s)
-                rtt = sender.round_trip(LOST_AFTER_S)
-                if rtt is None:
-                    lost[variant] += 1
-                    if lost[variant] > (WARMUP + frames) * runs // 10:  # of all it sent
-                        raise RuntimeError(f"{variant}: over 10 % of the frames lost")
-                elif i >= WARMUP:
-                    samples[variant].append(rtt)
+        samples = interleave(round_trips, frames, gap_s, lost, (WARMUP + frames) * runs // 10)
         for variant, s in samples.items():
             medians[variant].append(statistics.median(s))
         if progress:

@@ -33,7 +33,8 @@ import zenoh
 from rich.console import Console
 from rich.table import Table
 
-from bench.transport import LOST_AFTER_S, VARIANTS, WARMUP, Variant, echo_processes
+from bench.transport import (LOST_AFTER_S, VARIANTS, WARMUP, Variant, echo_processes, interleave,
+                             loop_waiter, wait_ready)
 from services.diag.testpattern import pattern_frame
 from shared import keys
 from shared.bus import Bus
@@ -152,11 +153,7 @@ class _StageSender:
                 frame_pub.put(frame)
                 return bus.put_started, bus.put_ended
 
-            def take_ack(timeout: float) -> bool:
-                bus.inbox.run_until(time.monotonic() + timeout, self._acked)
-                return self._acked.is_set()
-
-            self._send, self._wait, self.close = send_bus, take_ack, bus.close
+            self._send, self._wait, self.close = send_bus, loop_waiter(bus, self._acked), bus.close
 
     def round_trip(self, timeout: float) -> dict[str, float] | None:
         """Each stage's seconds and the whole round trip's ("round trip"); None when no ack came."""
@@ -175,28 +172,19 @@ class _StageSender:
 
 
 def run_stages(frames: int = 200, gap_ms: float = 5.0, ready_timeout_s: float = 30.0) -> dict[str, Any]:
-    """Median microseconds of each stage per path, over ``frames`` round trips per path after
-    :data:`~bench.transport.WARMUP`, the paths alternating, ``gap_ms`` apart; and frames lost."""
+    """Median microseconds of each stage per path, over ``frames`` round trips per path
+    (:func:`~bench.transport.interleave`: after its warm-up, the paths alternating, ``gap_ms``
+    apart; over 10 % lost fails); and frames lost."""
     frame = pattern_frame(0, time.time())
-    samples: dict[str, list[dict[str, float]]] = {v.name: [] for v in _PATHS}
     lost = {v.name: 0 for v in _PATHS}
     with echo_processes(_echo, _PATHS) as endpoint:
         senders: dict[str, _StageSender] = {}
         try:
             senders = {v.name: _StageSender(v, endpoint, frame) for v in _PATHS}
-            deadline = time.monotonic() + ready_timeout_s
             for sender in senders.values():
-                while sender.round_trip(0.2) is None:
-                    if time.monotonic() > deadline:
-                        raise TimeoutError("the echo process never answered")
-            for i in range(WARMUP + frames):
-                for name, sender in senders.items():
-                    time.sleep(gap_ms / 1e3)
-                    stages = sender.round_trip(LOST_AFTER_S)
-                    if stages is None:
-                        lost[name] += 1
-                    elif i >= WARMUP:
-                        samples[name].append(stages)
+                wait_ready(sender.round_trip, ready_timeout_s, 0.2, "the echo process never answered")
+            samples = interleave({name: sender.round_trip for name, sender in senders.items()}, frames,
+                                 gap_ms / 1e3, lost, (WARMUP + frames) // 10)
         finally:
             for sender in senders.values():
                 sender.close()
