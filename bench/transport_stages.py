@@ -1,7 +1,7 @@
 """Where a frame round trip's time goes, stage by stage: raw Zenoh beside the ovamos bus.
 
-``ovamos bench transport`` gives one number per path; this splits the round trip of the
-benchmark's network-path variants (``raw`` and ``ovamos``, shared memory off) into stages
+``ovamos bench transport`` gives one number per path; this splits the round trip of four of
+its variants (``raw`` and ``ovamos``, with shared memory off and with the sender's own pool) into stages
 timed across the two processes with ``time.perf_counter`` (CLOCK_MONOTONIC on Linux: one
 clock for every process of the host). The echo sends its own timestamps back in the ack, so
 each round trip's stages come from one frame. The bus is timed through its transport hooks
@@ -12,7 +12,8 @@ Stages (raw has no encode, hand-off or decode; its "to handler" is the payload c
 callback makes, as the bus's read does):
 
 * ``encode``: the sender's ``put`` call until the payload reaches Zenoh's put;
-* ``put``: Zenoh's put of the 2.15 MB payload (fragments queued for the link);
+* ``put``: Zenoh's put of the 2.15 MB payload (fragments queued for the link; with shared memory,
+  the allocation and copy into the pool, and a reference queued);
 * ``to echo``: Zenoh's put started until the echo's subscriber callback ran;
 * ``to handler``: the echo's callback until its handler has the decoded frame (hand-off to the
   node's thread, payload copy, decode and validation);
@@ -33,19 +34,20 @@ import zenoh
 from rich.console import Console
 from rich.table import Table
 
-from bench.transport import (LOST_AFTER_S, VARIANTS, WARMUP, Variant, echo_processes, interleave,
-                             loop_waiter, wait_ready)
+from bench.transport import (LOST_AFTER_S, RATIOS, VARIANTS, WARMUP, Variant, echo_processes,
+                             interleave, loop_waiter, wait_ready)
 from services.diag.testpattern import pattern_frame
 from shared import keys
 from shared.bus import Bus
 from shared.messages import JsonMessage, RgbdFrame
+from shared.shm import ShmPool
 from shared.zconfig import open_session
 
 __all__ = ["STAGES", "StageBus", "run_stages", "print_stages"]
 
 STAGES = ("encode", "put", "to echo", "to handler", "ack", "to waiter")
-#: the benchmark's network-path variants (shared memory off): raw Zenoh and the bus
-_PATHS = tuple(v for v in VARIANTS if v.shm == "off")
+#: raw Zenoh and the bus, on the network path and through the sender's own shared-memory pool
+_PATHS = tuple(v for v in VARIANTS if v.shm in ("off", "provider"))
 
 
 class StampedAck(JsonMessage):
@@ -102,7 +104,7 @@ def _echo(variant: Variant, endpoint: str, stop_event: Any) -> None:
         sub.undeclare()
         session.close()
         return
-    with StageBus(open_session(cfg), variant.robot, "bench-echo", "0") as bus:
+    with StageBus.open(cfg, variant.robot, "bench-echo") as bus:
         pub = bus.publisher(ack_key, StampedAck)
         bus.subscribe(frame_key, RgbdFrame, lambda _f: pub.put(StampedAck(
             arrived=bus.arrived[frame_key], handled=time.perf_counter())), keep=1)
@@ -122,6 +124,7 @@ class _StageSender:
             session = open_session(cfg)
             payload = bytes(frame.to_bytes())
             pub = session.declare_publisher(frame_key)
+            wrap = ShmPool().wrap if variant.shm == "provider" else (lambda p: p)
 
             def on_ack(sample: zenoh.Sample) -> None:
                 self._ack_arrived = time.perf_counter()
@@ -132,7 +135,7 @@ class _StageSender:
 
             def send() -> tuple[float, float]:
                 started = time.perf_counter()
-                pub.put(payload)
+                pub.put(wrap(payload))
                 return started, time.perf_counter()
 
             self._send: Callable[[], tuple[float, float]] = send
@@ -140,7 +143,7 @@ class _StageSender:
             self.close: Callable[[], None] = session.close
         else:
             # The measuring thread is the sender's event loop, as in bench.transport.
-            bus = StageBus(open_session(cfg), variant.robot, "bench-client", "0", dispatch="caller")
+            bus = StageBus.open(cfg, variant.robot, "bench-client", dispatch="caller")
             frame_pub = bus.publisher(frame_key, RgbdFrame)
 
             def on_bus_ack(ack: StampedAck) -> None:
@@ -198,14 +201,14 @@ def run_stages(frames: int = 200, gap_ms: float = 5.0, ready_timeout_s: float = 
 def print_stages(console: Console, result: dict[str, Any]) -> None:
     medians = result["median_us"]
     paths = list(medians)
-    table = Table("stage", *(f"{p} (us)" for p in paths), *(["ovamos - raw (us)"] if len(paths) == 2 else []),
+    pairs = [(ours, raw) for ours, raw in RATIOS.values() if ours in medians and raw in medians]
+    table = Table("stage", *(f"{p} (us)" for p in paths), *(f"{ours} - {raw} (us)" for ours, raw in pairs),
                   title=f"Where a {result['frame_bytes']} B frame's round trip goes: medians of "
                         f"{result['frames']} round trips per path, {result['gap_ms']:g} ms apart "
                         f"(stages are medians each: they need not add up to the round trip)")
     for stage in (*STAGES, "round trip"):
-        cells = [medians[p][stage] for p in paths]
-        extra = [f"{cells[1] - cells[0]:+.0f}"] if len(cells) == 2 else []
-        table.add_row(stage, *(f"{c:.0f}" for c in cells), *extra)
+        table.add_row(stage, *(f"{medians[p][stage]:.0f}" for p in paths),
+                      *(f"{medians[ours][stage] - medians[raw][stage]:+.0f}" for ours, raw in pairs))
     console.print(table)
     if any(result["lost"].values()):
         console.print(f"frames lost (no ack within {LOST_AFTER_S:g} s): {result['lost']}")

@@ -22,7 +22,6 @@ import logging
 import os
 import threading
 import time
-from collections import defaultdict
 from typing import Any, Generic, Literal, Protocol, Self, TypeVar
 from collections.abc import Callable
 
@@ -51,22 +50,29 @@ M = TypeVar("M", bound=Codec)
 
 
 class Counters:
-    """Per-key message counters, safe to bump from any thread."""
+    """Per-key message counters, safe to bump from any thread.
+
+    Plain integers, not :class:`CounterSet` models: every message bumps one on
+    its hot path (in Zenoh's callback for a received frame), and a pydantic
+    attribute write costs tens of microseconds there once a frame went through
+    the caches; :meth:`snapshot` builds the models when someone asks.
+    """
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._by_key: dict[str, CounterSet] = defaultdict(CounterSet)
+        self._by_key: dict[str, dict[str, int]] = {}
 
     def bump(self, key: str, counter: str, n: int = 1) -> int:
         with self._lock:
-            entry = self._by_key[key]
-            value = getattr(entry, counter) + n
-            setattr(entry, counter, value)
+            entry = self._by_key.get(key)
+            if entry is None:
+                entry = self._by_key[key] = dict.fromkeys(CounterSet.model_fields, 0)
+            value = entry[counter] = entry[counter] + n
             return value
 
     def snapshot(self) -> dict[str, CounterSet]:
         with self._lock:
-            return {k: v.model_copy() for k, v in self._by_key.items()}
+            return {k: CounterSet(**v) for k, v in self._by_key.items()}
 
 
 class Publisher(Generic[M]):

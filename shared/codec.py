@@ -30,9 +30,10 @@ import functools
 import json
 import math
 import struct
+import weakref
 import zlib
 from typing import Any, NamedTuple
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 from pydantic_core import from_json
@@ -98,6 +99,8 @@ def _layout(kind: str, version: int, specs: tuple[tuple[str, tuple[int, ...], st
 
 
 def _wire_array(name: str, arr: np.ndarray) -> np.ndarray:
+    if type(arr) is np.ndarray and arr.dtype.str in ALLOWED_DTYPES and arr.flags.c_contiguous:
+        return arr  # as it goes on the wire (the common case: checked first, it is a hot path)
     arr = np.asarray(arr)
     if arr.dtype.byteorder == ">":
         arr = arr.astype(arr.dtype.newbyteorder("<"))
@@ -105,6 +108,16 @@ def _wire_array(name: str, arr: np.ndarray) -> np.ndarray:
         raise TypeError(f"array {name!r}: dtype {arr.dtype} cannot be sent; "
                         f"allowed: {sorted(ALLOWED_DTYPES)}")
     return np.ascontiguousarray(arr)
+
+
+#: id(array) -> (weak reference to it, its buffer, its offset in the buffer) for every loaned array
+#: alive: how :func:`pack` knows a loan without asking numpy where the memory is (which costs tens
+#: of microseconds a frame once 2 MB went through the caches)
+_LOANS: dict[int, tuple[weakref.ref[np.ndarray], bytearray, int]] = {}
+
+
+def _forget_loan(key: int) -> Callable[[weakref.ref[np.ndarray]], None]:
+    return lambda _ref: _LOANS.pop(key, None)
 
 
 def loan(arrays: Mapping[str, Spec]) -> dict[str, np.ndarray]:
@@ -118,24 +131,24 @@ def loan(arrays: Mapping[str, Spec]) -> dict[str, np.ndarray]:
     """
     layout = _layout("", 0, tuple((n, tuple(shape), np.dtype(d).str) for n, (shape, d) in arrays.items()))
     buffer = bytearray(BODY_OFFSET + layout.body_size + SLACK)
-    return {s.name: np.frombuffer(buffer, s.dtype, s.count, BODY_OFFSET + s.offset).reshape(s.shape)
-            for s in layout.slots}
+    loaned = {}
+    for s in layout.slots:
+        arr = np.frombuffer(buffer, s.dtype, s.count, BODY_OFFSET + s.offset).reshape(s.shape)
+        _LOANS[id(arr)] = (weakref.ref(arr, _forget_loan(id(arr))), buffer, BODY_OFFSET + s.offset)
+        loaned[s.name] = arr
+    return loaned
 
 
 def _loaned_buffer(arrays: list[np.ndarray], layout: _Layout) -> bytearray | None:
-    """The buffer the arrays were loaned from, if they all sit at their wire offsets in it."""
-    buffer, start = None, 0
+    """The buffer the arrays were loaned from, if they are all from one loan and each sits at its
+    wire offset (an array keeps its memory for life, and the buffer cannot move while it is alive)."""
+    buffer = None
     for slot, arr in zip(layout.slots, arrays):
-        base = arr.base
-        while isinstance(base, np.ndarray):
-            base = base.base
-        base = base.obj if isinstance(base, memoryview) else base
-        if not isinstance(base, bytearray) or (buffer is not None and base is not buffer):
+        entry = _LOANS.get(id(arr))
+        if entry is None or entry[0]() is not arr or entry[2] != BODY_OFFSET + slot.offset \
+                or (buffer is not None and entry[1] is not buffer):
             return None
-        if buffer is None:
-            buffer, start = base, np.frombuffer(base, np.uint8).ctypes.data
-        if arr.ctypes.data != start + BODY_OFFSET + slot.offset:
-            return None
+        buffer = entry[1]
     return buffer
 
 

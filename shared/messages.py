@@ -72,7 +72,9 @@ class JsonMessage(BaseModel):
         return self
 
     def to_bytes(self, out: bytearray | None = None) -> bytes | bytearray:
-        data = self.model_dump_json().encode()
+        # pydantic-core's serializer straight to UTF-8 bytes: model_dump_json's Python layer and its
+        # str round trip cost more than the serialising itself on a hot path (every message).
+        data = self.__pydantic_serializer__.to_json(self)
         if out is None:
             return data
         out[:] = data
@@ -81,7 +83,7 @@ class JsonMessage(BaseModel):
     @classmethod
     def from_bytes(cls, data: bytes | bytearray | memoryview) -> Self:
         try:
-            return cls.model_validate_json(bytes(data))
+            return cls.__pydantic_validator__.validate_json(bytes(data))
         except ValidationError as exc:
             raise _validation_error(cls, exc) from None
 
@@ -123,7 +125,7 @@ class BinaryMessage(BaseModel):
 
     def to_bytes(self, out: bytearray | None = None) -> bytearray:
         """The encoded message; ``out`` (a previous payload) is reused when given."""
-        fields = self.model_dump_json(exclude=set(self.ARRAYS)).encode()
+        fields = self.__pydantic_serializer__.to_json(self, exclude=set(self.ARRAYS))
         arrays = {n: getattr(self, n) for n in self.ARRAYS if getattr(self, n) is not None}
         return pack(self.KIND, self.VERSION, fields, arrays, compress_level=self.COMPRESS_LEVEL,
                     out=out)
@@ -137,7 +139,7 @@ class BinaryMessage(BaseModel):
         if clash := set(fields) & set(cls.ARRAYS):
             raise DecodeError(f"invalid {cls.__name__}: fields named like arrays {sorted(clash)}")
         try:
-            return cls.model_validate({**fields, **arrays})
+            return cls.__pydantic_validator__.validate_python({**fields, **arrays})
         except ValidationError as exc:
             raise _validation_error(cls, exc) from None
 

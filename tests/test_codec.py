@@ -21,7 +21,7 @@ from hypothesis.extra import numpy as hnp
 from pydantic import ValidationError
 
 from shared import codec
-from shared.codec import BODY_OFFSET, FLAG_ZLIB, HEADER, MAGIC, WIRE_VERSION, DecodeError, pack, unpack
+from shared.codec import BODY_OFFSET, FLAG_ZLIB, HEADER, MAGIC, WIRE_VERSION, DecodeError, loan, pack, unpack
 from shared.messages import (CounterSet, Intrinsics, MapSnapshot, ObjectInstance, RgbdFrame,
                              ServiceStats)
 
@@ -246,6 +246,35 @@ def test_loaned_arrays_are_published_without_a_copy() -> None:
     payload = frame.to_bytes()
     assert np.shares_memory(np.frombuffer(payload, np.uint8), arrays["rgb"])
     assert_same_message(RgbdFrame.from_bytes(bytes(payload)), frame)
+
+
+def test_arrays_that_are_not_one_loan_in_place_are_copied() -> None:
+    """Only a loan's own arrays, all from one loan and each at its wire offset, are the payload:
+    arrays from two loans, a view of a loaned array, or loaned arrays in another order are
+    copied into a payload of their own, and every one decodes to what was written."""
+    first, second = loan({"a": ((4,), "<f4"), "b": ((3,), "|u1")}), loan({"a": ((4,), "<f4"), "b": ((3,), "|u1")})
+    for arrays in (first, second):
+        arrays["a"][:] = np.arange(4)
+        arrays["b"][:] = 7
+    cases = {"one loan": (first, True), "two loans": ({"a": first["a"], "b": second["b"]}, False),
+             "a view": ({"a": first["a"][:], "b": first["b"]}, False),
+             "another order": ({"b": first["b"], "a": first["a"]}, False)}
+    for case, (arrays, in_place) in cases.items():
+        payload = pack("k", 1, {}, arrays)
+        assert np.shares_memory(np.frombuffer(payload, np.uint8), first["a"]) is in_place, case
+        _, got = unpack(bytes(payload), "k", 1)
+        for name, arr in arrays.items():
+            assert_same_array(got[name], arr)
+
+
+def test_a_loan_is_forgotten_when_its_arrays_die() -> None:
+    """The loan registry holds no array alive and does not grow with the frames of a stream."""
+    before = len(codec._LOANS)
+    for _ in range(50):
+        arrays = RgbdFrame.loan(4, 5)
+        assert len(codec._LOANS) == before + 2
+        del arrays
+    assert len(codec._LOANS) == before
 
 
 def test_big_endian_arrays_go_out_little_endian() -> None:
