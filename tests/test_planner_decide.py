@@ -31,6 +31,22 @@ def test_a_confirmed_object_of_a_remaining_target_wins() -> None:
     assert decide(snap, (5.0, 5.0), ["bed"], DecisionConfig()).kind is not GoalKind.OBJECT
 
 
+def test_of_several_confirmed_objects_the_nearest_wins_whatever_the_map_confirmed_first() -> None:
+    """A repeated task starts with every target confirmed, the last found beside the robot: it goes
+    there first, not across the house to the object the map confirmed first. An avoided (unreachable)
+    nearest one gives way to the next."""
+    far = ObjectInstance(label="cup", x=9.0, y=9.0, score=0.9, hits=9, confirmed=True)
+    near_bed = ObjectInstance(label="bed", x=5.5, y=4.0, score=0.7, hits=3, confirmed=True)
+    mid = ObjectInstance(label="cup", x=3.0, y=5.0, score=0.8, hits=3, confirmed=True)
+    snap = snapshot({}, [(1.0, 1.0)], objects=[far, mid, near_bed])
+    for robot, remaining, want in (((5.0, 5.0), ["cup", "bed"], near_bed), ((5.0, 5.0), ["cup"], mid),
+                                   ((8.0, 8.0), ["cup", "bed"], far)):
+        d = decide(snap, robot, remaining, DecisionConfig())
+        assert d.kind is GoalKind.OBJECT and (d.label, d.x, d.y) == (want.label, want.x, want.y)
+    d = decide(snap, (5.0, 5.0), ["cup", "bed"], DecisionConfig(), avoid=np.array([[5.5, 4.0]]))
+    assert (d.label, d.x, d.y) == ("cup", 3.0, 5.0)
+
+
 def test_a_visited_place_blocks_candidates_there_but_not_an_object_confirmed_there() -> None:
     snap = snapshot({(6.0, 5.0): 0.9}, [(9.5, 9.5)])
     there = np.array([[6.1, 5.0]])

@@ -1,7 +1,7 @@
 """One decision step: from a map snapshot and the robot pose to the next goal.
 
 Order of business (paper, Sec. III): a confirmed object of a remaining target
-wins (go there and STOP); otherwise candidates and the best frontier are
+wins (the nearest: go there and STOP); otherwise candidates and the best frontier are
 taken from the (decayed, aggregated) value map, path lengths between the robot
 and every action point are computed once, and a policy picks the goal. The
 policies behind one interface are the full method and its ablations;
@@ -182,9 +182,14 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     avoid = _points(avoid)
     radius = config.avoid_radius_m
     remaining = targets_to_search(remaining, config.policy)
-    for obj in snapshot.objects:
-        if obj.confirmed and obj.label in remaining and away(np.array([[obj.x, obj.y]]), avoid,
-                                                              radius)[0]:
+    objects = [o for o in snapshot.objects if o.confirmed and o.label in remaining]
+    if objects:
+        # The nearest (straight line; ties: the older instance), not the first the map confirmed: a
+        # repeated task starts with every target confirmed, the last one found beside the robot.
+        points = np.array([(o.x, o.y) for o in objects])
+        distance = np.where(away(points, avoid, radius), np.hypot(*(points - robot_xy).T), np.inf)
+        if np.isfinite(distance.min()):
+            obj = objects[int(np.argmin(distance))]
             return Decision(GoalKind.OBJECT, obj.x, obj.y, obj.label,
                             reason=f"a confirmed {obj.label}, a remaining target: go beside it and stop")
     avoid = np.vstack([avoid, _points(visited)])
