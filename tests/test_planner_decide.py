@@ -31,20 +31,22 @@ def test_a_confirmed_object_of_a_remaining_target_wins() -> None:
     assert decide(snap, (5.0, 5.0), ["bed"], DecisionConfig()).kind is not GoalKind.OBJECT
 
 
-def test_of_several_confirmed_objects_the_nearest_wins_whatever_the_map_confirmed_first() -> None:
+def test_of_several_confirmed_objects_the_nearest_target_first_each_at_its_best_evidenced_instance() -> None:
     """A repeated task starts with every target confirmed, the last found beside the robot: it goes
-    there first, not across the house to the object the map confirmed first. An avoided (unreachable)
-    nearest one gives way to the next."""
-    far = ObjectInstance(label="cup", x=9.0, y=9.0, score=0.9, hits=9, confirmed=True)
-    near_bed = ObjectInstance(label="bed", x=5.5, y=4.0, score=0.7, hits=3, confirmed=True)
-    mid = ObjectInstance(label="cup", x=3.0, y=5.0, score=0.8, hits=3, confirmed=True)
-    snap = snapshot({}, [(1.0, 1.0)], objects=[far, mid, near_bed])
-    for robot, remaining, want in (((5.0, 5.0), ["cup", "bed"], near_bed), ((5.0, 5.0), ["cup"], mid),
-                                   ((8.0, 8.0), ["cup", "bed"], far)):
-        d = decide(snap, robot, remaining, DecisionConfig())
-        assert d.kind is GoalKind.OBJECT and (d.label, d.x, d.y) == (want.label, want.x, want.y)
-    d = decide(snap, (5.0, 5.0), ["cup", "bed"], DecisionConfig(), avoid=np.array([[5.5, 4.0]]))
-    assert (d.label, d.x, d.y) == ("cup", 3.0, 5.0)
+    there first, not across the house to what the map confirmed first. Of one target's instances
+    it takes the most detected (a look-alike confirmed on a few frames is often nearer; a tie: the
+    older); an avoided (unreachable) one gives way to the next."""
+    cup = ObjectInstance(label="cup", x=9.0, y=9.0, score=0.9, hits=9, confirmed=True)
+    bed = ObjectInstance(label="bed", x=5.5, y=4.0, score=0.7, hits=3, confirmed=True)
+    look_alike = ObjectInstance(label="cup", x=3.0, y=5.0, score=0.8, hits=3, confirmed=True)
+    twin = ObjectInstance(label="bed", x=2.0, y=2.0, score=0.7, hits=3, confirmed=True)
+    snap = snapshot({}, [(1.0, 1.0)], objects=[cup, look_alike, bed, twin])
+    cases = [((5.0, 5.0), ["cup", "bed"], None, bed), ((5.0, 5.0), ["cup"], None, cup),
+             ((8.0, 8.0), ["cup", "bed"], None, cup), ((1.5, 1.5), ["bed"], None, bed),
+             ((5.0, 5.0), ["cup", "bed"], [[5.5, 4.0]], twin), ((5.0, 5.0), ["cup"], [[9.0, 9.0]], look_alike)]
+    for robot, remaining, avoid, want in cases:
+        d = decide(snap, robot, remaining, DecisionConfig(), avoid=None if avoid is None else np.array(avoid))
+        assert d.kind is GoalKind.OBJECT and (d.label, d.x, d.y) == (want.label, want.x, want.y), (robot, remaining)
 
 
 def test_a_visited_place_blocks_candidates_there_but_not_an_object_confirmed_there() -> None:

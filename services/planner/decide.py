@@ -1,7 +1,7 @@
 """One decision step: from a map snapshot and the robot pose to the next goal.
 
 Order of business (paper, Sec. III): a confirmed object of a remaining target
-wins (the nearest: go there and STOP); otherwise candidates and the best frontier are
+wins (go there and STOP; which one: :func:`_object_goal`); otherwise candidates and the best frontier are
 taken from the (decayed, aggregated) value map, path lengths between the robot
 and every action point are computed once, and a policy picks the goal. The
 policies behind one interface are the full method and its ablations;
@@ -11,6 +11,7 @@ same way.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
@@ -27,7 +28,7 @@ from services.planner.pomdp import POMDPConfig, SearchPOMDP, root_particles
 from services.planner.pouct import POUCT
 from shared.gridpaths import FreeSpaceGraph
 from shared.grid import GridGeometry, inflate
-from shared.messages import MapSnapshot, TraceOption
+from shared.messages import MapSnapshot, ObjectInstance, TraceOption
 from shared.robot import ROBOT
 
 
@@ -169,6 +170,25 @@ def away(points: np.ndarray, avoid: np.ndarray, radius: float) -> np.ndarray:
     return (d2 > radius * radius).all(axis=1)
 
 
+def _object_goal(objects: Sequence[ObjectInstance], robot_xy: tuple[float, float], remaining: Sequence[str],
+                 avoid: np.ndarray, radius: float) -> ObjectInstance | None:
+    """The confirmed object to go to: of each remaining target, the instance with the most hits (ties:
+    the older), not avoided; of those, the nearest in a straight line.
+
+    Not simply the first confirmed: the map outlives a task, so a repeated task starts with its
+    targets confirmed, the last found beside the robot, and taking them in the order the map
+    confirmed them crossed the house and came back. Not simply the nearest instance either: a look-alike
+    confirmed on two lucky frames is often nearer than the object the robot stopped at before.
+    """
+    best: dict[str, ObjectInstance] = {}
+    for obj in objects:  # the map's order, oldest first: a tie keeps the older
+        if not (obj.confirmed and obj.label in remaining and away(np.array([[obj.x, obj.y]]), avoid, radius)[0]):
+            continue
+        if obj.label not in best or obj.hits > best[obj.label].hits:
+            best[obj.label] = obj
+    return min(best.values(), key=lambda o: math.hypot(o.x - robot_xy[0], o.y - robot_xy[1]), default=None)
+
+
 def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequence[str],
            config: DecisionConfig, avoid: np.ndarray | None = None,
            visited: np.ndarray | None = None) -> Decision | None:
@@ -182,16 +202,9 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     avoid = _points(avoid)
     radius = config.avoid_radius_m
     remaining = targets_to_search(remaining, config.policy)
-    objects = [o for o in snapshot.objects if o.confirmed and o.label in remaining]
-    if objects:
-        # The nearest (straight line; ties: the older instance), not the first the map confirmed: a
-        # repeated task starts with every target confirmed, the last one found beside the robot.
-        points = np.array([(o.x, o.y) for o in objects])
-        distance = np.where(away(points, avoid, radius), np.hypot(*(points - robot_xy).T), np.inf)
-        if np.isfinite(distance.min()):
-            obj = objects[int(np.argmin(distance))]
-            return Decision(GoalKind.OBJECT, obj.x, obj.y, obj.label,
-                            reason=f"a confirmed {obj.label}, a remaining target: go beside it and stop")
+    if (obj := _object_goal(snapshot.objects, robot_xy, remaining, avoid, radius)) is not None:
+        return Decision(GoalKind.OBJECT, obj.x, obj.y, obj.label,
+                        reason=f"a confirmed {obj.label}, a remaining target: go beside it and stop")
     avoid = np.vstack([avoid, _points(visited)])
     frontiers = snapshot.frontiers[away(snapshot.frontiers, avoid, radius)]
     if config.policy is Policy.RANDOM:
