@@ -37,6 +37,7 @@ from services.sim.render import SceneRenderer
 from services.sim.robot import MotionConfig, SimRobot
 from services.sim.world import Scene
 from shared.messages import PerceptionResult, TaskStatus
+from shared.motion import Pose
 
 MAP_MARGIN_M = 2.0
 
@@ -101,62 +102,86 @@ def episode_config(policy: Policy | str, base: EpisodeConfig | None = None) -> E
                                    "name": name if changes else ""})
 
 
+class EpisodeWorld:
+    """What outlives a task, as in a deployment: the robot where it stands, its camera, the
+    perception and the map (with every object it confirmed). :func:`run_task` runs one task on it;
+    a second task on the same world is a user's repeated request."""
+
+    def __init__(self, scene: Scene, truth: GroundTruth, config: EpisodeConfig, start: Pose,
+                 prior: ObjectPrior | None = None) -> None:
+        self.truth, self.config = truth, config
+        self.perception = SimPerception(FrameLabels.of(scene), prior or ObjectPrior.load(), config.perception)
+        self.state = MapState(scene_mapping(scene, config.mapping))
+        self.robot = SimRobot(start, truth.is_free, config.motion)
+        self.renderer = SceneRenderer(scene, config.width, config.height)
+        self.scene = scene
+        self.seq = 0  # frames taken, over all tasks: lock-step's frame seq follows the commands
+
+    def close(self) -> None:
+        self.renderer.close()
+
+
 def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: EpisodeConfig,
                 prior: ObjectPrior | None = None,
                 on_step: Callable[[int, Step], None] | None = None) -> EpisodeResult:
-    started = time.perf_counter()
+    """One episode: a fresh world (robot at ``spec.start``, empty map) and one task on it."""
     config = episode_config(config.name or config.policy, config)
-    prior = prior or ObjectPrior.load()
-    perception = SimPerception(FrameLabels.of(scene), prior, config.perception)
-    state = MapState(scene_mapping(scene, config.mapping))
-    robot = SimRobot(spec.start, truth.is_free, config.motion)
+    world = EpisodeWorld(scene, truth, config, spec.start, prior)
+    try:
+        return run_task(world, spec, on_step)
+    finally:
+        world.close()
+
+
+def run_task(world: EpisodeWorld, spec: EpisodeSpec,
+             on_step: Callable[[int, Step], None] | None = None) -> EpisodeResult:
+    """Search for ``spec.targets`` on ``world`` from where its robot stands (``spec.start`` must be
+    that pose: the shortest tour, and so the SPL, is measured from it)."""
+    started = time.perf_counter()
+    config, truth, robot, perception, state = world.config, world.truth, world.robot, world.perception, world.state
     task = SearchTask(spec.episode_id, list(spec.targets), max_steps=spec.max_steps)
     agent = SearchAgent(task, config.agent)
     stops: list[StopRecord] = []
     trajectory = [(robot.pose.x, robot.pose.y, robot.pose.yaw)]
-    renderer = SceneRenderer(scene, config.width, config.height)
-    funnel = FunnelRecorder(scene, spec.targets)
-    try:
-        seq = 0
-        while task.state is TaskStatus.SEARCHING:
-            pose = robot.pose
-            # lock-step as in the services: frame seq follows command seq (seq commands done)
-            frame = renderer.render(pose.x, pose.y, pose.yaw, seq=seq, stamp=float(seq), after_action=seq)
-            # Every frame for the remaining targets, the first view too: the services map it
-            # before the task reaches perception, which then re-scores it for the task's targets,
-            # and the map adds those values (MapState.apply: a frame counts once), to the same map.
-            remaining = task.remaining
-            detections = perception.detect(frame, remaining)
-            funnel.frame(task.steps, frame, perception.visible_classes(frame), detections)
-            state.apply(frame, PerceptionResult.build(seq, frame.stamp, perception.score(frame, remaining),
-                                                      detections, frame.depth.shape))
-            snapshot = state.snapshot(frame.stamp, with_confidence=False)
-            assert snapshot.has_seen_after(seq), "the map must have fused the frame after the last command"
-            funnel.map(task.steps, snapshot.objects)
-            step = agent.next_step(snapshot, pose)
-            if step.action is None:
-                break
-            before = robot.distance
-            blocked = not robot.apply(step.action)
-            if step.reason is Reason.FOUND and step.goal is not None and step.goal.label is not None:
-                outcome = truth.stop(step.goal.label, pose.x, pose.y)
-                stops.append(StopRecord(step=task.steps + 1, label=step.goal.label, x=pose.x, y=pose.y,
-                                        success=outcome.success, distance_m=outcome.distance))
-            agent.executed(step, robot.distance - before, blocked, pose)
-            trajectory.append((robot.pose.x, robot.pose.y, robot.pose.yaw))
-            if on_step is not None:
-                on_step(task.steps, step)
-            seq += 1
-    finally:
-        renderer.close()
+    funnel = FunnelRecorder(world.scene, spec.targets)
+    distance0, blocked0 = robot.distance, robot.blocked  # a later task's path and bumps are its own
+    while task.state is TaskStatus.SEARCHING:
+        pose, seq = robot.pose, world.seq
+        # lock-step as in the services: frame seq follows command seq (seq commands done)
+        frame = world.renderer.render(pose.x, pose.y, pose.yaw, seq=seq, stamp=float(seq), after_action=seq)
+        # Every frame for the remaining targets, the first view too: the services map it
+        # before the task reaches perception, which then re-scores it for the task's targets,
+        # and the map adds those values (MapState.apply: a frame counts once), to the same map.
+        remaining = task.remaining
+        detections = perception.detect(frame, remaining)
+        funnel.frame(task.steps, frame, perception.visible_classes(frame), detections)
+        state.apply(frame, PerceptionResult.build(seq, frame.stamp, perception.score(frame, remaining),
+                                                  detections, frame.depth.shape))
+        snapshot = state.snapshot(frame.stamp, with_confidence=False)
+        assert snapshot.has_seen_after(seq), "the map must have fused the frame after the last command"
+        funnel.map(task.steps, snapshot.objects)
+        step = agent.next_step(snapshot, pose)
+        if step.action is None:
+            break
+        before = robot.distance
+        blocked = not robot.apply(step.action)
+        if step.reason is Reason.FOUND and step.goal is not None and step.goal.label is not None:
+            outcome = truth.stop(step.goal.label, pose.x, pose.y)
+            stops.append(StopRecord(step=task.steps + 1, label=step.goal.label, x=pose.x, y=pose.y,
+                                    success=outcome.success, distance_m=outcome.distance))
+        agent.executed(step, robot.distance - before, blocked, pose)
+        trajectory.append((robot.pose.x, robot.pose.y, robot.pose.yaw))
+        if on_step is not None:
+            on_step(task.steps, step)
+        world.seq += 1
     found = tuple(s.label for s in stops if s.success)
     success = set(found) >= set(spec.targets)
     shortest = truth.shortest_tour((spec.start.x, spec.start.y), spec.targets)
     return EpisodeResult(
         episode_id=spec.episode_id, policy=config.name or config.policy.value, scene_seed=spec.scene_seed,
-        targets=spec.targets, success=success, spl=spl(success, shortest, robot.distance),
-        found=found, steps=task.steps, path_m=round(robot.distance, 4), shortest_m=round(shortest, 4),
-        state=task.state.value, reason=task.reason, decisions=agent.decisions, blocked=robot.blocked,
+        targets=spec.targets, success=success, spl=spl(success, shortest, robot.distance - distance0),
+        found=found, steps=task.steps, path_m=round(robot.distance - distance0, 4), shortest_m=round(shortest, 4),
+        state=task.state.value, reason=task.reason, decisions=agent.decisions, blocked=robot.blocked - blocked0,
         stops=stops, funnel=funnel.result(stops), trajectory=[tuple(round(v, 4) for v in p) for p in trajectory],
         seconds=round(time.perf_counter() - started, 3))
 
