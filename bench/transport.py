@@ -62,6 +62,11 @@ class Variant:
         """A key chunk of its own, so each variant's echo hears only its frames."""
         return "bench-" + self.name.replace("+", "-")
 
+    def raw_wrap(self) -> Callable[[bytes], bytes | zenoh.shm.ZShmMut]:
+        """How raw Zenoh's sender of this variant hands its payload to ``put``: in a buffer of its
+        own shared-memory pool (the bus's allocation and copy, without the bus), or as it is."""
+        return ShmPool().wrap if self.shm == "provider" else (lambda payload: payload)
+
     def config(self, endpoint: str) -> zenoh.Config:
         cfg = build_config(connect=[endpoint])
         cfg.insert_json5("transport/shared_memory/enabled", "false" if self.shm == "off" else "true")
@@ -159,11 +164,8 @@ class _Pinger(AckedSender):
             payload = bytes(frame.to_bytes())
             pub = self._session.declare_publisher(frame_key)
             self._sub = self._session.declare_subscriber(ack_key, lambda _s: self.acked.set())
-            if variant.shm == "provider":
-                pool = ShmPool()  # the bus's allocation and copy, without the bus
-                self.send = lambda: pub.put(pool.wrap(payload))  # type: ignore[method-assign]
-            else:
-                self.send = lambda: pub.put(payload)  # type: ignore[method-assign]
+            wrap = variant.raw_wrap()
+            self.send = lambda: pub.put(wrap(payload))  # type: ignore[method-assign]
             self.close: Callable[[], None] = self._session.close
         else:
             # As a service runs (shared.service): the measuring thread is the node's event loop and

@@ -40,7 +40,6 @@ from services.diag.testpattern import pattern_frame
 from shared import keys
 from shared.bus import Bus
 from shared.messages import JsonMessage, RgbdFrame
-from shared.shm import ShmPool
 from shared.zconfig import open_session
 
 __all__ = ["STAGES", "StageBus", "run_stages", "print_stages"]
@@ -124,7 +123,7 @@ class _StageSender:
             session = open_session(cfg)
             payload = bytes(frame.to_bytes())
             pub = session.declare_publisher(frame_key)
-            wrap = ShmPool().wrap if variant.shm == "provider" else (lambda p: p)
+            wrap = variant.raw_wrap()
 
             def on_ack(sample: zenoh.Sample) -> None:
                 self._ack_arrived = time.perf_counter()

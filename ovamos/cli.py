@@ -468,7 +468,7 @@ def bench_transport(
                           "(and mTLS with the secure profiles' access control).")] = False,
         stages: Annotated[bool, typer.Option(
             "--stages", help="Instead: where the round trip's time goes (encode, put, link, hand-off "
-                             "and decode, ack, wake-up), raw Zenoh beside the bus, shared memory off.")] = False,
+                             "and decode, ack, wake-up), raw Zenoh beside the bus, shared memory off and on.")] = False,
         as_json: AsJson = False
 ) -> None:
     """Latency of a 640x480 RGB-D frame through a router: raw Zenoh vs. the ovamos bus (--tls: over
