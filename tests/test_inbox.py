@@ -69,3 +69,23 @@ def test_run_until_returns_at_the_deadline_or_when_closed() -> None:
     assert inbox.run_until(time.monotonic() + 30) == 0 and inbox.closed
     inbox.put(print, "after close")  # refused silently: nothing runs after close
     assert inbox.pending() == 0
+
+
+def test_a_sleeping_taker_is_woken_by_a_put_and_by_close_not_by_its_poll() -> None:
+    inbox, stop, ran = Inbox(), threading.Event(), []
+    result: list[int] = []
+    taker = threading.Thread(target=lambda: result.append(
+        inbox.run_until(time.monotonic() + 600, stop, max_wait=600)))
+    taker.start()
+    time.sleep(0.2)  # the taker is asleep: nothing queued
+    inbox.put(lambda arg: (ran.append(arg), stop.set()), "woken")
+    taker.join(30)  # its own poll would come after 600 s
+    assert not taker.is_alive() and ran == ["woken"] and result == [1]
+
+    taker = threading.Thread(target=lambda: result.append(
+        inbox.run_until(time.monotonic() + 600, max_wait=600)))
+    taker.start()
+    time.sleep(0.2)
+    inbox.close()
+    taker.join(30)
+    assert not taker.is_alive() and result == [1, 0]
