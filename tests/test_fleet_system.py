@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import binary_dilation
 
+from bench.episode import EpisodeConfig, run_episode
 from ovamos.demo import FLEET_ID, fleet_entries, wait_for_services, write_fleet_configs
 from ovamos.supervisor import Backoff, Supervisor, port_open
 from services.gateway.client import GatewayClient
@@ -87,6 +88,12 @@ def test_three_robots_complete_their_tasks_at_once_each_mapping_only_its_home(fl
         view = fleet.client.get(task_id)
         assert view.status.value == "done", (robot, view.message)
         assert [f.label for f in view.found] == [FIRST[robot]]
+        # lock-step: each robot's search is its episode run alone, in process, step for step (its
+        # first decision waits for perception's reading of its first view, however late the
+        # shared perception came up)
+        spec, scene, truth = make_episode(SEED, EPISODES[robot])
+        alone = run_episode(spec.model_copy(update={"targets": (FIRST[robot],)}), scene, truth, EpisodeConfig())
+        assert (view.steps, [f.step for f in view.found]) == (alone.steps, [s.step for s in alone.stops]), robot
     with Bus.open(build_config(connect=[fleet.endpoint]), FLEET_ID, "test-maps") as bus:
         maps = {robot: bus.get(keys.map_snapshot(robot), MapSnapshot, 5.0) for robot in EPISODES}
     for robot, snapshot in maps.items():

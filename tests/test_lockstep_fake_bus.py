@@ -1,4 +1,4 @@
-"""The simulated robot, mapping and planner services' adapters wired on the fake bus (no router).
+"""The simulated robot, perception, mapping and planner services' adapters wired on the fake bus (no router).
 
 The services are the real ones (their ``start``/``tick`` and handlers); only the
 transport is :mod:`shared.fake_bus`, and the test runs their one event loop by
@@ -18,6 +18,9 @@ import pytest
 
 import services.sim.kinematic
 from services.mapping.service import MappingService, MappingServiceConfig
+from services.perception.config import PerceptionServiceConfig
+from services.perception.service import PerceptionService
+from services.perception.sim_backend import SimBackend
 from services.planner.agent import AgentConfig
 from services.planner.service import PlannerService, PlannerServiceConfig
 from services.sim.service import SimRobotService, SimServiceConfig
@@ -50,11 +53,13 @@ def test_lock_step_over_the_fake_bus_with_a_skewed_robot_clock(
     net = FakeNetwork()
     sim = SimRobotService(net.bus(ROBOT, "sim"), SimServiceConfig(
         scene_file=scene, start=Pose(x=1.5, y=2.0, yaw=0.0), width=96, height=72))
+    perception = PerceptionService(net.bus(ROBOT, "perception"), PerceptionServiceConfig(),
+                                   SimBackend(two_rooms()))
     mapping = MappingService(net.bus(ROBOT, "mapping"), MappingServiceConfig(
-        grid_cells=200, center=(3.0, 2.0), match_timeout_s=0.001))  # no perception: fuse at once
+        grid_cells=200, center=(3.0, 2.0)))
     planner_config = PlannerServiceConfig(agent=AgentConfig(initial_turns=1))
     planner = PlannerService(net.bus(ROBOT, "planner"), planner_config)
-    running = (sim, mapping, planner)
+    running = (sim, perception, mapping, planner)
     tester = net.bus(ROBOT, "tester")
     stale: list[str] = []
     events: list[TaskEvent] = []
@@ -79,7 +84,7 @@ def test_lock_step_over_the_fake_bus_with_a_skewed_robot_clock(
             for svc in running:
                 svc.tick()
                 net.pump()
-            time.sleep(0.002)  # lets the mapping service's match timeout pass
+            time.sleep(0.002)
     finally:
         for svc in running:
             svc.stop()

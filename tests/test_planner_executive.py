@@ -16,12 +16,14 @@ N = 120  # 6 x 6 m at 5 cm
 
 
 def snapshot(seq: int, objects: tuple[ObjectInstance, ...] = (), after: int | None = None,
-             stamp: float | None = None, session: str = "") -> MapSnapshot:
-    """A map whose newest fused frame is ``seq``, taken after command ``after`` (default: seq)."""
+             stamp: float | None = None, session: str = "", layers: tuple[str, ...] = ("cup", "bed")
+             ) -> MapSnapshot:
+    """A map whose newest fused frame is ``seq``, taken after command ``after`` (default: seq), with
+    value layers of ``layers`` (perception's reading of the tests' targets)."""
     return MapSnapshot(seq=seq, after_action=seq if after is None else after, odom_session=session,
-                       stamp=float(seq) if stamp is None else stamp, resolution=0.05, origin=(0.0, 0.0), layers=("cup",),
+                       stamp=float(seq) if stamp is None else stamp, resolution=0.05, origin=(0.0, 0.0), layers=layers,
                        objects=objects, obstacle=np.zeros((N, N), bool), explored=np.ones((N, N), bool),
-                       counts=np.zeros((N, N), np.uint16), values=np.zeros((1, N, N), np.float32),
+                       counts=np.zeros((N, N), np.uint16), values=np.zeros((len(layers), N, N), np.float32),
                        frontiers=np.array([[5.0, 5.0]]))
 
 
@@ -118,6 +120,25 @@ def test_cancel_stops_commands_and_reports_cancelled(ex: Executive) -> None:
     assert commands(out) == [] and events(out)[-1].status is TaskStatus.CANCELLED
     ex.on_task(spec())  # the same task re-published later does not restart it
     assert ex.task.state.value == "cancelled"
+
+
+def test_no_decision_before_the_map_holds_perception_of_every_remaining_target(ex: Executive) -> None:
+    """A new task on a map of before it (no value layer of its targets: perception has not read
+    the view for them yet) waits; the map with the layer is decided on. Targets added later wait
+    for their layer too."""
+    ex.on_driver(driver())
+    ex.on_odom(odom())
+    ex.on_snapshot(snapshot(0, layers=()))
+    assert commands(ex.poll(0.0)) == [] and ex.waiting == "waiting for perception: the map has no values of cup yet"
+    ex.on_snapshot(snapshot(0, layers=("cup",)))
+    assert len(commands(ex.poll(0.1))) == 1 and ex.waiting == ""
+    ex.on_driver(driver(completed=1))
+    ex.on_odom(odom(after=1))
+    ex.on_task(spec(("cup", "mug")))
+    ex.on_snapshot(snapshot(1, layers=("cup",)))
+    assert commands(ex.poll(0.2)) == [] and "of mug yet" in ex.waiting
+    ex.on_snapshot(snapshot(1, layers=("cup", "mug")))
+    assert len(commands(ex.poll(0.3))) == 1
 
 
 def test_a_confirmed_object_nearby_is_stopped_at_and_reported_found() -> None:

@@ -31,6 +31,12 @@ rules be tested message by message:
   agent remembers is in the old frame;
 * no new decision while the camera reports a fault (``CameraState.fault``: the map
   would stop growing), with the camera's reason as the task's;
+* no decision before the map holds a value layer of every remaining target: a new task's
+  first decision waits for perception's reading of the view in front of the robot (perception
+  scores its latest frame again for new targets; one that started after that frame gets the
+  next, or the lock-step simulator's re-published one). Deciding on the map of before the task
+  was blind or not by a race between perception and the planner: a fleet robot whose shared
+  perception came up late searched otherwise than its episode run alone (162 steps, not 208);
 * nothing is sent while the driver is in fault or e-stop, or advertises primitive sizes
   (``DriverState.primitives``) other than the planner's;
 * the task's progress goes out as a :class:`TaskEvent` after every step and
@@ -272,6 +278,8 @@ class Executive:
                 return self._wait(f"waiting for odometry after command {d.last_completed}")
         elif snapshot.seq == self._decided_on:
             return []
+        if self.task is not None and (unseen := [t for t in self.task.remaining if t not in snapshot.layers]):
+            return self._wait(f"waiting for perception: the map has no values of {', '.join(unseen)} yet")
         self.waiting = ""
         self._decided_on = snapshot.seq
         decisions = self.agent.decisions
