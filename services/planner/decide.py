@@ -180,11 +180,11 @@ def _object_goal(objects: Sequence[ObjectInstance], robot_xy: tuple[float, float
     confirmed them crossed the house and came back. Not simply the nearest instance either: a look-alike
     confirmed on two lucky frames is often nearer than the object the robot stopped at before.
     """
+    picks = [o for o in objects if o.confirmed and o.label in remaining]
+    allowed = away(np.array([(o.x, o.y) for o in picks]).reshape(-1, 2), avoid, radius)
     best: dict[str, ObjectInstance] = {}
-    for obj in objects:  # the map's order, oldest first: a tie keeps the older
-        if not (obj.confirmed and obj.label in remaining and away(np.array([[obj.x, obj.y]]), avoid, radius)[0]):
-            continue
-        if obj.label not in best or obj.hits > best[obj.label].hits:
+    for obj, ok in zip(picks, allowed):  # the map's order, oldest first: a tie keeps the older
+        if ok and (obj.label not in best or obj.hits > best[obj.label].hits):
             best[obj.label] = obj
     return min(best.values(), key=lambda o: math.hypot(o.x - robot_xy[0], o.y - robot_xy[1]), default=None)
 
