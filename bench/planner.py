@@ -47,7 +47,7 @@ def instance(k: int, seed: int) -> tuple[MapSnapshot, tuple[float, float]]:
     origin = -GRID * RES / 2
     frontiers = origin + (np.array([[lo, lo], [hi - 1, lo], [lo, hi - 1]]) + 0.5) * RES
     snap = MapSnapshot(seq=0, stamp=0.0, resolution=RES, origin=(origin, origin), layers=("t",),
-                       obstacle=obstacle, explored=explored, counts=np.zeros((GRID, GRID), np.uint16),
+                       obstacle=obstacle, explored=explored, counts=np.zeros((1, GRID, GRID), np.uint16),
                        values=values[None], frontiers=frontiers)
     return snap, (0.0, 0.0)
 

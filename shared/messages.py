@@ -238,8 +238,9 @@ class MapSnapshot(BinaryMessage):
     """The mapping service's state as the planner and gateway need it.
 
     Grids are H x W over a square-cell grid whose cell (0, 0) has its corner at
-    ``origin`` (world metres); ``values`` has one layer per name in ``layers``
-    (raw fused values: readers apply the decay with ``counts``).
+    ``origin`` (world metres); ``values``, ``counts`` (each layer's own update counts) and
+    ``searched`` (cells seen in a frame scored for that layer's target) have one layer per name
+    in ``layers`` (raw fused values: readers apply the decay with ``counts``).
     Compressed on the wire: most of a map is empty early in a search.
 
     Freshness is causal: ``seq`` is the newest fused frame's seq and
@@ -257,9 +258,10 @@ class MapSnapshot(BinaryMessage):
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {
         "obstacle": ArraySpec(("|b1",), 2),
         "explored": ArraySpec(("|b1",), 2),
-        "counts": ArraySpec(("<u2",), 2),
+        "counts": ArraySpec(("<u2",), 3),
         "values": ArraySpec(("<f4",), 3),
         "confidence": ArraySpec(("<f4",), 3),
+        "searched": ArraySpec(("|b1",), 3),
         "frontiers": ArraySpec(("<f8",), 2),
     }
     seq: int = Field(ge=-1, description="seq of the last fused frame, -1 before the first")
@@ -276,6 +278,7 @@ class MapSnapshot(BinaryMessage):
     values: np.ndarray
     frontiers: np.ndarray
     confidence: np.ndarray | None = None  # per-layer fusion confidence: checkpoints carry it
+    searched: np.ndarray | None = None    # per-layer searched area: checkpoints carry it
 
     def has_seen_after(self, action_id: int) -> bool:
         """Whether the map fused a frame captured after command ``action_id`` completed: the one
@@ -286,10 +289,9 @@ class MapSnapshot(BinaryMessage):
     @model_validator(mode="after")
     def _check_shapes(self) -> Self:
         shape = self.obstacle.shape
-        for name in ("explored", "counts"):
-            if getattr(self, name).shape != shape:
-                raise ValueError(f"{name} shape {getattr(self, name).shape} != obstacle {shape}")
-        for name in ("values", "confidence"):
+        if self.explored.shape != shape:
+            raise ValueError(f"explored shape {self.explored.shape} != obstacle {shape}")
+        for name in ("values", "counts", "confidence", "searched"):
             layers = getattr(self, name)
             if layers is not None and layers.shape != (len(self.layers), *shape):
                 raise ValueError(f"{name} shape {layers.shape} != {(len(self.layers), *shape)}")

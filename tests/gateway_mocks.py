@@ -100,7 +100,7 @@ def small_map() -> MapSnapshot:
                        layers=("chair",),
                        objects=(ObjectInstance(label="chair", x=0.6, y=1.4, score=0.9, hits=3,
                                                confirmed=True),),
-                       obstacle=obstacle, explored=explored, counts=np.ones((40, 40), np.uint16),
+                       obstacle=obstacle, explored=explored, counts=np.ones((1, 40, 40), np.uint16),
                        values=values, frontiers=np.array([[1.7, 1.0]]))
 
 

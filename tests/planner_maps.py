@@ -20,5 +20,5 @@ def snapshot(values: dict[tuple[float, float], float], frontiers: list[tuple[flo
         obstacle[rows, cols] = True
     return MapSnapshot(seq=0, stamp=0.0, resolution=0.05, origin=(0.0, 0.0), layers=("cup",),
                        objects=tuple(objects), obstacle=obstacle, explored=np.ones((N, N), bool),
-                       counts=np.zeros((N, N), np.uint16), values=layer[None],
+                       counts=np.zeros((1, N, N), np.uint16), values=layer[None],
                        frontiers=np.array(frontiers, float).reshape(-1, 2))

@@ -76,7 +76,7 @@ def map_snapshots(draw: st.DrawFn) -> MapSnapshot:
         objects=tuple(draw(st.lists(objects, max_size=3))),
         obstacle=draw(hnp.arrays(np.bool_, (h, w))),
         explored=draw(hnp.arrays(np.bool_, (h, w))),
-        counts=draw(hnp.arrays(np.dtype("<u2"), (h, w))),
+        counts=draw(hnp.arrays(np.dtype("<u2"), (len(layers), h, w))),
         values=draw(hnp.arrays(np.dtype("<f4"), (len(layers), h, w))),
         frontiers=draw(hnp.arrays(np.dtype("<f8"), (n, 2))),
         confidence=draw(st.none() | hnp.arrays(np.dtype("<f4"), (len(layers), h, w))),
@@ -169,7 +169,7 @@ def sample_map(n: int = 6) -> MapSnapshot:
     return MapSnapshot(seq=4, stamp=2.0, resolution=0.05, origin=(-1.0, 2.0), layers=("chair", "bed"),
                        objects=(ObjectInstance(label="chair", x=1, y=2, score=0.9, hits=3),),
                        obstacle=rng.random((n, n)) > 0.5, explored=rng.random((n, n)) > 0.3,
-                       counts=rng.integers(0, 9, (n, n), dtype=np.uint16),
+                       counts=rng.integers(0, 9, (2, n, n), dtype=np.uint16),
                        values=rng.random((2, n, n), dtype=np.float32),
                        frontiers=rng.random((3, 2)))
 
@@ -738,15 +738,17 @@ def test_bad_intrinsics_fail_at_the_producer() -> None:
 
 _GOOD_MAP: dict[str, Any] = dict(seq=-1, stamp=0.0, resolution=0.1, origin=(0.0, 0.0), layers=("a",),
                                  obstacle=np.zeros((3, 4), bool), explored=np.zeros((3, 4), bool),
-                                 counts=np.zeros((3, 4), np.uint16), values=np.zeros((1, 3, 4), np.float32),
+                                 counts=np.zeros((1, 3, 4), np.uint16), values=np.zeros((1, 3, 4), np.float32),
                                  frontiers=np.zeros((0, 2)))
 
 
 @pytest.mark.parametrize("change", [
     {"obstacle": np.zeros((3, 4), np.uint8)},
     {"explored": np.zeros((4, 3), bool)},
-    {"counts": np.zeros((3, 4), np.int32)},
-    {"counts": np.zeros((3, 5), np.uint16)},
+    {"counts": np.zeros((1, 3, 4), np.int32)},
+    {"counts": np.zeros((1, 3, 5), np.uint16)},
+    {"counts": np.zeros((2, 3, 4), np.uint16)},
+    {"searched": np.zeros((1, 3, 5), bool)},
     {"values": np.zeros((2, 3, 4), np.float32)},
     {"values": np.zeros((1, 3, 4), np.float64)},
     {"frontiers": np.zeros((2, 3))},

@@ -91,19 +91,22 @@ def test_value_layers_fuse_only_what_was_seen_and_count_updates() -> None:
     ahead, behind = g.to_cell(1.0, 0.0), g.to_cell(-1.0, 0.0)
     assert state.values["fridge"][ahead] == pytest.approx(0.6)
     assert state.values["cup"][ahead] == pytest.approx(0.1)
-    assert state.values["fridge"][behind] == 0.0 and state.counts[behind] == 0
-    assert state.counts[ahead] == 1 and "bed" not in state.layers
+    assert state.values["fridge"][behind] == 0.0 and state.counts["fridge"][behind] == 0
+    assert state.counts["fridge"][ahead] == 1 and "bed" not in state.layers
     look_around(closed_room(door=False), state, turns=1, scores={"fridge": 0.2})
     assert state.values["fridge"][ahead] == pytest.approx(0.4)  # equal confidence: the mean
-    assert state.counts[ahead] == 2
+    assert state.counts["fridge"][ahead] == 2
+    assert state.counts["cup"][ahead] == 1  # a layer counts the views of its own target only
     state.remove_layer("cup")
     assert state.layers == ("fridge",)
     state.add_layer("bed")
-    assert state.values["bed"].max() == 0.0
+    assert state.values["bed"].max() == 0.0 and state.counts["bed"].max() == 0
 
 
 def _grids(state: MapState) -> dict[str, np.ndarray]:
-    return {"obstacle": state.obstacle, "explored": state.explored, "counts": state.counts,
+    return {"obstacle": state.obstacle, "explored": state.explored,
+            **{f"counts {t}": v for t, v in state.counts.items()},
+            **{f"searched {t}": v for t, v in state.searched.items()},
             **{f"value {t}": v for t, v in state.values.items()},
             **{f"confidence {t}": c for t, c in state.confidence.items()}}
 
@@ -133,12 +136,12 @@ def test_a_frame_counts_once_and_a_second_result_adds_only_new_targets_values() 
     assert a.keys() == b.keys() and services.layers == ("cup", "fridge")
     for name in a:
         assert np.array_equal(a[name], b[name]), name
-    assert services.counts.max() == 1
+    assert services.counts["cup"].max() == 1
     assert services.objects.instances() == once.objects.instances()
     assert [o.hits for o in once.objects.instances()] == [1]
     # the same seq with another stamp is another frame (a restarted camera counts from 0 again)
-    services.apply(frame.model_copy(update={"stamp": 5.0}))
-    assert services.counts.max() == 2
+    services.apply(frame.model_copy(update={"stamp": 5.0}), result({"cup": 0.6, "fridge": 0.2}, [cup]))
+    assert services.counts["cup"].max() == 2
 
 
 def test_field_of_view_edges_get_less_weight_and_the_far_edge_none() -> None:
@@ -150,7 +153,8 @@ def test_field_of_view_edges_get_less_weight_and_the_far_edge_none() -> None:
     x, y = g.to_world(*g.to_cell(1.5, 0.6))  # the cell centre, to compute its true angle
     assert conf[g.to_cell(1.5, 0.6)] == pytest.approx(float(fov_confidence(np.array(math.atan2(y, x)), HFOV)))
     assert conf[g.to_cell(1.5, 1.1)] == 0.0  # below the confidence floor: ignored
-    assert state.counts[g.to_cell(1.5, 1.1)] == 0 and state.explored[g.to_cell(1.5, 1.1)]
+    assert state.counts["t"][g.to_cell(1.5, 1.1)] == 0 and state.explored[g.to_cell(1.5, 1.1)]
+    assert state.searched["t"][g.to_cell(1.5, 1.1)]  # searched: seen, whatever the confidence
 
 
 def test_checkpoints_round_trip_and_damage_is_reported(tmp_path) -> None:
@@ -163,8 +167,10 @@ def test_checkpoints_round_trip_and_damage_is_reported(tmp_path) -> None:
     state.odom_session = "20261201T120000Z-abc123"
     save_checkpoint(state, path, stamp=1.0)
     assert load_checkpoint(path, CONFIG).odom_session == state.odom_session
-    for name in ("obstacle", "explored", "counts"):
+    for name in ("obstacle", "explored"):
         assert np.array_equal(getattr(back, name), getattr(state, name))
+    for name in ("values", "confidence", "counts", "searched"):
+        assert np.array_equal(getattr(back, name)["fridge"], getattr(state, name)["fridge"]), name
     assert np.array_equal(back.values["fridge"], state.values["fridge"])
     assert np.array_equal(back.confidence["fridge"], state.confidence["fridge"])
     path.write_bytes(path.read_bytes()[:-10])

@@ -47,7 +47,7 @@ def snapshot(**changes) -> MapSnapshot:
                                 score=0.8, hits=3, confirmed=True),
                  ObjectInstance(label="bed", x=centre(BED_CELL)[0], y=centre(BED_CELL)[1],
                                 score=0.5, hits=1, confirmed=False)),
-        obstacle=obstacle, explored=explored, counts=np.zeros((ROWS, COLS), np.uint16),
+        obstacle=obstacle, explored=explored, counts=np.zeros((2, ROWS, COLS), np.uint16),
         values=values, frontiers=np.array([centre(FRONTIER_CELL)]))
     fields.update(changes)
     return MapSnapshot(**fields)
@@ -151,7 +151,7 @@ def test_an_unknown_layer_is_refused_with_the_known_names() -> None:
 
 
 def test_no_layers_at_all_still_renders() -> None:
-    snap = snapshot(layers=(), values=np.zeros((0, ROWS, COLS), np.float32))
+    snap = snapshot(layers=(), values=np.zeros((0, ROWS, COLS), np.float32), counts=np.zeros((0, ROWS, COLS), np.uint16))
     image = render_map(snap, crop=False, px_per_cell=PPC)
     assert tuple(pixel(image, HOT)) == render.FREE
 
@@ -213,9 +213,9 @@ def test_write_png_into_a_missing_directory_fails_clearly(tmp_path) -> None:
 def test_the_picture_shows_the_decayed_map_the_planner_decides_on() -> None:
     from services.planner.decide import DecisionConfig, decision_values, explored_window
 
-    counts = np.zeros((ROWS, COLS), np.uint16)
-    counts[HOT] = 12    # looked at twice tau times: nearly faded
-    counts[WARM] = 3
+    counts = np.zeros((2, ROWS, COLS), np.uint16)
+    counts[:, HOT[0], HOT[1]] = 12    # looked at twice tau times: nearly faded
+    counts[:, WARM[0], WARM[1]] = 3
     snap = snapshot(counts=counts)
     rows, cols, _ = explored_window(snap)
     planner = decision_values(snap, ["cup", "bed"], DecisionConfig(), (rows, cols))

@@ -41,7 +41,7 @@ def test_snapshots_encoded_while_frames_are_fused_are_never_torn() -> None:
     expected: dict[int, tuple[int, float]] = {}
     for frame in frames:
         reference.apply(frame, _result(frame.seq, shape))
-        expected[frame.seq] = (int(reference.counts.max()), float(reference.values["cup"].sum()))
+        expected[frame.seq] = (int(reference.counts["cup"].max()), float(reference.values["cup"].sum()))
 
     state = MapState(MappingConfig(), targets=("cup",))
     lock = threading.Lock()  # the service's one thread, as two threads taking turns

@@ -473,7 +473,7 @@ def test_accepts_a_map_snapshot() -> None:
     obs = wall_map()
     snapshot = MapSnapshot(seq=3, stamp=0.0, resolution=RES, origin=(-1.0, -2.0), layers=(),
                            obstacle=obs, explored=np.ones_like(obs),
-                           counts=np.zeros(obs.shape, np.uint16),
+                           counts=np.zeros((0, *obs.shape), np.uint16),
                            values=np.zeros((0, *obs.shape), np.float32),
                            frontiers=np.zeros((0, 2)))
     nav = Navigator()

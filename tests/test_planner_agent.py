@@ -73,7 +73,7 @@ def test_the_decay_is_not_undone_by_normalising() -> None:
     its shape is unchanged: normalising after the decay would scale it back to a peak of 1."""
     layer = np.array([0.2, 0.4, 0.8], np.float32)
     seen = np.full(3, 14, np.uint16)
-    faded = aggregate([layer], lambda v: decay(v, seen, 6.0, 2.0))
+    faded = aggregate([layer], [lambda v: decay(v, seen, 6.0, 2.0)])
     assert faded.max() < 0.05
     assert aggregate([layer]) == pytest.approx([0.25, 0.5, 1.0])
 

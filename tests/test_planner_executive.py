@@ -23,7 +23,7 @@ def snapshot(seq: int, objects: tuple[ObjectInstance, ...] = (), after: int | No
     return MapSnapshot(seq=seq, after_action=seq if after is None else after, odom_session=session,
                        stamp=float(seq) if stamp is None else stamp, resolution=0.05, origin=(0.0, 0.0), layers=layers,
                        objects=objects, obstacle=np.zeros((N, N), bool), explored=np.ones((N, N), bool),
-                       counts=np.zeros((N, N), np.uint16), values=np.zeros((len(layers), N, N), np.float32),
+                       counts=np.zeros((len(layers), N, N), np.uint16), values=np.zeros((len(layers), N, N), np.float32),
                        frontiers=np.array([[5.0, 5.0]]))
 
 

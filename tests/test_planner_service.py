@@ -46,7 +46,7 @@ class MockBaseAndMap:
         with self.lock:
             return MapSnapshot(seq=self.frame_seq, after_action=self.completed, stamp=time.time(), resolution=0.05, origin=(0.0, 0.0),
                                layers=("cup",), objects=self.objects, obstacle=np.zeros((N, N), bool),
-                               explored=np.ones((N, N), bool), counts=np.zeros((N, N), np.uint16),
+                               explored=np.ones((N, N), bool), counts=np.zeros((1, N, N), np.uint16),
                                values=np.zeros((1, N, N), np.float32), frontiers=np.zeros((0, 2)))
 
     def on_command(self, cmd: PlanCommand) -> None:

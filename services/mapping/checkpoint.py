@@ -1,7 +1,7 @@
 """Map checkpoints: written atomically, read back with a clear error when damaged.
 
 A checkpoint is a compressed :class:`MapSnapshot` that also carries the
-per-layer fusion confidences, so a restarted mapping service resumes exactly.
+per-layer fusion confidences and searched areas, so a restarted mapping service resumes exactly.
 It carries the map's odometry session too: the map of an earlier session is
 kept beside the checkpoint under its session id (:func:`session_path`), never
 resumed.
@@ -40,9 +40,9 @@ def load_checkpoint(path: str | Path, config: MappingConfig) -> MapState:
         snapshot = MapSnapshot.from_bytes(Path(path).read_bytes())
     except (OSError, DecodeError) as exc:
         raise CheckpointError(f"checkpoint {path} is unusable: {exc}") from None
-    if snapshot.confidence is None:
-        raise CheckpointError(f"checkpoint {path} has no confidences (a published snapshot, "
-                              "not a checkpoint)")
+    if snapshot.confidence is None or snapshot.searched is None:
+        raise CheckpointError(f"checkpoint {path} has no confidences or searched areas (a published "
+                              "snapshot, not a checkpoint)")
     try:
         return MapState.from_snapshot(snapshot, config)
     except ValueError as exc:

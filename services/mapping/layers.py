@@ -10,6 +10,7 @@ that same function's result, so a person looks at the map the planner saw.
 from __future__ import annotations
 
 from collections.abc import Callable, Collection, Iterable
+from functools import partial
 
 import numpy as np
 
@@ -49,10 +50,11 @@ def decay(values: np.ndarray, counts: np.ndarray, tau: float, kappa: float) -> n
     return (values / (1.0 + np.exp(exponent))).astype(np.float32)
 
 
-def aggregate(layers: Iterable[np.ndarray], fade: Callable[[np.ndarray], np.ndarray] | None = None
+def aggregate(layers: Iterable[np.ndarray], fades: Iterable[Callable[[np.ndarray], np.ndarray]] | None = None
               ) -> np.ndarray | None:
     """Sum of the layers (one per remaining target), each divided by its own peak and then
-    passed through ``fade`` (the decay); None without layers.
+    passed through its own ``fades`` function (the decay by that layer's counts); None without
+    layers.
 
     Normalise first, decay second: normalising a decayed layer would undo the decay (a layer
     the robot has looked at everywhere would be scaled back up to a peak of 1), so places seen
@@ -60,11 +62,12 @@ def aggregate(layers: Iterable[np.ndarray], fade: Callable[[np.ndarray], np.ndar
     between them instead of exploring.
     """
     total = None
+    fade_of = iter(fades) if fades is not None else None
     for layer in layers:
         peak = float(layer.max(initial=0.0))
         norm = layer / peak if peak > 0 else np.zeros_like(layer)
-        if fade is not None:
-            norm = fade(norm)
+        if fade_of is not None:
+            norm = next(fade_of)(norm)
         total = norm if total is None else total + norm
     return total
 
@@ -75,14 +78,15 @@ def value_map(snapshot: MapSnapshot, targets: Collection[str], tau: float = DECA
     """The value map the planner decides on, over ``window`` of the snapshot's grid.
 
     The layers of ``targets`` (in the snapshot's layer order), zero outside explored
-    cells, aggregated by :func:`aggregate` with the count decay (``decayed=False``: without,
+    cells, aggregated by :func:`aggregate` with the count decay (each layer by its own counts) (``decayed=False``: without,
     the no-decay ablations). None when no layer is a target. The peaks are those of
     the explored cells, so a window that holds every explored cell gives the same
     values as the whole grid.
     """
-    counts, explored = snapshot.counts[window], snapshot.explored[window]
-    layers = [snapshot.values[i][window] * explored for i, name in enumerate(snapshot.layers)
-              if name in targets]
+    explored = snapshot.explored[window]
+    picked = [i for i, name in enumerate(snapshot.layers) if name in targets]
+    layers = [snapshot.values[i][window] * explored for i in picked]
     if not decayed:
         return aggregate(layers)
-    return aggregate(layers, lambda layer: decay(layer, counts, tau, kappa))
+    return aggregate(layers, [partial(decay, counts=snapshot.counts[i][window], tau=tau, kappa=kappa)
+                              for i in picked])

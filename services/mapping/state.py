@@ -1,7 +1,15 @@
-"""The map: obstacles, explored area, one value layer per target, update counts, objects.
+"""The map: obstacles, explored area, per target a value layer with its update counts and the
+area searched for it, objects.
 
 Each frame touches only the cells inside its field of view (a window around
 the view polygon), so an update costs what the frame sees, not the grid size.
+
+What is per target and why: the map outlives a task, so a later task's target meets a house
+explored for other targets. Its cells were never looked at for it: counting those views would
+decay its first readings to nothing (the paper's decay is of places looked at *for the target*
+without success), and frontiers of the whole explored area would leave it nowhere to explore.
+So each layer counts its own views and keeps its own searched area, and frontiers are those of
+the area searched for every remaining target (docs/notes/repeated-tasks.md).
 """
 
 from __future__ import annotations
@@ -40,9 +48,10 @@ class MapState:
                                  c.grid_cells, c.grid_cells)
         self.obstacle = np.zeros(self.grid.shape, bool)
         self.explored = np.zeros(self.grid.shape, bool)
-        self.counts = np.zeros(self.grid.shape, np.uint16)
         self.values: dict[str, np.ndarray] = {}
         self.confidence: dict[str, np.ndarray] = {}
+        self.counts: dict[str, np.ndarray] = {}    # per layer: frames that saw each cell for it
+        self.searched: dict[str, np.ndarray] = {}  # per layer: cells seen in a frame scored for it
         self.objects = ObjectMap(c.object_merge_distance_m, c.object_confirm_hits, c.decision_threshold,
                                  **_evidence(c))
         self.seq = -1
@@ -64,11 +73,13 @@ class MapState:
         if target not in self.values:
             self.values[target] = np.zeros(self.grid.shape, np.float32)
             self.confidence[target] = np.zeros(self.grid.shape, np.float32)
+            self.counts[target] = np.zeros(self.grid.shape, np.uint16)
+            self.searched[target] = np.zeros(self.grid.shape, bool)
 
     def remove_layer(self, target: str) -> None:
-        """Drop a target's layer (found, or removed from the task)."""
-        self.values.pop(target, None)
-        self.confidence.pop(target, None)
+        """Drop a target's layer (found, or removed from the task) with its counts and area."""
+        for grids in (self.values, self.confidence, self.counts, self.searched):
+            grids.pop(target, None)
 
     # -- integration --------------------------------------------------------------------------
     def apply(self, frame: RgbdFrame, result: PerceptionResult | None = None) -> bool:
@@ -89,8 +100,8 @@ class MapState:
             return True
         new = {t: s for t, s in (scores or {}).items() if t not in fused}
         if new:
-            window, _, confidence = self._confidence(self._project(frame))
-            self._fuse_evidence(frame, window, confidence, new, [d for d in detections if d.label in new])
+            window, seen, confidence = self._confidence(self._project(frame))
+            self._fuse_evidence(frame, window, seen, confidence, new, [d for d in detections if d.label in new])
             fused.update(new)
         return bool(new)
 
@@ -100,8 +111,8 @@ class MapState:
 
     def integrate(self, frame: RgbdFrame, scores: Mapping[str, float] | None = None,
                   detections: Sequence[Detection] = ()) -> None:
-        """Fuse one frame: obstacles, explored area and update counts always; values and objects
-        when given."""
+        """Fuse one frame: obstacles and explored area always; values, their update counts and
+        searched area, and objects when given."""
         view = self._project(frame)
         self._mark_obstacles(view)
         window, seen, confidence = self._confidence(view)
@@ -109,24 +120,29 @@ class MapState:
             rows, cols = window
             self.explored[rows, cols] |= seen
             self._grow_bbox(rows, cols)
-            self.counts[rows, cols] += (confidence > 0).astype(np.uint16)
-        self._fuse_evidence(frame, window, confidence, scores, detections)
+        self._fuse_evidence(frame, window, seen, confidence, scores, detections)
         self.seq = max(self.seq, frame.seq)
         self.after_action = max(self.after_action, frame.after_action)
         self._fused[(frame.seq, frame.stamp)] = set(scores or ())
         for key in list(self._fused)[:max(0, len(self._fused) - self.config.remember_frames)]:
             del self._fused[key]
 
-    def _fuse_evidence(self, frame: RgbdFrame, window: tuple[slice, slice] | None, confidence: np.ndarray,
-                       scores: Mapping[str, float] | None, detections: Sequence[Detection]) -> None:
-        """The value layers and objects of ``scores``' targets from one frame."""
+    def _fuse_evidence(self, frame: RgbdFrame, window: tuple[slice, slice] | None, seen: np.ndarray,
+                       confidence: np.ndarray, scores: Mapping[str, float] | None,
+                       detections: Sequence[Detection]) -> None:
+        """The value layers (with their counts and searched area) and objects of ``scores``'
+        targets from one frame."""
         if window is not None:
             rows, cols = window
+            counted = (confidence > 0).astype(np.uint16)
             for target, score in (scores or {}).items():
                 if target in self.values:
                     v, conf = self.values[target][rows, cols], self.confidence[target][rows, cols]
                     self.values[target][rows, cols], self.confidence[target][rows, cols] = \
                         fuse(v, conf, float(score), confidence)
+                    counts = self.counts[target][rows, cols]
+                    np.add(counts, counted, out=counts, where=counts < np.iinfo(np.uint16).max)
+                    self.searched[target][rows, cols] |= seen
         if scores is not None:  # the frame was searched for these targets: views count
             self.objects.observe(frame, [t for t in scores if t in self.values])
         if detections:
@@ -177,7 +193,8 @@ class MapState:
 
     # -- reading ------------------------------------------------------------------------------
     def frontiers(self) -> np.ndarray:
-        """N x 2 world waypoints, one per frontier segment between explored-free and unexplored."""
+        """N x 2 world waypoints, one per frontier segment between free cells searched for every
+        remaining target (the explored area while there is no target) and the rest."""
         if self._bbox is None:
             return np.zeros((0, 2))
         pad = 2 + math.ceil(self.config.robot_radius / self.grid.resolution)
@@ -187,6 +204,8 @@ class MapState:
         # free nor unknown, so walls (and the gaps between their sampled points) make no frontier.
         blocked = inflate(self.obstacle[r0:r1, c0:c1], self.config.robot_radius, self.grid.resolution)
         explored = self.explored[r0:r1, c0:c1]
+        for searched in self.searched.values():
+            explored = explored & searched[r0:r1, c0:c1]
         unknown = (~explored & ~blocked).astype(np.uint8)
         near_unknown = cv2.dilate(unknown, np.ones((3, 3), np.uint8)).astype(bool)
         frontier = explored & ~blocked & near_unknown
@@ -209,22 +228,23 @@ class MapState:
     def snapshot(self, stamp: float, *, with_confidence: bool = True) -> MapSnapshot:
         """The map as a message: a copy, so it stays one consistent state however long its
         encoding takes and whatever is fused meanwhile. Checkpoints need the confidences, the
-        planner does not."""
+        planner does not (nor the searched areas: the frontiers are made of them)."""
         layers = self.layers
 
-        def stacked(grids: dict[str, np.ndarray]) -> np.ndarray:
+        def stacked(grids: dict[str, np.ndarray], dtype: type) -> np.ndarray:
             return (np.stack([grids[t] for t in layers]) if layers
-                    else np.zeros((0, *self.grid.shape), np.float32))
+                    else np.zeros((0, *self.grid.shape), dtype))
 
-        values = stacked(self.values)
-        confidence = stacked(self.confidence) if with_confidence else None
+        values = stacked(self.values, np.float32)
+        confidence = stacked(self.confidence, np.float32) if with_confidence else None
+        searched = stacked(self.searched, np.bool_) if with_confidence else None
         return MapSnapshot(seq=self.seq, after_action=self.after_action, odom_session=self.odom_session,
                            stamp=stamp,
                            resolution=self.grid.resolution, origin=(self.grid.x0, self.grid.y0),
                            layers=layers, objects=self.objects.instances(),
                            obstacle=self.obstacle.copy(), explored=self.explored.copy(),
-                           counts=self.counts.copy(), values=values,
-                           confidence=confidence, frontiers=self.frontiers())
+                           counts=stacked(self.counts, np.uint16), values=values,
+                           confidence=confidence, searched=searched, frontiers=self.frontiers())
 
     @classmethod
     def from_snapshot(cls, snapshot: MapSnapshot, config: MappingConfig) -> MapState:
@@ -235,10 +255,11 @@ class MapState:
             raise ValueError("the snapshot's grid does not match the configured grid")
         state.obstacle = snapshot.obstacle.copy()
         state.explored = snapshot.explored.copy()
-        state.counts = snapshot.counts.copy()
         for i, target in enumerate(snapshot.layers):
             state.values[target] = snapshot.values[i].copy()
             state.confidence[target] = snapshot.confidence[i].copy()
+            state.counts[target] = snapshot.counts[i].copy()
+            state.searched[target] = snapshot.searched[i].copy()
         state.objects = ObjectMap.from_instances(
             snapshot.objects, config.object_merge_distance_m, config.object_confirm_hits,
             config.decision_threshold, **_evidence(config))
