@@ -1,6 +1,7 @@
 """`ovamos run camera` over real Zenoh: a RealSense recording (made here with the SDK's recorder
 from the software device) played by the `file` backend, posed from odometry on the bus, and the end
-of the recording reported on camera/state."""
+of the recording reported on camera/state; at ``rate = "max"`` every frame of it reaches
+sensors/rgbd, in order."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import pytest
 
 pytest.importorskip("pyrealsense2")
 
-from services.camera.config import CameraConfig  # noqa: E402
+from services.camera.config import CameraConfig, OdometryConfig  # noqa: E402
 from services.camera.file import FileConfig  # noqa: E402
 from services.camera.realsense import RealSenseBackend, RealSenseConfig  # noqa: E402
 from services.camera.service import CameraService  # noqa: E402
@@ -22,17 +23,21 @@ from services.sim.render import SceneRenderer  # noqa: E402
 from shared import keys  # noqa: E402
 from shared.bus import Bus  # noqa: E402
 from shared.camera import camera_pose  # noqa: E402
-from shared.messages import CameraState, Odometry, RgbdFrame  # noqa: E402
+from shared.messages import CameraState, Odometry, RgbdFrame, ServiceStats  # noqa: E402
 from shared.zconfig import build_config  # noqa: E402
 from tests.polling import wait_for  # noqa: E402
+from shared.status import live_services  # noqa: E402
 from tests.service_helpers import ROBOT, Running  # noqa: E402
 from tests.sim_scenes import two_rooms  # noqa: E402
 
 W, H, FPS, FRAMES = 160, 120, 30, 12
+MAX_FRAMES = 60  # enough that a capture queue which drops while the service is busy loses some
 POSE = (1.5, 2.0, -0.4)
 
 
-def _record(path: Path) -> None:
+def _record(path: Path, frames: int = FRAMES, period_s: float = 1.0 / FPS) -> None:
+    """Record ``frames`` views of the house from POSE, frame n marked with n in its first pixel
+    (see :func:`_mark`), pushed ``period_s`` apart (the host times real-time playback replays)."""
     with SceneRenderer(two_rooms(), W, H) as renderer:
         frame = renderer.render(*POSE)
     rgb, depth = frame.rgb.copy(), np.round(frame.depth / 0.001).astype(np.uint16)
@@ -41,46 +46,137 @@ def _record(path: Path) -> None:
     backend = RealSenseBackend(RealSenseConfig(width=W, height=H, fps=FPS, warmup_frames=0), source=camera)
     backend.start()
     try:
-        for n in range(FRAMES):
-            camera.push(rgb, depth, frame_number=n)
+        for n in range(frames):
+            marked = rgb.copy()
+            marked[0, 0] = (n % 256, n // 256, 0)
+            camera.push(marked, depth, frame_number=n)
             backend.read(1.0)
-            time.sleep(1.0 / FPS)
+            if period_s:
+                time.sleep(period_s)
     finally:
         backend.stop()
         camera.stop_recording()
         camera.close()
 
 
+def _mark(frame: RgbdFrame) -> int:
+    """Which recorded frame this is (colour reaches sensors/rgbd unchanged: aligning depth to
+    colour leaves colour alone)."""
+    return int(frame.rgb[0, 0, 0]) + 256 * int(frame.rgb[0, 0, 1])
+
+
+@pytest.fixture(scope="module")
+def max_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("rec") / "run.db3"
+    _record(path, MAX_FRAMES, period_s=0.0)  # paced by each read; max playback ignores host times
+    return path
+
+
+def _camera_stats(bus: Bus) -> ServiceStats | None:
+    """What the camera service answers on its stats key, or None while it is not up yet."""
+    found = [s.stats for s in live_services(bus.session, ROBOT) if s.service == "camera" and s.stats]
+    return found[0] if found else None
+
+
+def _max_config(path: Path) -> CameraConfig:
+    # Frames played before the camera's first odometry wait for it (the default 0.1 s would skip
+    # them, unposed, if the service's subscription were slow to match).
+    return CameraConfig(backend="file", file=FileConfig(path=path, rate="max"), lock_step=False,
+                        odometry=OdometryConfig(wait_s=5.0))
+
+
+class _Robot:
+    """The test's end of the bus: the base driver's odometry at 50 Hz (standing still at POSE)
+    and what the camera publishes. Subscribers are callbacks appending to lists (through the
+    bus's inbox, which keeps every ordinary event), so the test side loses no frame."""
+
+    def __init__(self, bus: Bus) -> None:
+        self.frames: list[RgbdFrame] = []
+        self.states: list[CameraState] = []
+        bus.subscribe(keys.rgbd(ROBOT), RgbdFrame, self.frames.append)
+        bus.subscribe(keys.camera_state(ROBOT), CameraState, self.states.append)
+        self._odom = bus.publisher(keys.odom(ROBOT), Odometry)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._base, daemon=True)
+
+    def _base(self) -> None:
+        seq = 0
+        while not self._stop.is_set():
+            seq += 1
+            self._odom.put(Odometry(seq=seq, stamp=time.time(), x=POSE[0], y=POSE[1], yaw=POSE[2]))
+            self._stop.wait(0.02)
+
+    def __enter__(self) -> _Robot:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+    def ended(self) -> bool:
+        return any("end of recording" in s.fault for s in self.states)
+
+
 def test_a_recording_is_played_posed_and_its_end_reported(inproc_router: str, tmp_path: Path) -> None:
     path = tmp_path / "run.db3"
     _record(path)
-    frames: list[RgbdFrame] = []
-    states: list[CameraState] = []
-    stop = threading.Event()
-    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-robot") as bus:
-        bus.subscribe(keys.rgbd(ROBOT), RgbdFrame, frames.append)
-        bus.subscribe(keys.camera_state(ROBOT), CameraState, states.append)
-        odom = bus.publisher(keys.odom(ROBOT), Odometry)
-
-        def base() -> None:  # the base driver's odometry, 50 Hz, standing still
-            seq = 0
-            while not stop.is_set():
-                seq += 1
-                odom.put(Odometry(seq=seq, stamp=time.time(), x=POSE[0], y=POSE[1], yaw=POSE[2]))
-                stop.wait(0.02)
-
-        threading.Thread(target=base, daemon=True).start()
+    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-robot") as bus, _Robot(bus) as robot:
         time.sleep(0.3)  # odometry before the first frame
         config = CameraConfig(backend="file", file=FileConfig(path=path, rate="realtime"), lock_step=False)
         running = Running(CameraService, inproc_router, config)
         try:
-            wait_for(lambda: any("end of recording" in s.fault for s in states), 30,
-                     "the end of the recording on camera/state")
+            wait_for(robot.ended, 30, "the end of the recording on camera/state")
         finally:
             running.close()
-            stop.set()
+    frames = robot.frames
     assert len({f.seq for f in frames}) >= FRAMES - 4  # real-time playback may lose its first ones
     expected = np.asarray(camera_pose(*POSE)).reshape(4, 4)
     for frame in frames:
         np.testing.assert_allclose(frame.pose_matrix, expected, atol=1e-6)
         assert frame.depth.dtype == np.uint16 and frame.rgb.shape == (H, W, 3)
+
+
+def test_max_rate_playback_delivers_every_frame_in_order(inproc_router: str, max_recording: Path) -> None:
+    """``rate = "max"`` promises every frame: the reader waits for the service (and for room among
+    the frames the core holds for odometry) instead of dropping the oldest capture."""
+    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-robot") as bus, _Robot(bus) as robot:
+        running = Running(CameraService, inproc_router, _max_config(max_recording))
+        try:
+            wait_for(robot.ended, 30, "the end of the recording on camera/state")
+
+            def settled() -> ServiceStats | None:  # nothing left in the core, all it published here
+                stats = _camera_stats(bus)
+                info = stats.info if stats is not None else {}
+                done = info.get("pending") == 0 and info.get("published") == len(robot.frames)
+                return stats if done else None
+            stats = wait_for(settled, 30, "the camera's published frames to arrive")
+        finally:
+            running.close()
+    marks = [_mark(f) for f in robot.frames]
+    capture = stats.counters.get("camera/capture")
+    assert marks == list(range(MAX_FRAMES)), (
+        f"{len(marks)} of {MAX_FRAMES} frames; missing {sorted(set(range(MAX_FRAMES)) - set(marks))}; "
+        f"capture dropped {capture.dropped if capture else 0}; received {stats.info['received']}, "
+        f"skipped {stats.info['skipped']}, rejected {stats.info['rejected']}")
+    assert [f.seq for f in robot.frames] == list(range(MAX_FRAMES))
+    expected = np.asarray(camera_pose(*POSE)).reshape(4, 4)
+    for frame in robot.frames:
+        np.testing.assert_allclose(frame.pose_matrix, expected, atol=1e-6)
+
+
+def test_a_max_playback_waiting_for_the_service_stops_cleanly(inproc_router: str,
+                                                              max_recording: Path) -> None:
+    """No odometry: the core holds its odometry.max_pending frames waiting for it, the reader waits
+    for room, and stopping the service then ends it at once."""
+    config = _max_config(max_recording)
+    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-robot") as bus:
+        running = Running(CameraService, inproc_router, config)
+        try:
+            wait_for(lambda: (stats := _camera_stats(bus)) is not None
+                     and stats.info.get("paced_in_flight") == config.odometry.max_pending,
+                     30, "the reader waiting for room")
+        finally:
+            started = time.monotonic()
+            running.close()  # asserts the service's thread ended
+    assert time.monotonic() - started < 5.0  # well before odometry.wait_s would have freed room

@@ -39,7 +39,12 @@ class CapturedFrame:
 class CameraBackend(Protocol):
     """A source of :class:`CapturedFrame` s. ``read`` returns None when no frame came within
     ``timeout_s`` and raises :class:`CameraError` when the device is gone; ``start`` may be
-    called again after a failure (recovery without restarting the process)."""
+    called again after a failure (recovery without restarting the process).
+
+    Optional attributes the service reads when present: ``lossless`` (true: every frame matters
+    and the source waits for its reader, as a recording played at ``rate = "max"``; the service
+    then waits for room instead of keeping only the newest captures) and ``ended`` (true: the
+    source is over, as a recording played to its end; not restarted)."""
 
     name: str
 

@@ -247,6 +247,12 @@ class CameraCore:
             self._state_fault, self._state_at = fault, now
         return frames, state
 
+    @property
+    def pending(self) -> int:
+        """Frames selected and waiting for odometry (``odometry.max_pending`` at most: beyond it
+        the oldest is skipped)."""
+        return len(self._pending)
+
     def fault(self, now: float) -> str:
         """Why the camera is not delivering posed frames (``now`` host monotonic), or "".
 
@@ -277,7 +283,7 @@ class CameraCore:
         return {"received": self.received, "published": self.published,
                 "republished": self.republished, "rate_limited": self.rate_limited,
                 "skipped": dict(self.skipped), "rejected": dict(self.rejected),
-                "pending": len(self._pending), "odometry": len(self._odom),
+                "pending": self.pending, "odometry": len(self._odom),
                 "odometry_dropped": self._odom.dropped, "clock_resets": clock.resets,
                 "clock_offset_s": getattr(clock, "offset", None),
                 "lock_step_owed": None if self._armed is None else self._armed.action}

@@ -13,7 +13,9 @@ times in the file): like the camera, it drops frames a slow consumer misses, and
 the SDK's real-time playback loses its first frame or two in about one start out
 of ten. ``max`` turns real time off (``playback.set_real_time(False)``), so the
 playback waits for each frame to be consumed: every frame, as fast as the core
-takes them (what a replayed search wants).
+takes them (what a replayed search wants). The backend then says it is
+``lossless``, and the camera service's reader waits for the service instead of
+dropping captures while it is busy (:mod:`services.camera.service`).
 
 pyrealsense2 is imported when the backend starts (see :mod:`services.camera.realsense`).
 
@@ -141,6 +143,8 @@ class FileBackend(RealSenseBackend):
     def __init__(self, config: FileConfig) -> None:
         self.file_source = FileSource(config)
         super().__init__(config, source=self.file_source)
+        # every frame, at the consumer's pace: the service waits instead of dropping
+        self.lossless = config.rate == "max"
 
     @property
     def ended(self) -> bool:
