@@ -5,20 +5,28 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import TYPE_CHECKING, Annotated, Literal, Optional
 
 import numpy as np
 import typer
+import zenoh
 from rich.console import Console
 from rich.table import Table
 
 from bench.policies import DEFAULT_POLICIES, POLICY_ORDER
 from shared import __version__
+from shared.atomic import write_atomic
 from shared.log import setup_logging
-from shared.zconfig import ZenohConfigError, build_config, open_session
+from shared.zconfig import DEFAULT_ENDPOINT, Mode, ZenohConfigError, build_config, open_session
+
+if TYPE_CHECKING:
+    from services.sim.world import Scene
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="OVAMOS multi-object search over Zenoh.")
@@ -39,11 +47,102 @@ RobotId = Annotated[str, typer.Option("--robot-id", help="Robot whose keys to us
 LogJson = Annotated[bool, typer.Option("--log-json", help="Log JSON lines.")]
 LogLevel = Annotated[str, typer.Option("--log-level")]
 AsJson = Annotated[bool, typer.Option("--json", help="Print one JSON object.")]
+OpenTimeout = Annotated[float, typer.Option(
+    "--open-timeout", help="Seconds to wait for a router when starting (then it reconnects for ever).")]
+DEMO_OUT = Path("out/demo")
+ENDPOINTS_FILE = "endpoints.json"
+DEFAULT_ENDPOINTS = DEMO_OUT / ENDPOINTS_FILE
+DEFAULT_GATEWAY = "http://127.0.0.1:8080"
+Endpoints = Annotated[Optional[Path], typer.Option(
+    "--endpoints", help=f"A running demo's endpoints (ovamos demo writes OUT/{ENDPOINTS_FILE}); default: "
+                        f"{DEFAULT_ENDPOINTS} when it exists and no endpoint is given.")]
 
 
 def _fail(message: str) -> typer.Exit:
     err.print(f"[red]error:[/red] {message}")
     return typer.Exit(2)
+
+
+@dataclass(frozen=True)
+class Deployment:
+    """Where a running demo answers, as it writes it to ``OUT/endpoints.json`` while it is up.
+
+    The demo runs on free ports; without this file ``status``, ``submit``, ``map`` ... would
+    look at the default ports, where on a shared host someone else's deployment may answer
+    and pass for the user's. ``pid`` is the demo's process: a file left by one killed
+    outright (no chance to remove it) is recognised as pointing at nothing.
+    """
+
+    router: str
+    gateway: str
+    pid: int
+
+    @classmethod
+    def load(cls, path: Path) -> Deployment:
+        try:
+            data = json.loads(path.read_text())
+            return cls(router=str(data["router"]), gateway=str(data["gateway"]), pid=int(data["pid"]))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise _fail(f"cannot read the endpoints file {path}: {exc!r}") from None
+
+    def running(self) -> bool:
+        """Whether the process that wrote the file is still there."""
+        try:
+            os.kill(self.pid, 0)
+        except ProcessLookupError:
+            return False
+        except PermissionError:  # someone else's process: there, if not ours
+            pass
+        return True
+
+    def describe(self, path: Path) -> str:
+        return f"{path} (router {self.router}, gateway {self.gateway})"
+
+    @contextmanager
+    def published(self, path: Path) -> Iterator[Path]:
+        """The file at ``path`` for as long as the block runs (written whole, removed after)."""
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(path, json.dumps(asdict(self), indent=1).encode())
+        try:
+            yield path
+        finally:
+            path.unlink(missing_ok=True)
+
+
+def _deployment_endpoint(endpoints: Path | None, given: bool, field: Literal["router", "gateway"],
+                         default: str) -> str | None:
+    """The ``router`` or ``gateway`` to use when none was given on the command line: that of
+    ``--endpoints``, else of the demo's default file if its demo runs, else ``default``; says on
+    stderr which, so that nobody takes another deployment's answers for their own. None: given."""
+    if given:
+        if endpoints is not None:
+            raise _fail(f"--endpoints or the {field} itself (--connect / --zenoh / --gateway), not both")
+        return None
+    path = endpoints or DEFAULT_ENDPOINTS
+    deployment = Deployment.load(path) if endpoints is not None or path.exists() else None
+    if deployment is not None and not deployment.running():
+        if endpoints is not None:
+            raise _fail(f"{path} is stale: the demo that wrote it (pid {deployment.pid}) is gone")
+        err.print(f"[yellow]ignoring {path}:[/yellow] the demo that wrote it (pid {deployment.pid}) is gone")
+        deployment = None
+    if deployment is None:
+        err.print(f"deployment: the default {field} {default} (no running demo's {DEFAULT_ENDPOINTS})")
+        return default
+    err.print(f"deployment: {deployment.describe(path)}")
+    return getattr(deployment, field)
+
+
+def _tool_config(zenoh_file: Path | None, connect: list[str] | None, endpoints: Path | None,
+                 open_timeout_s: float, mode: Mode | None = None) -> zenoh.Config:
+    """The Zenoh config of an operator's tool (status, map, record, ...): the router given, else the
+    deployment's (:func:`_deployment_endpoint`); opening the session gives up after
+    ``open_timeout_s`` with the endpoint named, instead of waiting for ever for a router."""
+    router = _deployment_endpoint(endpoints, zenoh_file is not None or bool(connect), "router", DEFAULT_ENDPOINT)
+    try:
+        return build_config(mode, file=zenoh_file, connect=[router] if router else connect or (),
+                            open_timeout_s=open_timeout_s)
+    except ZenohConfigError as exc:
+        raise _fail(str(exc)) from None
 
 
 def _version(value: bool) -> None:
@@ -197,7 +296,9 @@ def up(profile: Annotated[str, typer.Argument(
 
 @app.command()
 def submit(targets: Annotated[list[str], typer.Argument(help="Object names.")],
-           gateway: Annotated[str, typer.Option(help="Gateway URL.")] = "http://127.0.0.1:8080",
+           gateway: Annotated[Optional[str], typer.Option(
+               help=f"Gateway URL (default: the running demo's, else {DEFAULT_GATEWAY}).")] = None,
+           endpoints: Endpoints = None,
            robot_id: Annotated[Optional[str], typer.Option("--robot-id")] = None,
            max_steps: Annotated[Optional[int], typer.Option()] = None,
            token: Annotated[Optional[str], typer.Option(envvar="OVAMOS_GATEWAY_TOKEN")] = None,
@@ -206,6 +307,7 @@ def submit(targets: Annotated[list[str], typer.Argument(help="Object names.")],
     """Submit a search task to the gateway (exit 1 when a followed task does not succeed)."""
     from services.gateway.client import GatewayError, wait_task
     from services.gateway.client import submit as submit_task
+    gateway = _deployment_endpoint(endpoints, gateway is not None, "gateway", DEFAULT_GATEWAY) or gateway
     try:
         task = submit_task(targets, gateway, token, robot_id, max_steps)
         console.print(f"task {task.id}: {task.status.value} on {task.robot_id} ({gateway}{task.location})")
@@ -219,12 +321,15 @@ def submit(targets: Annotated[list[str], typer.Argument(help="Object names.")],
 
 @app.command()
 def status(robot_id: RobotId = "*", zenoh_file: ZenohFile = None, connect: Connect = None,
-           timeout: Annotated[float, typer.Option(help="Seconds to wait for answers.")] = 2.0,
+           endpoints: Endpoints = None,
+           timeout: Annotated[float, typer.Option(
+               help="Seconds to wait for a router, then as long for the services' answers.")] = 2.0,
            as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False) -> None:
     """List live services (from Zenoh liveliness) with their message counters."""
     from shared.status import live_services
+    cfg = _tool_config(zenoh_file, connect, endpoints, timeout, "client")
     try:
-        session = open_session(build_config("client", file=zenoh_file, connect=connect or ()))
+        session = open_session(cfg)
     except ZenohConfigError as exc:
         raise _fail(str(exc)) from None
     try:
@@ -300,8 +405,10 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
          base: Annotated[str, typer.Option(help="How the simulated robot moves: kinematic (ideal), odrive, "
                                                 "kobuki or opencr (the real base driver and its client on a "
                                                 "simulated device).")] = "kinematic",
-         out: Annotated[Path, typer.Option(help="Folder for the report, map, configs and logs.")]
-         = Path("out/demo"),
+         out: Annotated[Path, typer.Option(help="Folder for the report, map, configs and logs; while the "
+                                                f"services are up, {ENDPOINTS_FILE} (their router and "
+                                                "gateway, for status, submit, map ...).")]
+         = DEMO_OUT,
          record: Annotated[bool, typer.Option(help="Record the run to OUT/run.mcap (a fleet: "
                                                    "OUT/run-ROBOT.mcap per robot).")] = True,
          robots: Annotated[int, typer.Option(
@@ -319,7 +426,9 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
     try:
         code = run_demo(console, out_dir=out, seed=seed, episode=episode, targets=targets,
                         keep_running=keep_running, timeout_s=timeout, base=base,
-                        record=out / "run.mcap" if record else None, robots=robots)
+                        record=out / "run.mcap" if record else None, robots=robots,
+                        publish=lambda router, gateway: Deployment(router, gateway, os.getpid()).published(
+                            out / ENDPOINTS_FILE))
     except (TimeoutError, OSError) as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)
@@ -340,7 +449,8 @@ def record(out: Annotated[Path, typer.Option("--out", help="MCAP file to write."
            compression: Annotated[str, typer.Option(help="Chunk compression: zstd, lz4 or none.")] = "zstd",
            views: Annotated[bool, typer.Option(help="Also write the Foxglove view channels.")] = True,
            overwrite: Annotated[bool, typer.Option(help="Replace OUT if it exists.")] = False,
-           zenoh_file: ZenohFile = None, connect: Connect = None,
+           zenoh_file: ZenohFile = None, connect: Connect = None, endpoints: Endpoints = None,
+           open_timeout: OpenTimeout = 10.0,
            log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Record a robot's keys to MCAP (raw channels for replay, Foxglove views) until SIGINT / SIGTERM."""
     from ovamos.record.channels import UnknownKeyError, select
@@ -350,13 +460,13 @@ def record(out: Annotated[Path, typer.Option("--out", help="MCAP file to write."
     setup_logging(json_lines=log_json, level=log_level)
     if compression not in ("zstd", "lz4", "none"):
         raise _fail(f"--compression {compression!r}: one of zstd, lz4, none")
+    zcfg = _tool_config(zenoh_file, connect, endpoints, open_timeout)
     try:
         ports = select(keys_)
         config = RecorderConfig(budget_bytes=int(budget_mb * 2 ** 20),
                                 compression=compression,  # type: ignore[arg-type]  # checked above
                                 split_bytes=None if split_mb is None else int(split_mb * 2 ** 20),
                                 views=views, overwrite=overwrite)
-        zcfg = build_config(file=zenoh_file, connect=connect or ())
         stats = run_record(zcfg, robot_id, ports, out, config, threading.Event())
     except (UnknownKeyError, RecordingExistsError, ZenohConfigError, KeyExprError, OSError) as exc:
         raise _fail(str(exc)) from None
@@ -376,7 +486,8 @@ def replay(recording: Annotated[Path, typer.Argument(help="MCAP file written by 
            keys_: KeyNames = None,
            robot_id: Annotated[Optional[str], typer.Option(
                "--robot-id", help="Publish on this robot's keys (default: the recorded robot's).")] = None,
-           zenoh_file: ZenohFile = None, connect: Connect = None,
+           zenoh_file: ZenohFile = None, connect: Connect = None, endpoints: Endpoints = None,
+           open_timeout: OpenTimeout = 10.0,
            log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Publish a recording's raw channels back on Zenoh, with their recorded timing."""
     from ovamos.record.channels import UnknownKeyError
@@ -386,8 +497,8 @@ def replay(recording: Annotated[Path, typer.Argument(help="MCAP file written by 
     setup_logging(json_lines=log_json, level=log_level)
     if rate <= 0:
         raise _fail(f"--rate {rate}: must be > 0")
+    zcfg = _tool_config(zenoh_file, connect, endpoints, open_timeout)
     try:
-        zcfg = build_config(file=zenoh_file, connect=connect or ())
         report = run_replay(zcfg, recording, rate=None if as_fast else rate, names=keys_, robot_id=robot_id,
                             stop=threading.Event())
     except (RecordingError, UnknownKeyError, ZenohConfigError, KeyExprError) as exc:
@@ -404,7 +515,8 @@ def replay(recording: Annotated[Path, typer.Argument(help="MCAP file written by 
 def view(robot_id: RobotId = "robot1", keys_: KeyNames = None,
          host: Annotated[str, typer.Option(help="Address to listen on (loopback by default).")] = "127.0.0.1",
          port: Annotated[int, typer.Option(help="WebSocket port (0: a free one).")] = 8765,
-         zenoh_file: ZenohFile = None, connect: Connect = None,
+         zenoh_file: ZenohFile = None, connect: Connect = None, endpoints: Endpoints = None,
+         open_timeout: OpenTimeout = 10.0,
          log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """A Foxglove WebSocket server showing a robot's live traffic (camera, map layers, planner, task)."""
     from ovamos.record.channels import UnknownKeyError, select
@@ -416,8 +528,9 @@ def view(robot_id: RobotId = "robot1", keys_: KeyNames = None,
         err.print(f"Foxglove live view of {robot_id} on ws://{host}:{bound} (open it in Foxglove: "
                   f"Open connection > Foxglove WebSocket; layout deploy/foxglove/ovamos.json)")
 
+    zcfg = _tool_config(zenoh_file, connect, endpoints, open_timeout)
     try:
-        run_view(build_config(file=zenoh_file, connect=connect or ()), robot_id, select(keys_), host=host,
+        run_view(zcfg, robot_id, select(keys_), host=host,
                  port=port, stop=threading.Event(), on_started=started)
     except (UnknownKeyError, ZenohConfigError, KeyExprError, RuntimeError) as exc:
         raise _fail(str(exc)) from None
@@ -426,14 +539,17 @@ def view(robot_id: RobotId = "robot1", keys_: KeyNames = None,
 @app.command("map")
 def map_png(out: Annotated[Path, typer.Option(help="PNG to write.")],
             robot_id: RobotId = "robot1", zenoh_file: ZenohFile = None, connect: Connect = None,
+            endpoints: Endpoints = None,
             layer: Annotated[Optional[str], typer.Option(help="One target's layer (default: all).")] = None,
-            timeout: Annotated[float, typer.Option(help="Seconds to wait for the map.")] = 5.0) -> None:
+            timeout: Annotated[float, typer.Option(
+                help="Seconds to wait for a router, then as long for the map.")] = 5.0) -> None:
     """Fetch the mapping service's current map and draw it (obstacles, values, frontiers, objects)."""
     from services.mapping.render import render_map, write_png
     from shared import keys
     from shared.messages import DecodeError, MapSnapshot
+    cfg = _tool_config(zenoh_file, connect, endpoints, timeout, "client")
     try:
-        session = open_session(build_config("client", file=zenoh_file, connect=connect or ()))
+        session = open_session(cfg)
     except ZenohConfigError as exc:
         raise _fail(str(exc)) from None
     try:
@@ -641,21 +757,77 @@ def _scene(seed: int, scene_file: Path | None):
 
 
 @sim_app.command("scene")
-def sim_scene(out: Annotated[Path, typer.Option(help="Top-down map PNG to write.")],
-              seed: SceneSeed = 0, scene_file: SceneFile = None,
+def sim_scene(out: Annotated[Optional[Path], typer.Option(
+                  help="Top-down map PNG to write (rooms, walls, objects labelled; an episode's start).")] = None,
+              seed: Annotated[Optional[int], typer.Option("--seed", help="Scene seed (default 0).")] = None,
+              scene_file: SceneFile = None,
+              episode: Annotated[Optional[str], typer.Option(
+                  help="Instead: the house of episode SEED-INDEX (e.g. 0-4, the demo's), with its start.")]
+              = None,
+              objects: Annotated[bool, typer.Option(
+                  "--objects", help="List what the house contains: each class, its count and rooms (with "
+                                    "--episode: whether a search for it can succeed).")] = False,
+              as_json: Annotated[bool, typer.Option("--json", help="The list as one JSON object.")] = False,
               save: Annotated[Optional[Path], typer.Option(help="Also save the scene JSON.")] = None
               ) -> None:
-    """Draw a scene from above: rooms, walls, objects with labels."""
+    """Draw a scene from above: rooms, walls, objects with labels; or list the objects it holds."""
     import cv2
     from services.sim.draw import draw_scene
-    scene = _scene(seed, scene_file)
-    cv2.imwrite(str(out), draw_scene(scene))
+    if out is None and not objects and not as_json:
+        raise _fail("nothing to do: give --out PNG (the picture) and/or --objects (the list)")
+    start, stoppable = None, None
+    if episode is not None:
+        if seed is not None or scene_file is not None:
+            raise _fail("--episode or --seed / --scene, not both")
+        from bench.search import SearchError, parse_episode_id
+        from services.sim.episodes import make_episode
+        try:
+            spec, scene, truth = make_episode(*parse_episode_id(episode))
+        except SearchError as exc:
+            raise _fail(str(exc)) from None
+        start, stoppable = spec.start, set(truth.stoppable_classes(spec.start.x, spec.start.y))
+    else:
+        scene = _scene(seed or 0, scene_file)
+    if out is not None:
+        cv2.imwrite(str(out), draw_scene(scene, robot=start))
     if save is not None:
         scene.save(save)
+    listing = scene_objects(scene, stoppable)
+    if as_json:
+        print(json.dumps({"seed": scene.seed, "episode": episode, "objects": listing}))
+        return
+    if objects:
+        console.print(objects_table(listing, stoppable is not None))
     types = sorted({r.type for r in scene.rooms})
     console.print(f"scene {scene.seed}: {scene.width:.1f} x {scene.depth:.1f} m ({scene.area:.0f} m2), "
                   f"{len(scene.rooms)} rooms ({', '.join(types)}), {len(scene.objects)} objects "
-                  f"of {len(scene.classes())} classes -> {out}")
+                  f"of {len(scene.classes())} classes" + (f" -> {out}" if out is not None else ""))
+
+
+def scene_objects(scene: Scene, stoppable: set[str] | None = None) -> list[dict]:
+    """``ovamos sim scene --objects``: per class of the scene, its count and the rooms it is in
+    (named ``TYPE``, or ``TYPE ID`` where the house has several of a type); with ``stoppable``
+    (an episode's), whether a STOP can succeed for it, so that a task asks for one that can."""
+    types = [r.type for r in scene.rooms]
+    names = {r.id: r.type if types.count(r.type) == 1 else f"{r.type} {r.id}" for r in scene.rooms}
+    listing = []
+    for cls in scene.classes():
+        found = scene.instances(cls)
+        entry = {"class": cls, "count": len(found), "rooms": sorted({names[o.room] for o in found})}
+        if stoppable is not None:
+            entry["stoppable"] = cls in stoppable
+        listing.append(entry)
+    return listing
+
+
+def objects_table(listing: list[dict], with_stoppable: bool) -> Table:
+    """:func:`scene_objects` for people."""
+    table = Table("class", "count", "rooms", *(("a search can succeed",) if with_stoppable else ()),
+                  title=f"{len(listing)} object classes")
+    for entry in listing:
+        table.add_row(entry["class"], str(entry["count"]), ", ".join(entry["rooms"]),
+                      *(("yes" if entry["stoppable"] else "no",) if with_stoppable else ()))
+    return table
 
 
 @sim_app.command("render")

@@ -8,7 +8,10 @@ shows its progress live, then writes a report (JSON) and the map with the
 robot's path (PNG) and stops everything. A recorder (``ovamos record``) runs
 alongside and leaves the whole run in ``run.mcap`` (replay it, open it in Foxglove). The default episode is one the
 method solves, so a first run shows a success; ``--seed``/``--episode``/
-``--targets`` pick others.
+``--targets`` pick others. While the services are up, the caller can publish where they
+answer (``publish``: the CLI writes ``OUT/endpoints.json``, which ``ovamos status``,
+``submit`` and ``map`` then look at); with ``--keep-running`` the banner names them and
+suggests next targets that the house contains.
 """
 
 from __future__ import annotations
@@ -17,6 +20,8 @@ import json
 import signal
 import threading
 import time
+from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any, get_args
 
@@ -28,6 +33,7 @@ from bench.episode import scene_mapping
 from services.gateway.client import GatewayClient, GatewayError
 from services.gateway.models import TaskView
 from services.sim.episodes import make_episode
+from services.sim.prior import ObjectPrior
 from services.perception.config import PerceptionServiceConfig
 from services.sim.service import Motion
 from ovamos import fleet
@@ -43,6 +49,9 @@ SERVICES = ("mapping", "perception", "planner", "sim", "gateway")
 
 
 BASES: tuple[str, ...] = get_args(Motion)  # the simulated robot's ways to move
+#: ``publish(router, gateway)``: a context that makes the endpoints known while it lasts and
+#: yields where (the CLI's: ``OUT/endpoints.json``, removed when the demo stops)
+Publish = Callable[[str, str], AbstractContextManager[Path | None]]
 
 
 def default_timeout_s(base: str) -> float:
@@ -62,6 +71,21 @@ FLEET_ID = "fleet"  # the robot id the fleet-wide services (perception, gateway)
 def fleet_robots(count: int) -> list[str]:
     """The demo's robot ids: ``sim`` alone, ``sim1`` ... ``simN`` in a fleet."""
     return ["sim"] if count == 1 else [f"sim{i + 1}" for i in range(count)]
+
+
+def suggested_targets(seed: int, episode: int, searched: Sequence[str], count: int = 3) -> list[str]:
+    """Targets for a next task in episode (``seed``, ``episode``)'s house, best first.
+
+    Only classes the house contains and a STOP can succeed for from the start (the robot stays
+    in that part of the house: ``GroundTruth.stoppable_classes``), not ``searched`` already;
+    furniture before small things, the bulkiest first: seen from across a room, they give a
+    quick success (episode 0-4: sofa, then dining_table).
+    """
+    spec, scene, truth = make_episode(seed, episode)
+    prior = ObjectPrior.load()
+    bulk = {c: max(o.sx * o.sy * o.sz for o in scene.instances(c)) for c in scene.classes()}
+    candidates = [c for c in truth.stoppable_classes(spec.start.x, spec.start.y) if c not in searched]
+    return sorted(candidates, key=lambda c: (prior[c].small, -bulk[c]))[:count]
 
 
 def _robot_configs(folder: Path, seed: int, episode: int, *, width: int, height: int, base: str,
@@ -203,16 +227,17 @@ def wait_for_services(client: GatewayClient, robots: list[str], deadline: float)
 def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode: int = DEMO_EPISODE,
              targets: list[str] | None = None, robot_id: str = "sim", keep_running: bool = False,
              timeout_s: float | None = None, base: str = "kinematic", record: Path | None = None,
-             robots: int = 1) -> int:
+             robots: int = 1, publish: Publish | None = None) -> int:
     """Run the demo; ``record``: the MCAP file to record the run to (None: no recording).
 
     ``robots`` > 1: a fleet (:func:`write_fleet_configs`), robot i searching episode
-    ``episode + i`` (its own home) for that episode's targets (or ``targets``), all at once."""
+    ``episode + i`` (its own home) for that episode's targets (or ``targets``), all at once.
+    ``publish``: see :data:`Publish`; entered once every service is up, left when they stop."""
     episodes = {robot_id: episode} if robots == 1 else fleet_episodes(seed, episode, robots)
     fleet_ids = list(episodes)
     tasks = {robot: targets or list(make_episode(seed, e)[0].targets) for robot, e in episodes.items()}
     http_port, zenoh_port = free_port(), free_port()
-    url = f"http://127.0.0.1:{http_port}"
+    url, router = f"http://127.0.0.1:{http_port}", loopback(zenoh_port)
     if robots == 1:
         configs = write_configs(out_dir / "config", seed=seed, episode=episode, robot_id=robot_id,
                                 http_port=http_port, base=base)
@@ -223,20 +248,23 @@ def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode:
         entries = fleet_entries(configs, robots=fleet_ids, zenoh_port=zenoh_port, record=record)
     for robot, e in episodes.items():
         console.print(f"{robot}: episode {seed}-{e}: {', '.join(tasks[robot])}")
-    console.print(f"gateway {url}; logs in {out_dir / 'logs'}")
+    console.print(f"router {router}, gateway {url}; logs in {out_dir / 'logs'}")
     started = time.monotonic()
     with Supervisor(entries, log_dir=out_dir / "logs") as supervisor, GatewayClient(url) as client:
         deadline = started + STARTUP_TIMEOUT_S
         while not port_open("127.0.0.1", http_port) and time.monotonic() < deadline:
             time.sleep(0.2)
         wait_for_services(client, fleet_ids, deadline)
-        views = _search(console, client, tasks, started,
-                        default_timeout_s(base) * robots if timeout_s is None else timeout_s)
-        outcome = _write_results(console, client, views, out_dir, seed, episodes,
-                                 time.monotonic() - started, supervisor)
-        if keep_running:
-            _print(console, outcome)
-            _serve_until_interrupted(console, url, fleet_ids[0])
+        with publish(router, url) if publish is not None else nullcontext() as endpoints_file:
+            views = _search(console, client, tasks, started,
+                            default_timeout_s(base) * robots if timeout_s is None else timeout_s)
+            outcome = _write_results(console, client, views, out_dir, seed, episodes,
+                                     time.monotonic() - started, supervisor)
+            if keep_running:
+                _print(console, outcome)
+                first = fleet_ids[0]
+                _serve_until_interrupted(console, router, url, first, f"{seed}-{episodes[first]}",
+                                         suggested_targets(seed, episodes[first], tasks[first]), endpoints_file)
     if record is not None:  # complete once the supervisor stopped the recorder, after the services
         for robot in fleet_ids:
             path = _recording(record, robot, robots)
@@ -297,11 +325,32 @@ def _write_results(console: Console, client: GatewayClient, views: dict[str, Tas
     return lines
 
 
-def _serve_until_interrupted(console: Console, url: str, robot_id: str) -> None:
-    console.print(f"Everything keeps running. Operator page: {url}/ (API docs: {url}/docs). Try:\n"
+def banner(router: str, url: str, robot_id: str, episode_id: str, suggested: Sequence[str],
+           endpoints_file: Path | None) -> str:
+    """What the keep-running demo says: where it answers, and a next task for a target the house
+    contains (``suggested``, from :func:`suggested_targets`), over HTTP and with ``ovamos submit``."""
+    lines = [f"Everything keeps running: router {router}, gateway {url}"
+             + (f" (in {endpoints_file}: ovamos status / submit / map take it as --endpoints)"
+                if endpoints_file else "") + ".",
+             f"Operator page: {url}/ (API docs: {url}/docs)."]
+    if suggested:
+        where = f"--endpoints {endpoints_file}" if endpoints_file else f"--gateway {url}"
+        lines += [f"Try a next search in the house of episode {episode_id}:",
                   f"  curl -X POST {url}/v1/tasks -H 'Content-Type: application/json' "
-                  f"-d '{{\"targets\": [\"bed\"], \"robot_id\": \"{robot_id}\"}}'\n"
-                  f"Ctrl-C stops everything.")
+                  f"-d '{{\"targets\": [\"{suggested[0]}\"], \"robot_id\": \"{robot_id}\"}}'",
+                  f"  ovamos submit {suggested[0]} --robot-id {robot_id} {where}"]
+    if suggested[1:]:
+        lines.append(f"Other targets there: {', '.join(suggested[1:])}.")
+    lines += [f"Everything the house contains: ovamos sim scene --episode {episode_id} --objects",
+              "Ctrl-C stops everything."]
+    return "\n".join(lines)
+
+
+def _serve_until_interrupted(console: Console, router: str, url: str, robot_id: str, episode_id: str,
+                             suggested: Sequence[str], endpoints_file: Path | None) -> None:
+    # no markup (the JSON's brackets) and no wrapping inserted: its commands are for copying
+    console.print(banner(router, url, robot_id, episode_id, suggested, endpoints_file), markup=False,
+                  soft_wrap=True)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

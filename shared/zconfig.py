@@ -39,6 +39,10 @@ class ZenohConfigError(ValueError):
     """A Zenoh config file or override this project will not run with."""
 
 
+class RouterUnreachableError(ZenohConfigError):
+    """A session given an open timeout (the CLI's tools) found no router within it."""
+
+
 @dataclass(frozen=True)
 class TlsFiles:
     """This host's side of the mTLS link: the CA that signs every peer, and its own pair."""
@@ -85,11 +89,13 @@ def check_tls(cfg: zenoh.Config) -> list[str]:
 
 def uses_tls(cfg: zenoh.Config) -> bool:
     """Whether the config listens on or connects to a ``tls/`` endpoint."""
-    endpoints = []
-    for kind in ("listen", "connect"):
-        value = _get(cfg, f"{kind}/endpoints")
-        endpoints += [e for v in value.values() for e in v] if isinstance(value, dict) else list(value or [])
-    return any(str(e).startswith("tls/") for e in endpoints)
+    return any(str(e).startswith("tls/") for kind in ("listen", "connect") for e in _endpoints(cfg, kind))
+
+
+def _endpoints(cfg: zenoh.Config, kind: Literal["listen", "connect"]) -> list[object]:
+    """The ``listen`` or ``connect`` endpoints: a list, or (Zenoh takes both) a list per mode."""
+    value = _get(cfg, f"{kind}/endpoints")
+    return [e for v in value.values() for e in v] if isinstance(value, dict) else list(value or [])
 
 
 def _get(cfg: zenoh.Config, key: str) -> object:
@@ -102,7 +108,8 @@ def _set(cfg: zenoh.Config, key: str, value: object) -> None:
 
 def build_config(mode: Mode | None = None, *, file: str | Path | None = None,
                  connect: Sequence[str] = (), listen: Sequence[str] = (),
-                 tls: TlsFiles | None = None, require_certs: bool = True) -> zenoh.Config:
+                 tls: TlsFiles | None = None, require_certs: bool = True,
+                 open_timeout_s: float | None = None) -> zenoh.Config:
     """A Zenoh config: ``file`` (json5) if given, our defaults, then explicit overrides.
 
     Without a file the result is a client of a router on ``tcp/127.0.0.1:7447``.
@@ -110,6 +117,12 @@ def build_config(mode: Mode | None = None, *, file: str | Path | None = None,
     serves any port (tests use free ports). ``tls`` sets the TLS files (see
     :class:`TlsFiles`); the certificates named, from here or the file, are checked
     (``require_certs=False``: not, for a config only read, never opened).
+
+    ``open_timeout_s``: opening the session fails (:class:`RouterUnreachableError`) when
+    none of the connect endpoints answers within it. Services leave it None and wait for
+    their router for ever (a profile starts them in any order); an operator's tool sets it,
+    or it would hang without a word when no router is up. Once open, a session reconnects
+    after a router restart either way (``connect.retry``).
     """
     if file is not None:
         try:
@@ -136,6 +149,9 @@ def build_config(mode: Mode | None = None, *, file: str | Path | None = None,
     if not isinstance(_get(cfg, "listen/endpoints"), list):
         # Zenoh's default listens on every interface; ours stays on loopback.
         _set(cfg, "listen/endpoints", _DEFAULT_LISTEN[mode])
+    if open_timeout_s is not None:
+        _set(cfg, "connect/timeout_ms", max(1, round(open_timeout_s * 1000)))
+        _set(cfg, "connect/exit_on_failure", True)
     if _get(cfg, "connect/timeout_ms") is None:
         _set(cfg, "connect/timeout_ms", -1)
     if _get(cfg, "connect/exit_on_failure") is None:
@@ -156,11 +172,23 @@ def build_config(mode: Mode | None = None, *, file: str | Path | None = None,
     return cfg
 
 
+_STACK_HINT = "is the stack up? `ovamos up` / `ovamos demo --keep-running`"
+
+
 def open_session(cfg: zenoh.Config) -> zenoh.Session:
-    """Open a session; a bad endpoint or a taken port becomes one clear error."""
+    """Open a session; a bad endpoint or a taken port becomes one clear error, and no router
+    within the open timeout (``build_config(open_timeout_s=...)``) a
+    :class:`RouterUnreachableError` naming the endpoints tried."""
     try:
         return zenoh.open(cfg)
     except zenoh.ZError as exc:
+        timeout_ms = _get(cfg, "connect/timeout_ms")
+        if isinstance(timeout_ms, dict):  # Zenoh also takes one per mode
+            timeout_ms = timeout_ms.get(_get(cfg, "mode"))
+        if "Timeout" in str(exc) and isinstance(timeout_ms, int) and timeout_ms >= 0:
+            tried = ", ".join(map(str, _endpoints(cfg, "connect")))
+            raise RouterUnreachableError(f"no Zenoh router answered at {tried} within {timeout_ms / 1000:g} s "
+                                         f"({_STACK_HINT})") from None
         endpoints = {k: _get(cfg, f"{k}/endpoints") for k in ("listen", "connect")}
         raise ZenohConfigError(f"cannot open a Zenoh {_get(cfg, 'mode')} session "
                                f"({endpoints}): {exc}") from None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -96,6 +97,7 @@ def test_demo_finds_every_target_through_the_http_api_and_cleans_up(tmp_path: Pa
     png = (tmp_path / "demo_map.png").read_bytes()
     assert png.startswith(b"\x89PNG")
     assert all(n == 0 for n in report["restarts"].values())
+    assert not (tmp_path / "endpoints.json").exists()  # it named the deployment while it was up
     # lock-step with the kinematic robot: the distributed run is the in-process episode, step by step
     from bench.episode import EpisodeConfig, run_episode
     from services.sim.episodes import make_episode
@@ -179,3 +181,10 @@ def test_submit_through_a_gateway_process(cli, router_port: int, tmp_path: Path)
     assert out.returncode == 0 and "searching on sim" in out.stdout, out.stderr
     bad = ovamos("submit", "chair", "CHAIR", "--gateway", url)
     assert bad.returncode == 2 and "duplicate" in bad.stderr.lower()
+    # a deployment's endpoints file (ovamos demo writes one) stands for --gateway, and is named
+    from ovamos.cli import Deployment
+    with Deployment(loopback(router_port), url, os.getpid()).published(tmp_path / "endpoints.json") as endpoints:
+        via_file = ovamos("submit", "sofa", "--endpoints", str(endpoints))
+    assert via_file.returncode == 0 and "queued on sim" in via_file.stdout, via_file.stderr  # after chair, fridge
+    assert f"deployment: {endpoints} (router {loopback(router_port)}, gateway {url})" in " ".join(
+        via_file.stderr.split())
