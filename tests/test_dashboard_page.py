@@ -4,6 +4,7 @@ use, the phone layout, and the page's own endpoints (state, e-stop, map) over HT
 
 from __future__ import annotations
 
+import json
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -17,11 +18,12 @@ from services.gateway.page import STATIC
 from shared import keys
 from shared.bus import Bus
 from services.gateway.client import GatewayClient
-from shared.messages import DriverMode, DriverState, EStop, Goal, Odometry, TaskStatus
+from shared.messages import DriverMode, DriverState, EStop, Goal, ObjectInstance, Odometry, TaskStatus
 from shared.zconfig import build_config
 from tests.browser import (PHONE, by_id, chromium, console_errors, row, screenshot, set_viewport,
                            task_rows, text_of, wait_text)
-from tests.gateway_mocks import ODOM_SESSION, ROBOT, MockMapping, MockPlanner, RunningGateway, gateway_config
+from tests.gateway_mocks import (ODOM_SESSION, ROBOT, MockMapping, MockPlanner, RunningGateway, gateway_config,
+                                 small_map)
 from tests.polling import wait_for
 
 
@@ -249,6 +251,134 @@ def test_the_map_view_holds_what_the_page_draws(inproc_router: str, gateway: Run
         after = httpx.get(url, timeout=10).json()
         assert after["goal"] is None and after["candidates"] == []  # no search: no goal, no candidates
         assert httpx.get(f"{gateway.url}/v1/robots/nope/map", timeout=10).status_code == 404
+    finally:
+        driver.close()
+        mapping.close()
+
+
+# -- issue 32: the phone's task table, the map's legend, labels and the task's own detections --------
+LONG_NAME = "a_very_long_target_name_that_has_no_space_to_wrap_at_all"
+
+
+def test_on_a_phone_every_button_of_the_task_table_is_in_view(
+        browser, gateway: RunningGateway, planner: MockPlanner, tmp_path: Path) -> None:
+    with GatewayClient(gateway.url) as api:
+        first = api.submit([LONG_NAME, "chair"])
+        wait_for(lambda: planner.report(first.id, TaskStatus.SEARCHING, [LONG_NAME, "chair"], steps=3)
+                 or api.get(first.id).steps == 3, what="a step with the planner's message")
+        api.submit(["sofa", "television_set_in_the_living_room"])
+        api.submit(["cup"])
+    try:
+        set_viewport(browser, PHONE)
+        browser.get(gateway.url)
+        wait_for(lambda: len(task_rows(browser)) == 3, what="the three tasks listed")
+        buttons = browser.find_elements(By.CSS_SELECTOR, "#tasks button")
+        visible = [b for b in buttons if b.is_displayed()]
+        assert len(visible) == 6  # Watch and Cancel on each (none is over)
+        for button in visible:
+            box = browser.execute_script(
+                "const b = arguments[0]; b.scrollIntoView({block: 'center'});"
+                "const r = b.getBoundingClientRect();"
+                "const hit = document.elementFromPoint((r.left + r.right) / 2, (r.top + r.bottom) / 2);"
+                "return [r.left, r.right, r.top, r.bottom, innerWidth, innerHeight, hit === b];", button)
+            left, right, top, bottom, width, height, on_top = box
+            assert 0 <= left and right <= width and 0 <= top and bottom <= height, (button.text, box)
+            assert on_top, f"{button.text}: hidden behind something (a scroll box's edge?) {box}"
+        card = browser.execute_script("const t = document.getElementById('tasks');"
+                                      "return [t.scrollWidth, t.parentElement.clientWidth];")
+        assert card[0] <= card[1], card  # the table fits its card: nothing to scroll sideways
+        assert browser.execute_script("return document.documentElement.scrollWidth") <= PHONE[0]
+        browser.execute_script("document.getElementById('tasks').scrollIntoView()")
+        screenshot(browser, tmp_path, "phone-tasks")
+        assert console_errors(browser) == []
+    finally:
+        set_viewport(browser, (1280, 800))
+
+
+class CrowdedMapping:
+    """A "mapping" service (mock) whose map holds this task's detections, an earlier task's lamp,
+    and a crowd of objects in one spot (to label without overlaps)."""
+
+    def __init__(self, endpoint: str) -> None:
+        base = small_map()
+        crowd = tuple(ObjectInstance(label=("chair", "sofa", "lamp")[i % 3], x=0.9 + 0.01 * (i % 5),
+                                     y=0.9 + 0.01 * (i // 5), score=0.5, hits=i + 1, confirmed=i % 2 == 0)
+                      for i in range(30))
+        lamp = ObjectInstance(label="lamp", x=1.3, y=0.5, score=0.9, hits=7, confirmed=True)  # not a target
+        sofa = ObjectInstance(label="sofa", x=0.4, y=0.5, score=0.4, hits=1, confirmed=False)
+        self.snapshot = base.model_copy(update={"objects": (*base.objects, sofa, lamp, *crowd)})
+        self.bus = Bus.open(build_config(connect=[endpoint]), ROBOT, "mapping")
+        self.bus.queryable(keys.map_snapshot(ROBOT), lambda: self.snapshot)
+
+    def close(self) -> None:
+        self.bus.close()
+
+
+def _css_colour(browser, selector: str, prop: str) -> tuple[int, int, int]:
+    value = browser.execute_script(
+        "return getComputedStyle(document.querySelector(arguments[0]))[arguments[1]]", selector, prop)
+    r, g, b = (int(float(n)) for n in value[value.index("(") + 1:value.index(")")].split(",")[:3])
+    return r, g, b
+
+
+def _near(browser, u: float, v: float, reach: int, colour: tuple[int, int, int], tolerance: int = 12) -> bool:
+    """Whether a canvas pixel within ``reach`` of (u, v) has ``colour``."""
+    return browser.execute_script(
+        "const [u, v, n, c, tol] = arguments;"
+        "const d = document.getElementById('map').getContext('2d')"
+        "  .getImageData(Math.round(u) - n, Math.round(v) - n, 2 * n + 1, 2 * n + 1).data;"
+        "for (let i = 0; i < d.length; i += 4)"
+        "  if (Math.abs(d[i] - c[0]) <= tol && Math.abs(d[i + 1] - c[1]) <= tol && Math.abs(d[i + 2] - c[2]) <= tol)"
+        "    return true;"
+        "return false;", u, v, reach, list(colour), tolerance)
+
+
+def test_the_map_draws_only_the_tasks_detections_in_colour_labels_them_apart_and_its_legend_says_so(
+        browser, inproc_router: str, gateway: RunningGateway, tmp_path: Path) -> None:
+    mapping, driver = CrowdedMapping(inproc_router), MockDriver(inproc_router)
+    try:
+        targets = ["chair", "sofa"]
+        with GatewayClient(gateway.url) as api:
+            api.submit(targets)
+        browser.get(gateway.url)
+        # the targets come with the task list: wait until the map has been drawn with them
+        marks = wait_for(lambda: (m := by_id(browser, "map").get_attribute("data-marks"))
+                         and any(k["kind"] != "other" for k in json.loads(m)) and json.loads(m),
+                         what="the map's marks drawn for the task")
+        screenshot(browser, tmp_path, "map-labels")
+        kinds = {(m["label"], m["kind"]) for m in marks}
+        assert {("chair", "confirmed"), ("sofa", "unconfirmed"), ("lamp", "other")} <= kinds
+        assert all(kind == "other" for label, kind in kinds if label == "lamp")  # an earlier task's
+        assert all(kind != "other" for label, kind in kinds if label in targets)
+
+        # the legend names every mark, in the colours the map draws them
+        legend = browser.find_element(By.CSS_SELECTOR, ".legend").text
+        for words in ("unexplored", "explored", "obstacle", "value", "frontier", "candidate", "goal", "path",
+                      "robot", "detection, confirmed", "detection, unconfirmed", "found", "other task"):
+            assert words in legend, words
+        for kind in ("confirmed", "unconfirmed", "other"):
+            colour = _css_colour(browser, f".sw.{kind}", "borderTopColor")
+            drawn = [m for m in marks if m["kind"] == kind]
+            assert any(_near(browser, m["u"] + m["r"], m["v"], 2, colour) for m in drawn), (kind, colour)
+        assert _css_colour(browser, ".sw.robot", "backgroundColor") == (20, 60, 200) and _css_colour(browser, ".sw.found", "backgroundColor") == (22, 163, 74)
+
+        # labels: none overlaps another, all inside the canvas; the crowd's are labelled or numbered
+        labels = json.loads(by_id(browser, "map").get_attribute("data-labels"))
+        width, height = browser.execute_script("const c = document.getElementById('map'); return [c.width, c.height];")
+        rects = [tuple(label["rect"]) for label in labels]
+        for i, (x0, y0, x1, y1) in enumerate(rects):
+            assert 0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height, labels[i]
+            for a0, b0, a1, b1 in rects[i + 1:]:
+                assert not (x0 < a1 and a0 < x1 and y0 < b1 and b0 < y1), (labels[i], (a0, b0, a1, b1))
+        texts = [label["text"] for label in labels]
+        listed = text_of(browser, "map-labels")
+        for o in mapping.snapshot.objects:
+            if o.label in targets:
+                text = f"{o.label} ×{o.hits}"
+                assert text in texts or text in listed, text
+        assert listed.startswith("Labels by number: 1 ")  # the crowd does not all fit beside its marks
+        assert "1" in texts
+        assert console_errors(browser) == []
     finally:
         driver.close()
         mapping.close()

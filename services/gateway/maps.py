@@ -4,7 +4,8 @@ raster plus vector layers the operator's page draws (:func:`map_view`).
 The gateway keeps no map of its own: it queries ``map/snapshot`` when a
 picture is requested, so it never holds megabytes per robot nor shows a map
 staler than the mapping service's. The robot's path (the positions its
-latest task reported) is drawn over the map.
+latest task reported) is drawn over the map; the PNG carries a legend and, given the task, draws
+as its detections only the objects of its targets (:func:`map_png`).
 """
 
 from __future__ import annotations
@@ -50,9 +51,21 @@ def _png(image: np.ndarray) -> bytes:
 
 
 def map_png(snapshot: MapSnapshot, path: Sequence[tuple[float, float]] = (),
-            layer: str | None = None) -> bytes:
-    """PNG bytes of :func:`render_map`; ValueError for an unknown ``layer``."""
-    return _png(render_map(snapshot, layer=layer, path=path))
+            layer: str | None = None, *, task: TaskRecord | None = None, robot: Pose | None = None,
+            goal: Goal | None = None) -> bytes:
+    """PNG bytes of :func:`render_map`, with its legend; ValueError for an unknown ``layer``.
+
+    With the robot's latest ``task``, the picture is of that task: its path (unless ``path`` is
+    given), its found targets, and only objects of its targets drawn as its detections (the map
+    also holds those of earlier tasks' targets: grey); without, the snapshot's layers (the
+    remaining targets) say which are the task's. ``robot`` is drawn with its heading, ``goal``
+    as a red ring."""
+    if task is not None and not path:
+        path = task.path
+    return _png(render_map(snapshot, layer=layer, path=path,
+                           robot=None if robot is None else (robot.x, robot.y, robot.yaw),
+                           targets=task.targets if task is not None else None,
+                           found=task.found if task is not None else (), goal=goal))
 
 
 def candidates(snapshot: MapSnapshot, remaining: Sequence[str],
@@ -71,15 +84,21 @@ def candidates(snapshot: MapSnapshot, remaining: Sequence[str],
 def map_view(snapshot: MapSnapshot, task: TaskRecord | None, *, layer: str | None = None,
              robot: Pose | None = None, goal: Goal | None = None, searching: Sequence[str] = (),
              margin_cells: int = 10) -> MapView:
-    """The page's map: the raster of the window holding the explored area, the robot, ``task``'s
-    path, objects and frontiers (:func:`services.mapping.render.crop_box`), and those in world
-    metres; candidates of the ``searching`` targets (none when no task searches). ValueError
-    for an unknown ``layer``."""
+    """The page's map: the raster of the window holding the explored area, the robot, the goal,
+    ``task``'s path and found targets, objects and frontiers
+    (:func:`services.mapping.render.crop_box`), and those in world metres; candidates of the
+    ``searching`` targets (none when no task searches). ValueError for an unknown ``layer``.
+
+    Objects are those of the whole map, of every label it ever searched for: the page draws only
+    those of the task's targets as its detections (``task_id`` names the task)."""
     heat = value_image(snapshot, layer)  # validates the layer name first
     path = task.path if task is not None else []
-    points = [(o.x, o.y) for o in snapshot.objects] + [tuple(f) for f in snapshot.frontiers] + path
-    if robot is not None:
-        points.append((robot.x, robot.y))
+    found = task.found if task is not None else []
+    points = ([(o.x, o.y) for o in snapshot.objects] + [tuple(f) for f in snapshot.frontiers] + path
+              + [(f.x, f.y) for f in found])
+    for at in (robot, goal):
+        if at is not None:
+            points.append((at.x, at.y))
     r0, r1, c0, c1 = box = crop_box(snapshot, np.asarray(points, float).reshape(-1, 2), margin_cells)
     res, (x0, y0) = snapshot.resolution, snapshot.origin
     image = base64.b64encode(_png(map_raster(snapshot, heat, box))).decode()

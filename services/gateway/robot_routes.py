@@ -11,9 +11,9 @@ from __future__ import annotations
 from fastapi import APIRouter, HTTPException, status
 
 from services.gateway.maps import NoMap, fetch_snapshot, map_view
-from services.gateway.models import EStopClear, EStopRequest, MapView, Pose, Problem, RobotState
+from services.gateway.models import EStopClear, EStopRequest, MapView, Problem, RobotState
 from services.gateway.robots import EStopUnconfirmed
-from services.gateway.routes import GW, Gateway
+from services.gateway.routes import GW, Gateway, robot_pose
 from shared.messages import TaskStatus
 
 router = APIRouter(prefix="/v1/robots", responses={401: {"model": Problem}, 404: {"model": Problem}})
@@ -25,16 +25,13 @@ def _known(gw: Gateway, robot_id: str) -> None:
                             f"unknown robot {robot_id!r}; known: {', '.join(gw.config.robots)}")
 
 
-def _pose(gw: Gateway, robot_id: str) -> Pose | None:
-    odom = gw.monitor.odometry(robot_id)
-    return None if odom is None else Pose(x=odom.message.x, y=odom.message.y, yaw=odom.message.yaw)
 
 
 def _state(gw: Gateway, robot_id: str) -> RobotState:
     driver, active = gw.monitor.driver(robot_id), gw.store.active(robot_id)
     return RobotState(robot_id=robot_id, driver=None if driver is None else driver.message,
                       driver_age_s=None if driver is None else round(driver.age_s(), 3),
-                      pose=_pose(gw, robot_id), active_task=None if active is None else active.id)
+                      pose=robot_pose(gw, robot_id), active_task=None if active is None else active.id)
 
 
 @router.get("/{robot_id}", response_model=RobotState)
@@ -85,7 +82,7 @@ def robot_map_view(robot_id: str, gw: GW, layer: str | None = None) -> MapView:
     task = latest[0] if latest else None
     searching = task is not None and task.status is TaskStatus.SEARCHING
     try:
-        return map_view(snapshot, task, layer=layer, robot=_pose(gw, robot_id),
+        return map_view(snapshot, task, layer=layer, robot=robot_pose(gw, robot_id),
                         goal=gw.manager.goal(robot_id, task.id) if searching else None,
                         searching=gw.view(task).remaining if searching else ())
     except ValueError as exc:

@@ -19,7 +19,7 @@ from fastapi.responses import StreamingResponse
 
 from services.gateway.config import GatewayConfig
 from services.gateway.maps import NoMap, fetch_snapshot, map_png
-from services.gateway.models import (Health, Problem, RobotHealth, ServiceEntry, TaskAccepted,
+from services.gateway.models import (Health, Pose, Problem, RobotHealth, ServiceEntry, TaskAccepted,
                                      TaskList, TaskRequest, TaskView, check_against_config, task_view)
 from services.gateway.robots import RobotMonitor
 from services.gateway.sse import TaskWatchers, task_stream
@@ -142,6 +142,12 @@ def health(gw: GW) -> Health:
     return Health(robots=robots, counters=gw.manager.counters())
 
 
+def robot_pose(gw: Gateway, robot_id: str) -> Pose | None:
+    """The robot's pose from its latest odometry (None before any)."""
+    odom = gw.monitor.odometry(robot_id)
+    return None if odom is None else Pose(x=odom.message.x, y=odom.message.y, yaw=odom.message.yaw)
+
+
 @router.get("/robots/{robot_id}/map.png", response_class=Response, responses={
     200: {"content": {"image/png": {}}, "description": "the map, with the latest task's path; the "
           "odometry session it belongs to in the X-Ovamos-Odom-Session header"},
@@ -155,8 +161,11 @@ def robot_map(robot_id: str, gw: GW, layer: str | None = None) -> Response:
     except NoMap as exc:
         raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc)) from None
     latest = gw.store.list(robot_id, limit=1)
+    task = latest[0] if latest else None
     try:
-        png = map_png(snapshot, latest[0].path if latest else (), layer)
+        png = map_png(snapshot, layer=layer, task=task, robot=robot_pose(gw, robot_id),
+                      goal=gw.manager.goal(robot_id, task.id) if task is not None
+                      and task.status is TaskStatus.SEARCHING else None)
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
     return Response(png, media_type="image/png", headers={"Cache-Control": "no-store",

@@ -16,6 +16,7 @@ const ROUTINE_WAIT = /^waiting for (odometry after command|the map to fuse a fra
 const COLOURS = {
   frontier: "rgb(200,0,200)", candidate: "#facc15", path: "rgb(20,60,200)", goal: "#dc2626",
   robot: "rgb(20,60,200)", confirmed: "rgb(40,170,40)", unconfirmed: "rgb(255,140,0)", found: "#16a34a",
+  other: "rgb(160,160,160)",  // an object of a label the map's task does not search (an earlier task's)
 };
 
 const $ = (id) => document.getElementById(id);
@@ -24,6 +25,7 @@ const state = {
   chips: [], needToken: false, mapBusy: false, lastMap: null, image: null, lastWait: new Map(),
   services: new Map(),  // robot -> names of its live services
   lastActive: null,  // the robot's running task when the list was last read
+  tasks: new Map(),  // task id -> its view in the latest list (the map's task's targets)
 };
 
 // -- the API ---------------------------------------------------------------------------------------
@@ -363,6 +365,7 @@ function isFinal(view) {
 async function loadTasks() {
   if (!state.robot) return;
   const { tasks } = await api("GET", `/tasks?robot_id=${encodeURIComponent(state.robot)}&limit=25`);
+  state.tasks = new Map(tasks.map((t) => [t.id, t]));
   const body = $("tasks").tBodies[0];
   const rows = new Map([...body.rows].map((tr) => [tr.dataset.task, tr]));
   tasks.forEach((listed, i) => {
@@ -563,16 +566,34 @@ function drawMap() {
   }
 
   const font = Math.round(12 * dpr);
-  ctx.font = `${font}px system-ui, sans-serif`;
+  const marks = [];    // rectangles labels keep off: every mark drawn
+  const labels = [];   // in order of importance: placed once everything is drawn
+  const drawnMarks = [];
+  const mark = (u, v, r) => { marks.push([u - r - 2, v - r - 2, u + r + 2, v + r + 2]); return r + 4; };
   const foundLabels = new Set(view.found.map((f) => f.label));
-  for (const o of view.objects) {
+  const targets = mapTargets(view);
+  // the map outlives a task: only objects of this task's targets are its detections
+  const ours = view.objects.filter((o) => targets.has(o.label));
+  const others = view.objects.filter((o) => !targets.has(o.label));
+  for (const o of others) {
     const at = px(o.x, o.y);
-    ctx.strokeStyle = o.confirmed ? COLOURS.confirmed : COLOURS.unconfirmed;
-    circle(ctx, at, unit * 0.7, false);
-    if (!foundLabels.has(o.label)) label(ctx, `${o.label} ×${o.hits}`, at[0] + unit, at[1] - unit * 0.3, font);
+    const r = unit * 0.6;
+    ring(ctx, at, r, COLOURS.other, dpr);
+    drawnMarks.push({ label: o.label, kind: "other", u: at[0], v: at[1], r });
+    labels.push({ text: o.label, at, clear: mark(...at, r), colour: "#6b7280", numbered: false });
+  }
+  for (const o of [...ours].sort((a, b) => b.confirmed - a.confirmed)) {
+    const at = px(o.x, o.y);
+    const r = unit * 0.7;
+    const kind = o.confirmed ? "confirmed" : "unconfirmed";
+    ring(ctx, at, r, COLOURS[kind], dpr);
+    drawnMarks.push({ label: o.label, kind, u: at[0], v: at[1], r });
+    const clear = mark(...at, r);
+    if (!foundLabels.has(o.label)) labels.push({ text: `${o.label} ×${o.hits}`, at, clear, colour: "#111" });
   }
 
   const foundAt = [];
+  const first = [];
   for (const f of view.found) {
     const [u, v] = px(f.x, f.y);
     const s = unit * 1.2;
@@ -580,7 +601,7 @@ function drawMap() {
     ctx.fillRect(u - s, v - s, 2 * s, 2 * s);
     ctx.strokeStyle = "#fff";
     ctx.strokeRect(u - s, v - s, 2 * s, 2 * s);
-    label(ctx, `✓ ${f.label} (step ${f.step})`, u + s + 3, v + font * 0.35, font, true);
+    first.push({ text: `✓ ${f.label} (step ${f.step})`, at: [u, v], clear: mark(u, v, s), colour: "#111", bold: true });
     foundAt.push(`${f.label}@${Math.round(u)},${Math.round(v)}`);
   }
 
@@ -596,7 +617,7 @@ function drawMap() {
     const at = px(view.goal.x, view.goal.y);
     circle(ctx, at, unit * 1.1, false);
     circle(ctx, at, unit * 0.4, false);
-    label(ctx, `goal: ${view.goal.label || view.goal.kind}`, at[0] + unit * 1.3, at[1] - unit, font);
+    first.push({ text: `goal: ${view.goal.label || view.goal.kind}`, at, clear: mark(...at, unit * 1.1), colour: "#111" });
   }
 
   if (view.robot) {
@@ -609,16 +630,29 @@ function drawMap() {
     ctx.strokeStyle = "#000";
     ctx.lineWidth = 3 * dpr;
     ctx.beginPath(); ctx.moveTo(...at); ctx.lineTo(...tip); ctx.stroke();
+    marks.push([Math.min(at[0] - r, tip[0]) - 3, Math.min(at[1] - r, tip[1]) - 3,
+                Math.max(at[0] + r, tip[0]) + 3, Math.max(at[1] + r, tip[1]) + 3]);
   }
+  const { placed, listed } = drawLabels(ctx, [...first, ...labels], marks, font);
   // what was drawn, for people using a screen reader (and for the browser tests)
   canvas.dataset.seq = view.seq;
   canvas.dataset.found = foundAt.join(" ");
   canvas.dataset.robot = view.robot ? `${view.robot.x.toFixed(2)},${view.robot.y.toFixed(2)}` : "";
+  canvas.dataset.marks = JSON.stringify(drawnMarks);
+  canvas.dataset.labels = JSON.stringify(placed);
   canvas.setAttribute("aria-label", `map of robot ${state.robot}, frame ${view.seq}` +
     (view.found.length ? `; found ${view.found.map((f) => f.label).join(", ")}` : ""));
   $("found-list").textContent = view.found.length
     ? `Found: ${view.found.map((f) => `${f.label} at (${f.x.toFixed(1)}, ${f.y.toFixed(1)}), step ${f.step}`).join("; ")}`
     : "";
+  $("map-labels").textContent = listed.length ? `Labels by number: ${listed.join(" · ")}` : "";
+}
+
+// The targets of the map's task (its detections are drawn as such): from the task's view when
+// the page has it, else the map's layers (the remaining targets) and what the task found.
+function mapTargets(view) {
+  const task = state.views.get(view.task_id) || state.tasks.get(view.task_id);
+  return new Set(task ? task.targets : [...view.layers, ...view.found.map((f) => f.label)]);
 }
 
 function circle(ctx, [u, v], r, fill) {
@@ -628,19 +662,100 @@ function circle(ctx, [u, v], r, fill) {
   ctx.stroke();
 }
 
-function label(ctx, text, u, v, font, bold = false) {
+// A detection: a coloured ring on a dark one, visible over every colour of the heat map.
+function ring(ctx, at, r, colour, dpr) {
   ctx.save();
-  ctx.font = `${bold ? "bold " : ""}${font}px system-ui, sans-serif`;
-  const width = ctx.measureText(text).width;  // kept inside the canvas: flipped left at the right edge
-  if (u + width > ctx.canvas.width - 2) u = Math.max(2, Math.min(u - width - 2 * font, ctx.canvas.width - width - 2));
-  v = Math.min(Math.max(v, font), ctx.canvas.height - 4);
-  ctx.lineWidth = 3;
-  ctx.strokeStyle = "rgba(255,255,255,0.9)";
-  ctx.strokeText(text, u, v);
-  ctx.fillStyle = "#111";
-  ctx.fillText(text, u, v);
+  ctx.lineWidth = 4 * dpr;
+  ctx.strokeStyle = "rgba(20,20,20,0.85)";
+  circle(ctx, at, r, false);
+  ctx.lineWidth = 2 * dpr;
+  ctx.strokeStyle = colour;
+  circle(ctx, at, r, false);
   ctx.restore();
 }
+
+// -- labels: each beside its mark where it overlaps no other label nor mark and stays inside the
+// canvas; farther (with a leader line) within a few label heights; else a number there and its
+// text under the map. An earlier task's object with no room keeps no label.
+const LABEL_ANGLES = [0, 180, -90, 90, -35, 35, -145, 145, -65, 65, -115, 115, -15, 15, -165, 165]
+  .map((d) => d * Math.PI / 180);
+const LABEL_REACH = 3;  // label heights
+
+function makePlacer(width, height, avoid) {
+  const taken = avoid.map((r) => r.slice());
+  const free = (x0, y0, w, h) => x0 >= 0 && y0 >= 0 && x0 + w <= width && y0 + h <= height &&
+    !taken.some(([a, b, c, d]) => x0 < c && x0 + w > a && y0 < d && y0 + h > b);
+  return (at, w, h, clear, reach) => {
+    const step = Math.max(h, 6);
+    const far = reach === undefined ? Math.hypot(width, height) : reach;
+    let spot = null;
+    for (let s = 0; s <= far && !spot; s += step) {
+      for (const a of LABEL_ANGLES) {
+        const x0 = Math.round(at[0] + Math.cos(a) * (clear + w / 2 + s) - w / 2);
+        const y0 = Math.round(at[1] + Math.sin(a) * (clear + h / 2 + s) - h / 2);
+        if (free(x0, y0, w, h)) { spot = { rect: [x0, y0, x0 + w, y0 + h], away: s > 0 }; break; }
+      }
+    }
+    if (!spot && reach === undefined) {  // rings are sparse far out: the nearest free spot of a grid
+      let best = Infinity;
+      for (let y0 = 0; y0 + h <= height; y0 += 4) {
+        for (let x0 = 0; x0 + w <= width; x0 += 4) {
+          const gap = Math.hypot(Math.max(x0 - at[0], at[0] - x0 - w, 0), Math.max(y0 - at[1], at[1] - y0 - h, 0));
+          if (gap >= clear && gap < best && free(x0, y0, w, h)) { best = gap; spot = { rect: [x0, y0, x0 + w, y0 + h], away: true }; }
+        }
+      }
+    }
+    if (spot) taken.push(spot.rect);
+    return spot;
+  };
+}
+
+function drawLabels(ctx, items, marks, font) {
+  const place = makePlacer(ctx.canvas.width, ctx.canvas.height, marks);
+  const pad = Math.round(font * 0.25);
+  const h = Math.round(font * 1.35);
+  const width = (item, text) => {
+    ctx.font = `${item.bold ? "bold " : ""}${font}px system-ui, sans-serif`;
+    return Math.ceil(ctx.measureText(text).width) + 2 * pad;
+  };
+  const drawn = [];
+  const unplaced = [];
+  for (const item of items) {
+    const spot = place(item.at, width(item, item.text), h, item.clear, LABEL_REACH * h);
+    if (spot) drawn.push({ ...item, ...spot, shown: item.text });
+    else if (item.numbered !== false) unplaced.push(item);
+  }
+  const listed = unplaced.map((item, i) => {
+    const number = String(i + 1);
+    const spot = place(item.at, width(item, number), h, item.clear);
+    if (spot) drawn.push({ ...item, ...spot, shown: number });
+    return `${spot ? number : "–"} ${item.text}`;
+  });
+  ctx.save();
+  ctx.lineWidth = 1;
+  ctx.strokeStyle = "#111";
+  for (const d of drawn.filter((d) => d.away)) {  // leaders first: no line crosses a label
+    const [x0, y0, x1, y1] = d.rect;
+    ctx.beginPath();
+    ctx.moveTo(...d.at);
+    ctx.lineTo(Math.min(Math.max(d.at[0], x0), x1), Math.min(Math.max(d.at[1], y0), y1));
+    ctx.stroke();
+  }
+  ctx.textBaseline = "middle";
+  for (const d of drawn) {
+    const [x0, y0, x1, y1] = d.rect;
+    ctx.fillStyle = "rgba(255,255,255,0.85)";
+    ctx.fillRect(x0, y0, x1 - x0, y1 - y0);
+    ctx.font = `${d.bold ? "bold " : ""}${font}px system-ui, sans-serif`;
+    ctx.fillStyle = d.colour;
+    ctx.fillText(d.shown, x0 + pad, (y0 + y1) / 2);
+  }
+  ctx.restore();
+  return { placed: drawn.map((d) => ({ text: d.shown, rect: d.rect })), listed };
+}
+
+// The legend's swatches take their colours from COLOURS: what it shows is what the map draws.
+for (const [name, colour] of Object.entries(COLOURS)) document.documentElement.style.setProperty(`--map-${name}`, colour);
 
 window.addEventListener("resize", drawMap);
 
