@@ -22,6 +22,7 @@ robot streaming at 10-30 Hz never sees.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import statistics
 import threading
 import time
@@ -38,7 +39,8 @@ from services.diag.testpattern import pattern_frame
 from shared import keys
 from shared.bus import Bus
 from shared.messages import JsonMessage, RgbdFrame
-from shared.procs import free_port, loopback, start_cli, stop
+from shared.procs import (deferred_signals, free_port, loopback, run_dying_with_parent, signals_unwind,
+                          start_cli, stop, stop_spawned)
 from shared.shm import ShmPool
 from shared.zconfig import build_config, open_session
 
@@ -223,23 +225,30 @@ def print_lost(console: Console, lost: dict[str, int]) -> None:
 def echo_processes(echo: Callable[[Variant, str, Any], None], variants: Sequence[Variant]) -> Iterator[str]:
     """A router on a free loopback port and a spawned ``echo(variant, endpoint, stop_event)``
     process per variant; yields the router's endpoint, and stops the echoes and the router on
-    exit (close the senders first)."""
+    exit (close the senders first), SIGTERM and SIGINT included (:func:`~shared.procs.signals_unwind`;
+    each child also dies with this process if it is killed outright)."""
     endpoint = loopback(free_port())
     ctx = mp.get_context("spawn")
     stop_echo = ctx.Event()
-    router = start_cli(["router", "--listen", endpoint, "--log-level", "WARNING"])
-    echoes = [ctx.Process(target=echo, args=(v, endpoint, stop_echo)) for v in variants]
-    try:
-        for proc in echoes:
-            proc.start()
-        yield endpoint
-    finally:
-        stop_echo.set()
-        for proc in echoes:
-            proc.join(10)
-            if proc.is_alive():
-                proc.kill()
-        stop(router)
+    router: Any = None
+    echoes: list[Any] = []
+    with signals_unwind():
+        try:
+            with deferred_signals():  # a signal now waits until the child's handle is kept
+                router = start_cli(["router", "--listen", endpoint, "--log-level", "WARNING"])
+            for v in variants:
+                with deferred_signals():
+                    echoes.append(ctx.Process(target=run_dying_with_parent,
+                                              args=(os.getpid(), echo, v, endpoint, stop_echo)))
+                    echoes[-1].start()
+            yield endpoint
+        finally:
+            with deferred_signals():
+                stop_echo.set()
+                for proc in echoes:
+                    stop_spawned(proc)
+                if router is not None:
+                    stop(router)
 
 
 def run_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
@@ -248,7 +257,8 @@ def run_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
     with echo_processes(_echo, VARIANTS) as endpoint:
         pingers: dict[str, _Pinger] = {}
         try:
-            pingers = {v.name: _Pinger(v, endpoint, frame) for v in VARIANTS}
+            for v in VARIANTS:  # one by one: those made before a failure are closed too
+                pingers[v.name] = _Pinger(v, endpoint, frame)
             for pinger in pingers.values():
                 pinger.wait_ready(30.0, 0.2, "the echo process never answered")
             medians, lost = measure(pingers, frames, runs, gap_ms / 1e3, progress, lambda s: f"{s * 1e6:.0f} us")

@@ -182,7 +182,8 @@ def run_stages(frames: int = 200, gap_ms: float = 5.0, ready_timeout_s: float = 
     with echo_processes(_echo, _PATHS) as endpoint:
         senders: dict[str, _StageSender] = {}
         try:
-            senders = {v.name: _StageSender(v, endpoint, frame) for v in _PATHS}
+            for v in _PATHS:  # one by one: those made before a failure are closed too
+                senders[v.name] = _StageSender(v, endpoint, frame)
             for sender in senders.values():
                 wait_ready(sender.round_trip, ready_timeout_s, 0.2, "the echo process never answered")
             samples = interleave({name: sender.round_trip for name, sender in senders.items()}, frames,

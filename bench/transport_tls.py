@@ -18,6 +18,7 @@ key, allowed over the secure link), the acknowledgement a small put on ``task/ev
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import statistics
 import tempfile
 import threading
@@ -32,7 +33,8 @@ from bench.transport import AckedSender, measure, print_lost
 from services.diag.testpattern import pattern_frame
 from shared import keys
 from shared.certs import init_ca, issue
-from shared.procs import free_port, start_cli, stop
+from shared.procs import (deferred_signals, free_port, run_dying_with_parent, signals_unwind, start_cli,
+                          stop, stop_spawned)
 from shared.zconfig import build_config, open_session
 
 ROBOT = "bench"
@@ -59,10 +61,24 @@ def _echo(endpoint: str, ready: Any, stop_event: Any) -> None:
 
 
 class _Link(AckedSender):
-    """Two routers linked one way (``variant``), an echo on the laptop's, a pinger on the robot's."""
+    """Two routers linked one way (``variant``), an echo on the laptop's, a pinger on the robot's.
+
+    What it started is stopped by :meth:`close`, or at once when it fails to come up."""
 
     def __init__(self, variant: str, certs: Path, frame: bytes, ctx: Any, stop_event: Any) -> None:
         self.variant = variant
+        self.routers: list[Any] = []
+        self.echo: Any = None
+        self.session: Any = None
+        self._stop_event = stop_event
+        try:
+            self._start(certs, frame, ctx)
+        except BaseException:
+            self.close()
+            raise
+
+    def _start(self, certs: Path, frame: bytes, ctx: Any) -> None:
+        variant, stop_event = self.variant, self._stop_event
         laptop, link, robot = free_port(), free_port(), free_port()
         proto = "tcp" if variant == "tcp" else "tls"
         lap_args = ["router", "--listen", f"tcp/127.0.0.1:{laptop}", "--listen", f"{proto}/127.0.0.1:{link}",
@@ -75,10 +91,14 @@ class _Link(AckedSender):
         if variant == "tls+acl":
             lap_args += ["--config", str(REPO / "deploy" / "zenoh" / "laptop-router-secure.json5")]
             rob_args += ["--config", str(REPO / "deploy" / "zenoh" / "robot-router-secure.json5")]
-        self.routers = [start_cli(lap_args), start_cli(rob_args)]
+        for args in (lap_args, rob_args):
+            with deferred_signals():  # a signal waits until the router's handle is kept
+                self.routers.append(start_cli(args))
         ready = ctx.Event()
-        self.echo = ctx.Process(target=_echo, args=(f"tcp/127.0.0.1:{laptop}", ready, stop_event))
-        self.echo.start()
+        with deferred_signals():
+            self.echo = ctx.Process(target=run_dying_with_parent,
+                                    args=(os.getpid(), _echo, f"tcp/127.0.0.1:{laptop}", ready, stop_event))
+            self.echo.start()
         if not ready.wait(60):
             raise TimeoutError(f"{variant}: the echo process did not start")
         self.acked = threading.Event()
@@ -91,12 +111,16 @@ class _Link(AckedSender):
         self.pub.put(self.frame)
 
     def close(self) -> None:
-        self.session.close()
-        self.echo.join(10)
-        if self.echo.is_alive():
-            self.echo.kill()
-        for router in self.routers:
-            stop(router)
+        """Close the pinger's session, then stop the echo (set ``stop_event`` first) and the routers."""
+        with deferred_signals():
+            if self.session is not None:
+                self.session.close()
+                self.session = None
+            if self.echo is not None:
+                self._stop_event.set()  # one event for every link's echo: they all end
+                stop_spawned(self.echo)
+            for router in self.routers:
+                stop(router)
 
 
 def run_tls_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
@@ -105,7 +129,7 @@ def run_tls_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
     ctx = mp.get_context("spawn")
     stop_echo = ctx.Event()
     links: dict[str, _Link] = {}
-    with tempfile.TemporaryDirectory(prefix="ovamos-bench-tls-") as tmp:
+    with signals_unwind(), tempfile.TemporaryDirectory(prefix="ovamos-bench-tls-") as tmp:
         certs = Path(tmp)
         init_ca(certs)
         issue(certs, "laptop", hosts=["127.0.0.1"])
@@ -117,9 +141,10 @@ def run_tls_benchmark(frames: int = 200, runs: int = 5, gap_ms: float = 5.0,
                 link.wait_ready(60.0, 0.3, f"{link.variant}: no frame crossed the link within 60 s")
             medians, lost = measure(links, frames, runs, gap_ms / 1e3, progress, lambda s: f"{s * 1e3:.2f} ms")
         finally:
-            stop_echo.set()
-            for link in links.values():
-                link.close()
+            with deferred_signals():
+                stop_echo.set()
+                for link in links.values():
+                    link.close()
     us = {v: round(statistics.median(m) * 1e6, 1) for v, m in medians.items()}
     return {
         "frame_bytes": len(frame), "frames_per_run": frames, "runs": runs, "gap_ms": gap_ms,

@@ -18,6 +18,13 @@ header line per start): that is where a person reads why something crashed.
 A log over ``max_log_bytes`` is rotated when its child (re)starts (``.log.1``
 .. ``.log.3``), so a crash loop cannot fill the robot's disk.
 
+No child outlives the supervisor: while it runs, SIGTERM / SIGHUP / SIGINT that
+would end the process without clean-up unwind the main thread instead
+(:func:`shared.procs.signals_unwind`), so ``with Supervisor(...)`` stops every child
+on them as on any exception; :meth:`run_forever` has its own handlers (a clean stop).
+On Linux each child also gets SIGTERM from the kernel if the supervisor dies
+without stopping it (SIGKILL, a crash).
+
 What to run comes from elsewhere: a deployment profile (:mod:`ovamos.profiles`,
 ``ovamos up``) or the demo (:mod:`ovamos.demo`) hand over a list of :class:`Entry`.
 """
@@ -31,6 +38,7 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
@@ -40,7 +48,7 @@ from typing import Self
 from pydantic import BaseModel, ConfigDict, Field
 from rich.table import Table
 
-from shared.procs import start_cli, stop as stop_process
+from shared.procs import deferred_signals, signals_unwind, start_cli, stop as stop_process
 
 log = logging.getLogger("ovamos.supervisor")
 
@@ -191,15 +199,23 @@ class Supervisor:
         self._children = [_Child(e, self.log_dir / f"{e.name}.log") for e in ordered]
         self._lock = threading.RLock()
         self._stopping = threading.Event()
+        self._stopped = threading.Event()   # every child stopped (the monitor thread waits for it)
         self._monitor: threading.Thread | None = None
+        self._signals: ExitStack | None = None
 
     # -- life cycle ---------------------------------------------------------------------------
     def start(self, *, monitor: bool = True) -> None:
         """Start routers and wait for their ports, then schedule the rest; returns once routers are up.
 
         Raises :class:`SupervisorError` (after stopping what it started) when a
-        router exits or does not open its port within ``ready_timeout_s``.
+        router exits or does not open its port within ``ready_timeout_s``. From here
+        to :meth:`stop`, SIGTERM / SIGHUP / SIGINT left at their default unwind the main
+        thread (:func:`~shared.procs.signals_unwind`) so that the caller's ``finally`` /
+        ``__exit__`` stops the children.
         """
+        if self._signals is None:
+            self._signals = ExitStack()
+            self._signals.enter_context(signals_unwind())
         self.log_dir.mkdir(parents=True, exist_ok=True)
         try:
             for child in self._children:
@@ -228,13 +244,21 @@ class Supervisor:
                     self._spawn(child)
 
     def stop(self) -> None:
-        """Stop every child in reverse start order (SIGTERM, SIGKILL after ``stop_timeout_s``)."""
-        self._stopping.set()
-        if self._monitor is not None and self._monitor is not threading.current_thread():
-            self._monitor.join()
-        with self._lock:
-            for child in reversed(self._children):
-                self._terminate(child)
+        """Stop every child in reverse start order (SIGTERM, SIGKILL after ``stop_timeout_s``).
+
+        A signal arriving meanwhile is held back until every child is stopped.
+        """
+        with deferred_signals():
+            self._stopping.set()
+            with self._lock:  # a poll under way finishes first; later ones start nothing
+                for child in reversed(self._children):
+                    self._terminate(child)
+            self._stopped.set()
+            if self._monitor is not None and self._monitor is not threading.current_thread():
+                self._monitor.join()
+            if self._signals is not None:
+                self._signals.close()
+                self._signals = None
 
     def request_stop(self) -> None:
         """Ask :meth:`run_forever` (or a pending :meth:`start`) to end; safe from a signal handler."""
@@ -290,6 +314,9 @@ class Supervisor:
                 self.poll()
             except Exception:  # a bug here must not leave the children unsupervised silently
                 log.exception("supervisor poll failed; retrying")
+        # The children this thread (re)started get SIGTERM from the kernel when it ends (see
+        # shared.procs.start_cli): it ends after stop() stopped them, in order.
+        self._stopped.wait()
 
     def _schedule_services(self) -> None:
         """Non-router entries start from now on, each ``delay_s`` after the one before."""
@@ -301,21 +328,27 @@ class Supervisor:
 
     def _spawn(self, child: _Child) -> None:
         restart = child.first_started_at is not None
-        try:
-            rotate(child.log_path, self.max_log_bytes)
-            with child.log_path.open("ab") as out:
-                out.write(f"=== {time.strftime('%Y-%m-%d %H:%M:%S')} start: ovamos "
-                          f"{' '.join(child.entry.argv)}\n".encode())
-                out.flush()
-                child.proc = start_cli(child.entry.argv, stdout=out, stderr=subprocess.STDOUT)
-        except OSError as exc:
-            child.proc = None
-            self._schedule_restart(child, f"could not start ({exc})", 0.0, time.monotonic())
-            return
-        now = time.monotonic()
-        child.state, child.started_at = State.RUNNING, now
-        child.first_started_at = child.first_started_at or now
-        child.restarts += restart
+        # The thread that starts a child must outlive it for die_with_parent (the kernel's
+        # "parent" is a thread): the main thread does, and the monitor thread (see _monitor_loop).
+        thread = threading.current_thread()
+        lasting = thread is threading.main_thread() or thread is self._monitor
+        with deferred_signals():  # until the child is recorded as running, so stop() stops it
+            try:
+                rotate(child.log_path, self.max_log_bytes)
+                with child.log_path.open("ab") as out:
+                    out.write(f"=== {time.strftime('%Y-%m-%d %H:%M:%S')} start: ovamos "
+                              f"{' '.join(child.entry.argv)}\n".encode())
+                    out.flush()
+                    child.proc = start_cli(child.entry.argv, stdout=out, stderr=subprocess.STDOUT,
+                                           die_with_parent=lasting)
+            except OSError as exc:
+                child.proc = None
+                self._schedule_restart(child, f"could not start ({exc})", 0.0, time.monotonic())
+                return
+            now = time.monotonic()
+            child.state, child.started_at = State.RUNNING, now
+            child.first_started_at = child.first_started_at or now
+            child.restarts += restart
         log.info("%s %s (pid %d): ovamos %s; output -> %s", "restarted" if restart else "started",
                  child.entry.name, child.proc.pid, " ".join(child.entry.argv), child.log_path)
 
