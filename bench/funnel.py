@@ -13,7 +13,6 @@ policies never see this record.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from enum import Enum
 
 import numpy as np
 from pydantic import BaseModel
@@ -21,22 +20,12 @@ from pydantic import BaseModel
 from services.sim.occupancy import distance_to_box
 from services.sim.world import Scene
 from shared.detections import Detection
-from shared.messages import ObjectInstance, RgbdFrame
+from shared.messages import Miss, ObjectInstance, RgbdFrame
 
 #: A confirmed map object this close (horizontal, m) to a true instance's footprint is that
 #: instance: about the object map's merge distance, well under the gap between two pieces of
 #: furniture that a false detection would stand for.
 TRUE_OBJECT_M = 0.5
-
-
-class Miss(str, Enum):
-    """Why a target was not found: the first stage it never reached (a wrong STOP first)."""
-
-    WRONG_STOP = "wrong stop"
-    NEVER_SEEN = "never in view"
-    NOT_DETECTED = "never detected"
-    NOT_CONFIRMED = "never confirmed"
-    NOT_REACHED = "not reached"
 
 
 class StopRecord(BaseModel):

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from bench.episode import EpisodeResult
-from bench.funnel import Miss
+from shared.messages import Miss
 from bench.policies import policy_rank
 
 

@@ -8,7 +8,7 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from bench.funnel import Miss
+from shared.messages import Miss
 from bench.policies import LABELS, PAPER
 
 TABLE_I = ("random", "vlfm", "finder", "ovamos")

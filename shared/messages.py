@@ -443,6 +443,7 @@ class DriverMode(str, Enum):
     MOVING = "moving"      # executing a command
     FAULT = "fault"        # a CAN/motor error; see ``faults``
     ESTOP = "estop"        # latched until an explicit clear
+    OFF = "off"            # shutting down on purpose: its liveliness token goes next
 
 
 Outcome = Literal["done", "blocked", "aborted", "rejected"]
@@ -525,6 +526,35 @@ class FoundObject(BaseModel):
     step: int = Field(ge=0)
 
 
+class Miss(str, Enum):
+    """Why a target was not found: the first stage of its search it never reached. The benchmark
+    (which holds the ground truth) tells every stage apart; the planner, from what its map holds,
+    the last three: it cannot tell an object never in view from one in view and missed, nor a
+    wrong STOP from a right one."""
+
+    WRONG_STOP = "wrong stop"
+    NEVER_SEEN = "never in view"
+    NOT_DETECTED = "never detected"
+    NOT_CONFIRMED = "never confirmed"
+    NOT_REACHED = "not reached"
+
+
+class TargetMiss(BaseModel):
+    """A target a task did not find, and how far its search got (the planner's word on it)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    label: str
+    stage: Miss
+    detections: int = Field(default=0, ge=0, description="detections the map holds of the label")
+
+    def __str__(self) -> str:
+        if self.stage is Miss.NOT_DETECTED:
+            return f"{self.label} never seen"
+        if self.stage is Miss.NOT_CONFIRMED:
+            return f"{self.label} detected {self.detections} time{'s' * (self.detections != 1)}, never confirmed"
+        return f"{self.label} {self.stage.value}"
+
+
 class Goal(BaseModel):
     """Where the planner is taking the robot (world metres): a confirmed object to stop beside, a
     candidate of the value map, or a frontier; shown on the operator's map."""
@@ -551,6 +581,7 @@ class TaskEvent(JsonMessage):
     y: float | None = None
     goal: Goal | None = None  # the goal being driven to; None between goals and once over
     odom_session: OdomSession = ""  # the driver's odometry session: the frame x, y and goal are in
+    misses: tuple[TargetMiss, ...] = ()  # once failed: each target not found and how far it got
 
 
 class TraceOption(BaseModel):

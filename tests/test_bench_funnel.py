@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.funnel import FunnelRecorder, Miss, StopRecord, TargetFunnel
+from bench.funnel import FunnelRecorder, StopRecord, TargetFunnel
+from shared.messages import Miss
 from bench.jobs import Job, run_job
 from shared.detections import Detection
 from shared.messages import Intrinsics, ObjectInstance, RgbdFrame

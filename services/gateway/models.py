@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from services.gateway.config import MAX_STEPS_LIMIT, GatewayConfig
 from services.gateway.store import TaskRecord
-from shared.messages import FINAL, DriverState, FoundObject, Goal, ObjectInstance, TaskStatus
+from shared.messages import FINAL, DriverState, FoundObject, Goal, ObjectInstance, TargetMiss, TaskStatus
 
 MAX_TARGETS = 16
 MAX_TARGET_CHARS = 64
@@ -92,6 +92,9 @@ class TaskView(BaseModel):
     steps: int
     distance_m: float
     message: str = Field(description="the planner's last word (why a task failed, ...)")
+    misses: list[TargetMiss] = Field(
+        default_factory=list, description="once failed: each target not found and the stage its "
+                                          "search reached (never detected, never confirmed, not reached)")
     position: Position | None = Field(description="the robot's last reported position")
     odom_session: str | None = Field(
         default=None, description="the odometry session of the planner's latest report: its "
@@ -232,7 +235,7 @@ def task_view(record: TaskRecord, queue_position: int | None) -> TaskView:
         id=record.id, robot_id=record.robot_id, status=record.status, targets=record.targets,
         remaining=[t for t in record.targets if t not in {f.label for f in record.found}],
         found=record.found, max_steps=record.max_steps, steps=record.steps,
-        distance_m=record.distance_m, message=record.message,
+        distance_m=record.distance_m, message=record.message, misses=record.misses,
         position=None if position is None else Position(x=position[0], y=position[1]),
         odom_session=record.odom_session, queue_position=queue_position, created_at=timestamp(record.created),
         started_at=timestamp(record.started), updated_at=timestamp(record.updated),

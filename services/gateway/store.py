@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from shared.messages import FoundObject, TaskStatus
+from shared.messages import FoundObject, TargetMiss, TaskStatus
 
 MAX_PATH_POINTS = 20_000  # a 500-step search reports ~500; this only bounds a runaway planner
 
@@ -53,6 +53,7 @@ CREATE TABLE IF NOT EXISTS tasks (
     message TEXT NOT NULL DEFAULT '',
     path TEXT NOT NULL DEFAULT '[]',
     odom_session TEXT,
+    misses TEXT NOT NULL DEFAULT '[]',
     created REAL NOT NULL,
     started REAL,
     updated REAL NOT NULL,
@@ -62,7 +63,7 @@ CREATE UNIQUE INDEX IF NOT EXISTS one_search_per_robot ON tasks(robot_id) WHERE 
 CREATE INDEX IF NOT EXISTS by_robot_status ON tasks(robot_id, status, seq);
 """
 #: columns added since the first schema, with their type: added to a file made before them
-_ADDED_COLUMNS = {"odom_session": "TEXT"}
+_ADDED_COLUMNS = {"odom_session": "TEXT", "misses": "TEXT NOT NULL DEFAULT '[]'"}
 
 
 class StoreError(RuntimeError):
@@ -85,6 +86,7 @@ class TaskRecord:
     message: str = ""
     path: list[tuple[float, float]] = field(default_factory=list)
     odom_session: str | None = None  # of the planner's latest report: the frame of path and found
+    misses: list[TargetMiss] = field(default_factory=list)  # once failed: the targets not found, why
     created: float = 0.0
     started: float | None = None
     updated: float = 0.0
@@ -102,6 +104,7 @@ def _record(row: sqlite3.Row) -> TaskRecord:
         found=[FoundObject.model_validate(f) for f in json.loads(row["found"])],
         steps=row["steps"], distance_m=row["distance_m"], message=row["message"],
         path=[tuple(p) for p in json.loads(row["path"])], odom_session=row["odom_session"],
+        misses=[TargetMiss.model_validate(m) for m in json.loads(row["misses"])],
         created=row["created"],
         started=row["started"], updated=row["updated"], finished=row["finished"])
 
@@ -263,7 +266,8 @@ class TaskStore:
                     "updated = ? WHERE id = ?", (status.value, message, now, now, task_id))
 
     def progress(self, task_id: str, *, found: tuple[FoundObject, ...], steps: int, distance_m: float,
-                 message: str, position: tuple[float, float] | None, odom_session: str | None = None) -> None:
+                 message: str, position: tuple[float, float] | None, odom_session: str | None = None,
+                 misses: tuple[TargetMiss, ...] = ()) -> None:
         """Record the planner's latest report; ``position`` extends the task's path, whose points
         (and the found objects') are in the frame of ``odom_session``."""
         with self._write_lock, self._db:
@@ -275,6 +279,7 @@ class TaskStore:
                 path = (path + [list(position)])[-MAX_PATH_POINTS:]
             self._db.execute(
                 "UPDATE tasks SET found = ?, steps = ?, distance_m = ?, message = ?, path = ?, "
-                "odom_session = COALESCE(?, odom_session), updated = ? WHERE id = ?",
+                "odom_session = COALESCE(?, odom_session), misses = ?, updated = ? WHERE id = ?",
                 (json.dumps([f.model_dump() for f in found]), steps, distance_m, message,
-                 json.dumps(path), odom_session, time.time(), task_id))
+                 json.dumps(path), odom_session, json.dumps([m.model_dump(mode="json") for m in misses]),
+                 time.time(), task_id))

@@ -202,7 +202,8 @@ class TaskManager:
             return
         position = (event.x, event.y) if event.x is not None and event.y is not None else None
         self.store.progress(record.id, found=event.found, steps=event.steps, distance_m=event.distance_m,
-                            message=event.message, position=position, odom_session=event.odom_session)
+                            message=event.message, position=position, odom_session=event.odom_session,
+                            misses=event.misses)
         self._count("events_applied")
         self._live[robot_id] = (record.id, event.goal)
         if event.status in FINAL:

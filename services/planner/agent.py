@@ -26,17 +26,19 @@ import math
 from dataclasses import dataclass
 from enum import Enum
 
+import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from services.planner.decide import (Decision, DecisionConfig, GoalKind, Policy, away, decide,
                                      targets_to_search)
 from services.planner.navigator import NavigationConfig, NavMap, Navigator, Unreachable
+from services.planner.outcome import explain, target_misses
 from services.planner.plus import goal_budget, strict_objects
 from services.planner.task import SearchTask
-from shared.messages import MapSnapshot, ObjectInstance, TaskStatus
+from shared.messages import MapSnapshot, ObjectInstance, TargetMiss, TaskStatus
 from shared.motion import Action, Pose
-from shared.robot import PRIMITIVES, Primitives
+from shared.robot import PRIMITIVES, ROBOT, Primitives
 
 log = logging.getLogger("ovamos.planner")
 
@@ -70,6 +72,11 @@ class AgentConfig(BaseModel):
     memory_steps: int = Field(
         default=100, ge=1,
         description="bumps and goals found unreachable are forgotten after this many commands")
+    boxed_in_share: float = Field(
+        default=0.5, gt=0, le=1,
+        description="with no goal it can reach, the robot is boxed in when it can reach less than "
+                    "this share of the explored area it could stand on; it then recovers: forgets "
+                    "bumps and unreachable goals, takes the cells it drove over as free, looks around")
 
     @property
     def primitives(self) -> Primitives:
@@ -86,6 +93,18 @@ class Reason(str, Enum):
     CHECK = "check"            # beside a confirmed object: face it and look again (ovamos-plus)
     FOUND = "found"            # STOP beside a confirmed object
     OVER = "over"              # the task is no longer searching
+
+
+@dataclass(frozen=True)
+class BoxedIn:
+    """Where and since when the robot has been cut off from the space it explored."""
+
+    step: int
+    x: float
+    y: float
+
+    def __str__(self) -> str:
+        return f"boxed in near ({self.x:.1f}, {self.y:.1f})"
 
 
 @dataclass(frozen=True)
@@ -142,6 +161,11 @@ class SearchAgent:
         self._random_walk = self.config.decision.policy is Policy.RANDOM
         self._recent: list[tuple[float, float]] = []
         self.bumps = ExpiringPlaces(self.config.memory_steps)
+        self.trail: list[tuple[float, float]] = []  # where the robot stood, step by step
+        self.boxed: BoxedIn | None = None           # cut off, and not moved towards a goal since
+        self._trail_free = False                    # after a recovery: the cells driven over are free
+        self._goalless_since: int | None = None     # the step since which no goal could be driven to
+        self._objects: tuple[ObjectInstance, ...] = ()  # the newest map's, for the failure's reason
         if task.state is TaskStatus.QUEUED:
             task.start()
 
@@ -149,6 +173,7 @@ class SearchAgent:
     def next_step(self, snapshot: MapSnapshot, pose: Pose) -> Step:
         if self.task.state is not TaskStatus.SEARCHING:
             return Step(None, Reason.OVER)
+        self._objects = snapshot.objects
         if self._scan_left > 0:
             return Step(Action.TURN_LEFT, Reason.SCAN)
         remaining = targets_to_search(self.task.remaining, self.config.decision.policy)
@@ -160,7 +185,7 @@ class SearchAgent:
             self._decide(snapshot, pose, remaining)
         for _ in range(2):  # the goal, then (if it was reached or unreachable) one fresh decision
             if self.goal is None:
-                return self._wander() if self._random_walk else self._idle_turn()
+                return self._wander() if self._random_walk else self._idle_turn(snapshot, pose)
             goal = self.goal
             if goal.kind is GoalKind.OBJECT and math.hypot(goal.x - pose.x, goal.y - pose.y) \
                     <= self.config.object_stop_m:
@@ -191,7 +216,7 @@ class SearchAgent:
                 self._decide(snapshot, pose, remaining)
                 continue
             if action is not Action.STOP:
-                self._idle = 0
+                self._idle, self._goalless_since, self.boxed = 0, None, None
                 return Step(action, Reason.NAVIGATE, goal)
             if goal.kind is GoalKind.OBJECT:  # as close as the map allows, still too far
                 log.info("step %d: %s at (%.2f, %.2f): the closest reachable place is %.2f m away",
@@ -201,6 +226,8 @@ class SearchAgent:
             elif goal.kind is GoalKind.CANDIDATE:
                 self.visited.append((goal.x, goal.y))
             self._decide(snapshot, pose, remaining, reached=goal)
+        if self._boxed_in(snapshot, pose):
+            return self._recover(pose)
         return Step(Action.TURN_LEFT, Reason.LOOK, self.goal)
 
     def executed(self, step: Step, moved_m: float, blocked: bool = False, pose: Pose | None = None
@@ -209,6 +236,8 @@ class SearchAgent:
         step spent, a STOP declares its target, a bump marks an obstacle."""
         if step.action is None or self.task.state is not TaskStatus.SEARCHING:
             return
+        if pose is not None:
+            self.trail.append((pose.x, pose.y))
         found = None
         if step.reason is Reason.FOUND and step.goal is not None and step.goal.label is not None:
             found = (step.goal.label, step.goal.x, step.goal.y)
@@ -226,6 +255,32 @@ class SearchAgent:
         if self._blocked >= self.config.max_blocked or self._stuck(step, pose):
             self._give_up_goal()
         self.task.record_step(moved_m, found)
+        if self.task.state is TaskStatus.FAILED:
+            self.task.explain(self.why_not_found())
+
+    # -- what the operator is told -------------------------------------------------------------
+    @property
+    def condition(self) -> str:
+        """The search's state when it is not plain searching (an operator wants to know)."""
+        if self.boxed is not None:
+            return (f"{self.boxed} since step {self.boxed.step}: recovering (bumps and unreachable goals "
+                    f"forgotten, the cells it drove over taken as free, looking around)")
+        if self._goalless_since is not None:
+            return f"no reachable frontier or candidate since step {self._goalless_since}: looking around"
+        return ""
+
+    def misses(self) -> tuple[TargetMiss, ...]:
+        """The targets not found yet and how far the newest map shows their search got."""
+        return target_misses(self.task.remaining, self._objects)
+
+    def why_not_found(self) -> str:
+        """``no reachable frontier or candidate since step 212 (boxed in near (11.5, 6.2)); bed
+        never seen``: what kept the robot from its goals, then each target's stage."""
+        parts = [explain(self.misses())]
+        if self._goalless_since is not None:
+            boxed = f" ({self.boxed})" if self.boxed is not None else ""
+            parts.insert(0, f"no reachable frontier or candidate since step {self._goalless_since}{boxed}")
+        return "; ".join(p for p in parts if p)
 
     # -- helpers -------------------------------------------------------------------------------
     def _decide(self, snapshot: MapSnapshot, pose: Pose, remaining: list[str],
@@ -267,16 +322,50 @@ class SearchAgent:
         return bool(np.ptp(xy, axis=0).max() < 0.1)
 
     def _nav_map(self, snapshot: MapSnapshot) -> NavMap:
-        """The snapshot's obstacles plus the bumps (copied only when there are bumps)."""
+        """The snapshot's obstacles, after a recovery less the cells the robot drove over, plus
+        the bumps (the freshest evidence, so they win; copied only when there is a change)."""
         nav = NavMap.from_snapshot(snapshot)
         bumps = self.bumps.points(self.task.steps)
-        if not bumps:
+        if not bumps and not (self._trail_free and self.trail):
             return nav
         obstacle = nav.obstacle.copy()
-        rows, cols = nav.grid.to_cell(*np.array(bumps).T)
-        inside = (rows >= 0) & (rows < nav.grid.rows) & (cols >= 0) & (cols < nav.grid.cols)
-        obstacle[rows[inside], cols[inside]] = True
+        if self._trail_free and self.trail:
+            obstacle &= ~self._swept(nav)
+        rows, cols = _cells_inside(nav, bumps)
+        obstacle[rows, cols] = True
         return NavMap(obstacle, nav.explored, nav.grid)
+
+    def _swept(self, nav: NavMap) -> np.ndarray:
+        """The cells the robot's footprint swept along its trail, plus a cell (mapped obstacles
+        are up to a cell thicker than real ones): it drove there, so nothing stood there then (an
+        obstacle since is bumped into again)."""
+        mask = np.zeros(nav.obstacle.shape, np.uint8)
+        g = nav.grid
+        pts = np.round((np.array(self.trail) - (g.x0, g.y0)) / g.resolution - 0.5).astype(np.int32)
+        r = math.ceil(ROBOT.radius_m / g.resolution) + 1
+        cv2.polylines(mask, [pts.reshape(-1, 1, 2)], False, 1, thickness=2 * r + 1)
+        return mask.astype(bool)
+
+    def _boxed_in(self, snapshot: MapSnapshot, pose: Pose) -> bool:
+        """No goal to drive to and cut off from most of what was explored, not yet recovering."""
+        return self.goal is None and self.boxed is None and self.navigator.reachable_share(
+            self._nav_map(snapshot), pose) < self.config.boxed_in_share
+
+    def _recover(self, pose: Pose) -> Step:
+        """Boxed in: forget every bump and unreachable goal (evidence of a map that has changed),
+        take the cells it drove over as free (the way in is the way out), look around again."""
+        self.boxed = BoxedIn(self.task.steps, pose.x, pose.y)
+        if self._goalless_since is None:
+            self._goalless_since = self.task.steps
+        log.warning("step %d: %s (it reaches under %.0f %% of the explored area): recovering",
+                    self.task.steps, self.boxed, 100 * self.config.boxed_in_share)
+        for memory in (self.bumps, self.unreachable):
+            memory.clear()
+        self.visited.clear()
+        self.rejected.clear()
+        self._trail_free, self._idle = True, 0
+        self._scan_left = self.config.initial_turns
+        return Step(Action.TURN_LEFT, Reason.SCAN)
 
     def _object_seen(self, snapshot: MapSnapshot, remaining: list[str]) -> bool:
         """A confirmed object of a remaining target that is not known to be unreachable."""
@@ -352,16 +441,31 @@ class SearchAgent:
         actions = (Action.MOVE_FORWARD, Action.MOVE_FORWARD, Action.TURN_LEFT, Action.TURN_RIGHT)
         return Step(actions[int(rng.integers(len(actions)))], Reason.WANDER)
 
-    def _idle_turn(self) -> Step:
-        """Turn in place with nowhere to go; after a full turn, give the goals once found
-        unreachable, visited or rejected another chance (the map has changed since), then fail."""
+    def _idle_turn(self, snapshot: MapSnapshot, pose: Pose) -> Step:
+        """Turn in place with nowhere to go: boxed in, recover; else, after a full turn, give the
+        goals once found unreachable, visited or rejected another chance (the map has changed
+        since), then fail."""
+        if self._goalless_since is None:
+            self._goalless_since = self.task.steps
+        if self._boxed_in(snapshot, pose):
+            return self._recover(pose)
         self._idle += 1
         if self._idle > self.config.max_idle_turns:
             if not self._avoided() and not self.visited:
-                self.task.fail("nothing left to explore and no target seen")
+                self.task.fail("nothing left to explore")
+                self.task.explain(explain(self.misses()))
                 return Step(None, Reason.OVER)
             self.unreachable.clear()
             self.visited.clear()
             self.rejected.clear()
             self._idle = 0
         return Step(Action.TURN_LEFT, Reason.IDLE)
+
+
+def _cells_inside(nav: NavMap, points: list[tuple[float, float]]) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of the grid cells of world ``points`` that lie on the grid."""
+    if not points:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    rows, cols = nav.grid.to_cell(*np.array(points).T)
+    inside = (rows >= 0) & (rows < nav.grid.rows) & (cols >= 0) & (cols < nav.grid.cols)
+    return rows[inside], cols[inside]

@@ -68,6 +68,10 @@ log = logging.getLogger("ovamos.planner")
 
 OLD_MAP = "map from an earlier odometry session: waiting for a new map"
 """Why the planner waits while its map is of another odometry session than the driver's."""
+ROBOT_UNREACHABLE = "robot unreachable"
+"""Why it waits once every driver's token is gone without a word (the link, or the driver died)."""
+DRIVER_OFF = "the robot's driver shut down"
+"""Why it waits once the driver said it was going off (``DriverMode.OFF``) and its token went."""
 
 
 class ExecutiveConfig(BaseModel):
@@ -100,6 +104,7 @@ class Executive:
         self.in_flight: _InFlight | None = None
         self.waiting = ""           # why no command is going out, for status and events
         self.robot_reachable = True  # False once every driver's liveliness token is gone
+        self.unreachable_why = ROBOT_UNREACHABLE  # a link lost, or a driver that said it shut down
         self._next_id = 1
         self._odom_session: str | None = None  # the driver's, kept while it is unreachable
         self._decided_on = -2       # snapshot seq of the last decision (free-running mode)
@@ -157,6 +162,8 @@ class Executive:
     def on_robot_link(self, reachable: bool) -> None:
         """Whether a service driving the robot is alive (its liveliness token is seen)."""
         if reachable != self.robot_reachable and not reachable:
+            off = self.driver is not None and self.driver.mode is DriverMode.OFF
+            self.unreachable_why = DRIVER_OFF if off else ROBOT_UNREACHABLE
             self.driver = None  # whatever it said before the loss may be stale when it returns
         self.robot_reachable = reachable
 
@@ -202,11 +209,13 @@ class Executive:
     def event(self) -> TaskEvent:
         task = self.task
         assert task is not None
-        pose = self._pose()
+        pose, agent = self._pose(), self.agent
+        searching = task.state is TaskStatus.SEARCHING and agent is not None
         return TaskEvent(task_id=task.task_id, status=task.state, targets=tuple(task.targets),
                          found=tuple(task.found.values()), steps=task.steps,
                          distance_m=task.distance, stamp=self._wall_clock(),
-                         message=task.reason or self.waiting,
+                         message=task.reason or self.waiting or (agent.condition if searching else ""),
+                         misses=agent.misses() if task.state is TaskStatus.FAILED and agent is not None else (),
                          x=None if pose is None else pose.x, y=None if pose is None else pose.y,
                          goal=self._goal(), odom_session="" if self.odom is None else self.odom.odom_session)
 
@@ -221,10 +230,12 @@ class Executive:
     # -- the loop ------------------------------------------------------------------------------
     def _drive(self, now: float) -> list[JsonMessage]:
         if not self.robot_reachable:
-            return self._wait("robot unreachable")
+            return self._wait(self.unreachable_why)
         d = self.driver
         if d is None:
             return self._wait("no driver state yet")
+        if d.mode is DriverMode.OFF:
+            return self._wait(DRIVER_OFF)
         if d.mode in (DriverMode.FAULT, DriverMode.ESTOP):
             reason = "e-stop latched" if d.mode is DriverMode.ESTOP else f"driver fault: {', '.join(d.faults)}"
             return self._wait(reason)

@@ -368,6 +368,22 @@ class Navigator:
         self._watch_progress(plan.cost(cell))
         return self._follow_path(x, y, yaw, chain, trav, m.grid)
 
+    def reachable_share(self, nav_map: NavMap | MapSnapshot, pose: Pose) -> float:
+        """The share of the explored cells the robot could stand on that it can reach from where
+        it is (1.0 when nothing is explored). Well under 1, the robot is boxed in: it drove
+        through the space it is now cut off from, so what cuts it off is newer than that."""
+        m = NavMap.of(nav_map)
+        cell = m.grid.to_cell(pose.x, pose.y)
+        if not m.grid.contains(*cell):
+            return 0.0
+        trav = self._traversable(m, cell)
+        standing = trav & m.explored
+        total = int(standing.sum())
+        if total == 0:
+            return 1.0
+        labels = cv2.connectedComponents(trav.astype(np.uint8), connectivity=4)[1]
+        return float((standing & (labels == labels[cell])).sum()) / total
+
     # -- map and plan ----------------------------------------------------------------------------
 
     def _traversable(self, m: NavMap, cell: tuple[int, int]) -> np.ndarray:

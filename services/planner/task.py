@@ -72,6 +72,12 @@ class SearchTask:
         self.state = TaskStatus.FAILED
         self.reason = reason
 
+    def explain(self, why: str) -> None:
+        """Add why the task failed to its reason (``step limit 500 reached: bed never seen``)."""
+        self._require(TaskStatus.FAILED)
+        if why:
+            self.reason = f"{self.reason}: {why}"
+
     def add_targets(self, labels: list[str]) -> None:
         self._require(TaskStatus.QUEUED, TaskStatus.SEARCHING)
         self.targets += [t for t in dict.fromkeys(labels) if t not in self.targets]
