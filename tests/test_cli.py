@@ -98,6 +98,8 @@ def test_demo_finds_every_target_through_the_http_api_and_cleans_up(tmp_path: Pa
     assert png.startswith(b"\x89PNG")
     assert all(n == 0 for n in report["restarts"].values())
     assert not (tmp_path / "endpoints.json").exists()  # it named the deployment while it was up
+    planner_log = (tmp_path / "logs" / "planner.log").read_text()  # a normal end is no lost link
+    assert "robot unreachable" not in planner_log and "driver shut down" in planner_log
     # lock-step with the kinematic robot: the distributed run is the in-process episode, step by step
     from bench.episode import EpisodeConfig, run_episode
     from services.sim.episodes import make_episode

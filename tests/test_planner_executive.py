@@ -320,6 +320,24 @@ def test_the_robot_unreachable_pauses_the_task_with_the_reason_and_it_resumes_by
     assert [c.action_id for c in commands(out)] == [2] and ex.task.steps == 1 and ex.waiting == ""
 
 
+def test_a_driver_that_says_it_shuts_down_is_not_reported_unreachable(ex: Executive) -> None:
+    """A normal shutdown of the stack stops the driver before the planner: it says so first
+    (``DriverMode.OFF``), so the token's loss that follows is not a lost link."""
+    ex.on_driver(driver())
+    ex.on_snapshot(snapshot(0))
+    ex.on_odom(odom())
+    assert commands(ex.poll(0.0))
+    ex.on_driver(driver(mode=DriverMode.OFF, active=1))
+    assert commands(ex.poll(0.5)) == [] and ex.waiting == "the robot's driver shut down"
+    ex.on_robot_link(False)
+    out = ex.poll(1.0)
+    assert commands(out) == [] and ex.unreachable_why == ex.waiting == "the robot's driver shut down"
+    ex.on_robot_link(True)
+    ex.on_driver(driver(active=1))
+    ex.on_robot_link(False)                                   # no word this time: the link
+    assert commands(ex.poll(2.0)) == [] and ex.waiting == "robot unreachable"
+
+
 def test_a_driver_restart_is_a_new_odometry_session_and_no_plan_is_made_on_the_old_map(
         ex: Executive) -> None:
     ex.on_driver(driver(session="A"))

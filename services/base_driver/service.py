@@ -33,7 +33,7 @@ from services.base_driver.odrive_can import ODriveCanHardware
 from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
 from shared import keys
 from shared.bus import BusCore
-from shared.messages import DriverState, EStop, Odometry, PlanCommand
+from shared.messages import DriverMode, DriverState, EStop, Odometry, PlanCommand
 from shared.config import ServiceConfig
 from shared.service import Service
 
@@ -170,8 +170,15 @@ class BaseDriverService(Service):
         return info
 
     def stop(self) -> None:
+        """Say the driver goes off on purpose, then release the base: the planner then takes the
+        token's loss that follows for a shutdown, not for a lost link."""
         if hasattr(self, "base"):
-            self.base.stop()
+            self.out["driver_state"].put(self.base.state().model_copy(update={"mode": DriverMode.OFF}))
+            self.release()
+
+    def release(self) -> None:
+        """Release what moves the robot."""
+        self.base.stop()
 
 
 def _content(state: DriverState) -> dict[str, Any]:

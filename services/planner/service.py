@@ -20,7 +20,7 @@ from typing import Any
 
 from pydantic import Field
 
-from services.planner.executive import Executive, ExecutiveConfig
+from services.planner.executive import DRIVER_OFF, Executive, ExecutiveConfig
 from shared import keys
 from shared.bus import BusCore
 from shared.config import ServiceConfig
@@ -67,12 +67,14 @@ class PlannerService(Service):
         was = bool(self._drivers)
         (self._drivers.add if alive else self._drivers.discard)(key)
         if bool(self._drivers) != was:
+            self.executive.on_robot_link(bool(self._drivers))
             if self._drivers:
                 self.log.info("robot reachable (%s alive)", ", ".join(sorted(self._drivers)))
+            elif self.executive.unreachable_why == DRIVER_OFF:
+                self.log.info("the robot's driver shut down (%s gone after saying so); waiting for it", key)
             else:
                 self.log.warning("robot unreachable: %s gone (the link to the robot is down, or its "
-                                 "driver stopped); waiting for it", key)
-            self.executive.on_robot_link(bool(self._drivers))
+                                 "driver died); waiting for it", key)
 
     def tick(self) -> None:
         wanted = self.executive.map_wanted()

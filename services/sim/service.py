@@ -164,7 +164,7 @@ class SimRobotService(BaseDriverService):
         info.update(motion=self.config.motion, frame_seq=None if self._frame is None else self._frame.seq)
         return info
 
-    def stop(self) -> None:
+    def release(self) -> None:
         if self._wheels is not None:
             self._wheels.stop()
         if hasattr(self, "renderer"):
