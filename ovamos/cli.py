@@ -696,6 +696,21 @@ def bench_fleet(robots: Annotated[str, typer.Option(help="Robot counts, comma-se
     _report(result, as_json, print_table)
 
 
+@bench_app.command("soak")
+def bench_soak(tasks: Annotated[int, typer.Option(help="Tasks in sequence on one stack (see bench/soak.py).")] = 20,
+               fresh: Annotated[bool, typer.Option("--fresh/--no-fresh", help="Also run each task that can "
+                                                   "succeed from a fresh start (in process) for its steps.")] = True,
+               as_json: AsJson = False) -> None:
+    """One demo stack left up for task after task: per task result, steps, seconds, why it failed,
+    and each service's RSS."""
+    from bench.soak import print_table, run_benchmark
+    try:
+        result = run_benchmark(tasks, fresh=fresh, progress=None if as_json else err)
+    except ValueError as exc:
+        raise _fail(str(exc)) from None
+    _report(result, as_json, print_table)
+
+
 @bench_app.command("homes")
 def bench_homes(count: Annotated[int, typer.Option(help="Homes to generate (seeds 0..count-1).")] = 200,
                 homes: Annotated[str, typer.Option(help="Home tier: default or large.")] = "default",
