@@ -167,12 +167,13 @@ def run_benchmark(count: int, *, fresh: bool = True, progress: Console | None = 
 
 
 def print_table(console: Console, result: dict[str, Any]) -> None:
-    table = Table("task", "targets", "result", "steps", "fresh", "s", "why", *SERVICES,
+    table = Table("task", "targets", "result", "steps", "fresh", "s", "ms/step", "why", *SERVICES,
                   title=f"soak, episode {result['episode']}: RSS (MB) after each task")
     for row in result["tasks"]:
         fresh = "-" if row.get("fresh_steps") is None else str(row["fresh_steps"])
         table.add_row(str(row["task"]), "+".join(row["targets"]), row["status"], str(row["steps"]), fresh,
-                      f"{row['seconds']:.0f}", row["message"] if row["status"] != "done" else "",
+                      f"{row['seconds']:.0f}", f"{1000 * row['seconds'] / max(row['steps'], 1):.0f}",
+                      row["message"] if row["status"] != "done" else "",
                       *(f"{row['rss_mb'].get(s, float('nan')):.0f}" for s in SERVICES))
     console.print(table)
     growth = ", ".join(f"{name} x{g:.2f}" for name, g in result["rss_growth"].items())
