@@ -35,7 +35,7 @@ from rich.table import Table
 from bench.sim import camera_poses
 from ovamos.demo import FLEET_EPISODES, FLEET_ID, fleet_entries, fleet_robots, wait_for_services, \
     write_fleet_configs
-from ovamos.supervisor import Supervisor, port_open
+from ovamos.supervisor import Supervisor
 from services.gateway.client import GatewayClient
 from services.perception.backend import Job, PerceptionBackend
 from services.perception.sim_backend import SimBackend
@@ -177,8 +177,6 @@ def bench_system(n: int, warmup_s: float, window_s: float, progress: Console | N
                 GatewayClient(f"http://127.0.0.1:{http_port}") as client, \
                 Bus.open(build_config(connect=[loopback(zenoh_port)]), FLEET_ID, "bench-fleet") as bus:
             deadline = time.monotonic() + 120
-            while not port_open("127.0.0.1", http_port) and time.monotonic() < deadline:
-                time.sleep(0.2)
             wait_for_services(client, list(homes), deadline)
             bus.subscribe_keyed(keys.rgbd(keys.ANY), RgbdFrame,
                                 lambda key, f: clock.on_frame(keys.robot_of(key), f), keep=1)

@@ -25,7 +25,7 @@ from rich.table import Table
 
 from bench.episode import EpisodeConfig, run_episode
 from ovamos.demo import DEMO_EPISODE, DEMO_SEED, SERVICES, demo_entries, wait_for_services, write_configs
-from ovamos.supervisor import Supervisor, port_open
+from ovamos.supervisor import Supervisor
 from services.gateway.client import GatewayClient
 from services.gateway.models import TaskView
 from services.sim.episodes import make_episode
@@ -126,8 +126,6 @@ def run_soak(tasks: list[SoakTask], *, seed: int = DEMO_SEED, episode: int = DEM
         with Supervisor(entries, log_dir=folder / "logs") as supervisor, \
                 GatewayClient(f"http://127.0.0.1:{http_port}") as client:
             deadline = time.monotonic() + STARTUP_TIMEOUT_S
-            while not port_open("127.0.0.1", http_port) and time.monotonic() < deadline:
-                time.sleep(0.2)
             wait_for_services(client, [ROBOT], deadline)
             for i, task in enumerate(tasks):
                 started = time.monotonic()

@@ -37,7 +37,7 @@ from services.sim.prior import ObjectPrior
 from services.perception.config import PerceptionServiceConfig
 from services.sim.service import Motion
 from ovamos import fleet
-from ovamos.supervisor import Entry, Supervisor, port_open
+from ovamos.supervisor import Entry, Supervisor
 from shared.procs import free_port, loopback
 
 DEMO_SEED, DEMO_EPISODE = 0, 4
@@ -210,7 +210,8 @@ def _progress(views: dict[str, TaskView | None], elapsed: float) -> Table:
 
 def wait_for_services(client: GatewayClient, robots: list[str], deadline: float) -> None:
     """Until every service of each robot shows its liveliness token (the gateway asks Zenoh; its
-    answering is the gateway's own sign of life, and a fleet's runs under the fleet's id)."""
+    answering is the gateway's own sign of life, so a gateway not listening yet is waited for
+    too, and a fleet's runs under the fleet's id)."""
     wanted = set(SERVICES) - {"gateway"}
     while time.monotonic() < deadline:
         try:
@@ -252,8 +253,6 @@ def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode:
     started = time.monotonic()
     with Supervisor(entries, log_dir=out_dir / "logs") as supervisor, GatewayClient(url) as client:
         deadline = started + STARTUP_TIMEOUT_S
-        while not port_open("127.0.0.1", http_port) and time.monotonic() < deadline:
-            time.sleep(0.2)
         wait_for_services(client, fleet_ids, deadline)
         with publish(router, url) if publish is not None else nullcontext() as endpoints_file:
             views = _search(console, client, tasks, started,
