@@ -79,8 +79,8 @@ def _camera_stats(bus: Bus) -> ServiceStats | None:
 
 
 def _max_config(path: Path) -> CameraConfig:
-    # Frames played before the camera's first odometry wait for it (the default 0.1 s would skip
-    # them, unposed, if the service's subscription were slow to match).
+    # A frame captured just before an odometry message arrives waits for it (the default 0.1 s
+    # would skip it on a loaded machine).
     return CameraConfig(backend="file", file=FileConfig(path=path, rate="max"), lock_step=False,
                         odometry=OdometryConfig(wait_s=5.0))
 
@@ -165,14 +165,40 @@ def test_max_rate_playback_delivers_every_frame_in_order(inproc_router: str, max
         np.testing.assert_allclose(frame.pose_matrix, expected, atol=1e-6)
 
 
+def test_a_max_playback_waits_for_odometry_before_it_reads(inproc_router: str,
+                                                          max_recording: Path) -> None:
+    """No odometry yet: the reader reads nothing (a frame captured before the first odometry
+    could only be skipped), and stopping the service then ends it at once."""
+    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-robot") as bus:
+        running = Running(CameraService, inproc_router, _max_config(max_recording))
+        try:
+            stats = wait_for(lambda: _camera_stats(bus), 30, "the camera's stats")
+            assert stats.info["paced_posing"] is False and stats.info["received"] == 0
+        finally:
+            started = time.monotonic()
+            running.close()  # asserts the service's thread ended
+    assert time.monotonic() - started < 5.0
+
+
 def test_a_max_playback_waiting_for_the_service_stops_cleanly(inproc_router: str,
                                                               max_recording: Path) -> None:
-    """No odometry: the core holds its odometry.max_pending frames waiting for it, the reader waits
-    for room, and stopping the service then ends it at once."""
+    """Odometry that stops after one message: the core holds its odometry.max_pending frames
+    waiting for newer odometry, the reader waits for room, and stopping the service then ends it
+    at once."""
     config = _max_config(max_recording)
     with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-robot") as bus:
+        odom = bus.publisher(keys.odom(ROBOT), Odometry)
         running = Running(CameraService, inproc_router, config)
         try:
+            one = Odometry(seq=1, stamp=time.time(), x=POSE[0], y=POSE[1], yaw=POSE[2])
+
+            def heard() -> bool:  # one message, sent until the camera has it (repeats are dropped)
+                stats = _camera_stats(bus)
+                if stats is None or not stats.info.get("paced_posing"):
+                    odom.put(one)
+                    return False
+                return True
+            wait_for(heard, 30, "the camera to hear odometry")
             wait_for(lambda: (stats := _camera_stats(bus)) is not None
                      and stats.info.get("paced_in_flight") == config.odometry.max_pending,
                      30, "the reader waiting for room")

@@ -9,7 +9,9 @@ while the service is busy (counted as dropped): a late frame is worth less than
 the next one. A backend that promises every frame (``lossless``: a recording
 played at ``rate = "max"``, whose playback waits for its reader) is paced
 instead: the reader waits, before reading the next frame, until the service has
-room for it, so nothing is dropped and memory stays bounded. Room is counted
+room for it, so nothing is dropped and memory stays bounded. It starts reading
+only once odometry has come (a frame captured before the first odometry the
+service hears could only be skipped as older than it). Room is counted
 over the captures queued for the service's thread and the frames the core holds
 waiting for odometry together, up to the core's own ``odometry.max_pending``
 (more, and the core would skip its oldest). Stopping wakes a waiting reader.
@@ -58,14 +60,16 @@ def make_backend(config: CameraConfig) -> CameraBackend:
 
 class _Pacer:
     """A lossless backend's hand-over: the reader takes a place before it reads a frame and
-    waits while ``capacity`` frames are in flight (queued for the service's thread, or held by
-    the core for odometry); the service's thread gives places back as the core decides frames.
+    waits until odometry has come, then while ``capacity`` frames are in flight (queued for the
+    service's thread, or held by the core for odometry); the service's thread gives places back
+    as the core decides frames.
     """
 
     def __init__(self, capacity: int, stopping: threading.Event) -> None:
         self._room = threading.Condition()
         self._capacity = capacity
         self._stopping = stopping
+        self.posing = False  # odometry has come: frames read from now on can be posed
         self._queued = 0  # places taken by the reader and not yet handed to the core
         self._held = 0    # frames the core holds (as the service's thread last saw)
         self.waits = 0    # times the reader waited for room (``ovamos status``)
@@ -74,7 +78,8 @@ class _Pacer:
         """Reader: wait for a place for the next frame; False once the service stops."""
         with self._room:
             waited = False
-            while self._queued + self._held >= self._capacity and not self._stopping.is_set():
+            while ((not self.posing or self._queued + self._held >= self._capacity)
+                   and not self._stopping.is_set()):
                 waited = True
                 self._room.wait(READ_TIMEOUT_S)  # stop() notifies; the timeout is a safety net
             self.waits += waited
@@ -94,6 +99,13 @@ class _Pacer:
             if held is not None:
                 self._held = held
             if self._queued + self._held < self._capacity:
+                self._room.notify()
+
+    def start_posing(self) -> None:
+        """Service's thread: odometry has come, the reader may read."""
+        with self._room:
+            if not self.posing:
+                self.posing = True
                 self._room.notify()
 
     def wake(self) -> None:
@@ -131,6 +143,8 @@ class CameraService(Service):
     # -- the service's thread --------------------------------------------------------------------
     def _on_odom(self, msg: Odometry) -> None:
         self.core.on_odom(msg)
+        if self._pacer is not None:
+            self._pacer.start_posing()
         self._flush()
 
     def _on_driver(self, msg: DriverState) -> None:
@@ -222,7 +236,8 @@ class CameraService(Service):
 
     def info(self) -> dict[str, Any]:
         pacing = {} if self._pacer is None else {"paced_in_flight": self._pacer.in_flight(),
-                                                  "paced_waits": self._pacer.waits}
+                                                  "paced_waits": self._pacer.waits,
+                                                  "paced_posing": self._pacer.posing}
         return {"backend": self.backend.name, "fault": self.core.fault(time.monotonic()),
                 "restarts": self.restarts, **pacing, **self.core.info()}
 
