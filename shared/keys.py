@@ -73,8 +73,15 @@ def driver_state(robot_id: str) -> str:
 
 
 def estop(robot_id: str) -> str:
-    """Emergency stop requests (engage or clear), from any service or the gateway."""
+    """Emergency stop requests that engage it, from any service, the gateway or a person's
+    handheld tool (the secure routers let an ``operator`` certificate put here and nothing else)."""
     return f"{_robot(robot_id)}/driver/estop"
+
+
+def estop_clear(robot_id: str) -> str:
+    """Requests that clear a latched e-stop: a key of its own, so the access control can let the
+    laptop (the gateway's confirmed clear) release the robot while an e-stop-only credential cannot."""
+    return f"{_robot(robot_id)}/driver/estop/clear"
 
 
 def task_current(robot_id: str) -> str:

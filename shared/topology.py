@@ -59,7 +59,7 @@ class Node:
         raise KeyError(f"no {kind[:-1]} {name!r} declared")
 
 
-_DRIVER = Node(inputs=(Port("plan_command", PlanCommand), Port("estop", EStop)),
+_DRIVER = Node(inputs=(Port("plan_command", PlanCommand), Port("estop", EStop), Port("estop_clear", EStop)),
                outputs=(Port("odom", Odometry), Port("driver_state", DriverState)))
 
 TOPOLOGY: dict[str, Node] = {
@@ -82,7 +82,7 @@ TOPOLOGY: dict[str, Node] = {
                     queries=(Port("map_snapshot", MapSnapshot),)),
     "gateway": Node(inputs=(Port("task_events", TaskEvent), Port("driver_state", DriverState),
                             Port("odom", Odometry, keep=1)),
-                    outputs=(Port("task_current", TaskSpec), Port("estop", EStop)),
+                    outputs=(Port("task_current", TaskSpec), Port("estop", EStop), Port("estop_clear", EStop)),
                     queries=(Port("map_snapshot", MapSnapshot),)),
     "testpattern": Node(outputs=(Port("rgbd", RgbdFrame),)),
     "monitor": Node(inputs=(Port("robot_all", None),)),

@@ -71,8 +71,8 @@ def attack(args: argparse.Namespace) -> None:
     for i in range(10):
         session.put(keys.plan_command(args.robot_id),
                     bytes(PlanCommand(action_id=10**6 + i, stamp=time.time(), linear=0.2).to_bytes()))
-        session.put(keys.estop(args.robot_id),
-                    bytes(EStop(engage=False, source="intruder", stamp=time.time()).to_bytes()))
+        for key in (keys.estop(args.robot_id), keys.estop_clear(args.robot_id)):
+            session.put(key, bytes(EStop(engage=False, source="intruder", stamp=time.time()).to_bytes()))
         time.sleep(0.1)
     time.sleep(1.0)
     sub.undeclare()

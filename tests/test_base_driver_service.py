@@ -65,8 +65,14 @@ def test_estop_over_zenoh_latches_until_cleared(planner: Planner) -> None:
              or planner.state().mode is DriverMode.ESTOP, 10, "e-stop latched")
     state = planner.execute(PlanCommand(action_id=1, stamp=0.0, action=Action.MOVE_FORWARD))
     assert state.last_outcome == "rejected" and state.estop_latched
-    estop.put(EStop(engage=False, source="gateway", stamp=0.0))
-    wait_for(lambda: planner.state().mode is DriverMode.READY, 10, "ready after the clear")
+    # A clear on the engage key (what an e-stop-only credential can put) is refused and counted.
+    estop.put(EStop(engage=False, source="operator", stamp=0.0))
+    wait_for(lambda: (entry := service_stats(planner.bus, "base_driver").counters.get(keys.estop(ROBOT)))
+             is not None and entry.malformed >= 1, 10, "the clear on driver/estop refused")
+    assert planner.state().estop_latched
+    clear = planner.bus.publisher(keys.estop_clear(ROBOT), EStop)
+    wait_for(lambda: clear.put(EStop(engage=False, source="gateway", stamp=0.0))
+             or planner.state().mode is DriverMode.READY, 10, "ready after the clear")
     assert planner.execute(PlanCommand(action_id=2, stamp=0.0, action=Action.STOP)).last_outcome == "done"
 
 

@@ -43,8 +43,8 @@ def browser(chromium_session):
 
 
 class MockDriver:
-    """A fake base driver (mock) over real Zenoh: latches and clears its e-stop on ``driver/estop``
-    as the real one does, publishing its state on every change and a few times a second."""
+    """A fake base driver (mock) over real Zenoh: latches its e-stop on ``driver/estop`` and clears it
+    on ``driver/estop/clear`` as the real one does, publishing its state on every change and a few times a second."""
 
     def __init__(self, endpoint: str, answer: bool = True) -> None:
         self.bus = Bus.open(build_config(connect=[endpoint]), ROBOT, "mock-driver")
@@ -54,6 +54,7 @@ class MockDriver:
         self._states = self.bus.publisher(keys.driver_state(ROBOT), DriverState)
         self._odom = self.bus.publisher(keys.odom(ROBOT), Odometry)
         self.bus.subscribe(keys.estop(ROBOT), EStop, self._on_estop)
+        self.bus.subscribe(keys.estop_clear(ROBOT), EStop, self._on_estop)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()

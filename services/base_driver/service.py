@@ -1,4 +1,4 @@
-"""The base driver service: ``plan/command`` and ``driver/estop`` in, ``odom`` and ``driver/state`` out.
+"""The base driver service: ``plan/command``, ``driver/estop`` and ``driver/estop/clear`` in, ``odom`` and ``driver/state`` out.
 
 A thin adapter over a *base* (the :class:`~services.base_driver.controller.BaseController`
 over the hardware interface ``driver.hardware`` names here, the simulated robot in
@@ -10,7 +10,12 @@ already has the pose it ended at).
 
 It follows the planner's liveliness: once every planner token it saw is gone
 (the link to the laptop is down, or the planner died), ``driver/state`` says
-"planner unreachable" in its ``warnings`` until one is back. The wheels do not
+"planner unreachable" in its ``warnings`` until one is back.
+
+An e-stop is engaged on ``driver/estop`` and released only on ``driver/estop/clear``: the
+secure routers let a handheld e-stop credential (CN ``operator``) put on the first key alone,
+so releasing the robot needs the laptop's. A clear sent on the engage key is refused and
+counted (malformed, on its key), whoever sent it. The wheels do not
 wait for that (a token is declared lost only after the link's lease, ~3 s): a
 velocity command stops after ``deadman_s`` without renewal, and with
 ``driver.command_timeout_s`` a primitive stops too once the planner's copies of
@@ -116,7 +121,8 @@ class BaseDriverService(Service):
 
     def start(self) -> None:
         self.base = self.make_base()
-        self.wire({"plan_command": self._on_command, "estop": self._on_estop})
+        self.wire({"plan_command": self._on_command, "estop": self._on_estop,
+                   "estop_clear": self._on_estop_clear})
         self.bus.watch_liveliness(keys.alive(self.bus.robot_id, "planner"), self._on_planner_token)
 
     def _on_planner_token(self, key: str, alive: bool) -> None:
@@ -145,7 +151,20 @@ class BaseDriverService(Service):
         if msg.engage:
             self.base.engage_estop(msg.source, msg.reason)
         else:
+            self._refuse_estop(keys.estop(self.bus.robot_id), msg,
+                               "a clear on driver/estop (clearing is on driver/estop/clear)")
+
+    def _on_estop_clear(self, msg: EStop) -> None:
+        if msg.engage:
+            self._refuse_estop(keys.estop_clear(self.bus.robot_id), msg,
+                               "an engage on driver/estop/clear (engaging is on driver/estop)")
+        else:
             self.base.clear_estop(msg.source)
+
+    def _refuse_estop(self, key: str, msg: EStop, what: str) -> None:
+        """A request on the wrong key: counted as malformed on it and logged, the latch left as it is."""
+        self.bus.counters.bump(key, "malformed")
+        self.log.warning("e-stop request from %r refused: %s", msg.source, what)
 
     def tick(self) -> None:
         self.publish(self.base.state())

@@ -5,7 +5,7 @@ the map whether or not a task runs, so the gateway follows ``driver/state`` and 
 every robot it serves (:data:`shared.topology.TOPOLOGY`) and keeps the latest of each.
 
 The e-stop is a safety function, so a request is not answered "sent" but "confirmed": the
-gateway publishes on ``driver/estop`` and re-sends every ``estop_resend_s`` (a single Zenoh put
+gateway publishes on ``driver/estop`` (a clear on ``driver/estop/clear``) and re-sends every ``estop_resend_s`` (a single Zenoh put
 can be lost) until a driver state received after the first send shows the latch as wanted,
 for at most ``estop_confirm_s``. A driver that never confirms is an error the person must
 see (the robot may still be moving), never a silent success.
@@ -31,6 +31,7 @@ PORTS = TOPOLOGY["gateway"]
 DRIVER_STATE = PORTS.port("inputs", "driver_state")
 ODOM = PORTS.port("inputs", "odom")
 ESTOP = PORTS.port("outputs", "estop")
+ESTOP_CLEAR = PORTS.port("outputs", "estop_clear")
 ESTOP_SOURCE = "gateway"
 
 M = TypeVar("M")
@@ -62,11 +63,13 @@ class RobotMonitor:
         self._driver: dict[str, Latest[DriverState]] = {}
         self._odom: dict[str, Latest[Odometry]] = {}
         self._estop: dict[str, Publisher[EStop]] = {}
+        self._clear: dict[str, Publisher[EStop]] = {}
 
     def start(self) -> None:
         """Declare the e-stop publishers and follow each robot's driver (on the owner thread)."""
         for robot in self.config.robots:
             self._estop[robot] = self.bus.publisher(ESTOP.key(robot), ESTOP.message)
+            self._clear[robot] = self.bus.publisher(ESTOP_CLEAR.key(robot), ESTOP_CLEAR.message)
             self.bus.subscribe(DRIVER_STATE.key(robot), DRIVER_STATE.message,
                                lambda state, robot=robot: self._keep(self._driver, robot, state),
                                keep=DRIVER_STATE.keep)
@@ -92,16 +95,16 @@ class RobotMonitor:
     def engage_estop(self, robot: str, reason: str) -> DriverState:
         """Latch the robot's e-stop; the driver state that confirms it. EStopUnconfirmed when the
         driver did not report it latched within ``estop_confirm_s``."""
-        return self._estop_until(robot, EStop(engage=True, source=ESTOP_SOURCE, reason=reason,
-                                              stamp=time.time()))
+        return self._estop_until(self._estop[robot], robot,
+                                 EStop(engage=True, source=ESTOP_SOURCE, reason=reason, stamp=time.time()))
 
     def clear_estop(self, robot: str) -> DriverState:
         """Release the robot's e-stop latch; the driver state that confirms it (EStopUnconfirmed
         as for :meth:`engage_estop`)."""
-        return self._estop_until(robot, EStop(engage=False, source=ESTOP_SOURCE, stamp=time.time()))
+        return self._estop_until(self._clear[robot], robot,
+                                 EStop(engage=False, source=ESTOP_SOURCE, stamp=time.time()))
 
-    def _estop_until(self, robot: str, request: EStop) -> DriverState:
-        publisher = self._estop[robot]
+    def _estop_until(self, publisher: Publisher[EStop], robot: str, request: EStop) -> DriverState:
         deadline = time.monotonic() + self.config.estop_confirm_s
         with self._changed:
             first = self._driver.get(robot)
