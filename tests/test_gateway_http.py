@@ -129,8 +129,8 @@ def test_auth_with_a_token(inproc_router: str, tmp_path: Path) -> None:
         assert httpx.get(url, headers={"Authorization": "Basic s3cret"}).status_code == 401
         # a bad body without a token is refused for the token, not validated
         assert httpx.post(url, json={"targets": []}).status_code == 401
-        assert httpx.get(f"{running.url}/docs").status_code == 200  # the docs stay readable
-        assert httpx.get(f"{running.url}/openapi.json").status_code == 200
+        assert httpx.get(f"{running.url}/docs").status_code == 401  # the docs are guarded too
+        assert httpx.get(f"{running.url}/openapi.json", auth=("any", "s3cret")).status_code == 200
         accepted = gw_client.submit(["chair"], running.url, token="s3cret")
         assert gw_client.get_task(accepted.id, running.url, token="s3cret").targets == ["chair"]
         with pytest.raises(GatewayError) as info:
@@ -152,9 +152,9 @@ def test_a_token_is_required_off_loopback(monkeypatch: pytest.MonkeyPatch, tmp_p
         load_config(GatewayService, path)
     with pytest.raises(ServiceConfigError, match="require_token"):
         load_config(GatewayService, None, {"require_token": True})
-    monkeypatch.setenv(TOKEN_ENV, "from-env")
+    monkeypatch.setenv(TOKEN_ENV, "from-env-16-chars")  # off loopback: at least 16 characters
     config = load_config(GatewayService, path)
-    assert isinstance(config, GatewayConfig) and config.resolved_token() == "from-env"
+    assert isinstance(config, GatewayConfig) and config.resolved_token() == "from-env-16-chars"
     assert "from-env" not in repr(load_config(GatewayService, None, {"token": "from-env"}))
 
 

@@ -24,7 +24,8 @@ JSON = {"content-type": "application/json"}
 def http(inproc_router: str, tmp_path) -> Iterator[TestClient]:
     config = gateway_config(tmp_path, robots=[ROBOT, "r2"], max_steps_limit=1000)
     app = create_app(config, lambda: Bus.open(build_config(connect=[inproc_router]), ROBOT, "gateway"))
-    with TestClient(app) as client:  # runs the lifespan: opens and closes the bus
+    # runs the lifespan (opens and closes the bus); a loopback name, which the Host guard serves
+    with TestClient(app, base_url="http://127.0.0.1") as client:
         yield client
 
 

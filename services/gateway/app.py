@@ -32,12 +32,13 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from services.gateway.auth import bearer_guard
+from services.gateway.auth import DOCS_REALM, AuthFailures, bearer_guard
 from services.gateway.config import GatewayConfig
 from services.gateway.page import mount_page
 from services.gateway.robot_routes import router as robot_router
 from services.gateway.robots import RobotMonitor
 from services.gateway.routes import Gateway, router
+from services.gateway.security import HostGuard, SecurityHeaders, mount_docs
 from services.gateway.sse import TaskWatchers
 from services.gateway.store import TaskRecord, TaskStore
 from services.gateway.tasks import TaskManager
@@ -53,7 +54,9 @@ One task per robot runs at a time; further submissions for that robot are queued
 and start, in order, when the running one ends (done, failed or cancelled).
 When a token is configured, every `/v1` route needs `Authorization: Bearer <token>`.
 `GET /` is the operator's page (submit, watch the map, E-STOP); it asks for the token when
-one is needed.
+one is needed. These docs and `/openapi.json` need the token too (a browser asks for it: any user
+name, the token as password). Requests must name the gateway in `Host`, and a browser's writes
+must come from the gateway's own page (else 403).
 """
 
 
@@ -89,14 +92,20 @@ def create_app(config: GatewayConfig, bus_source: BusSource) -> FastAPI:
                 republisher.cancel()
                 watchers.close()
 
-    app = FastAPI(title="OVAMOS gateway", version="1", description=DESCRIPTION, lifespan=lifespan)
-    guard = [Depends(bearer_guard(config.resolved_token()))]
+    app = FastAPI(title="OVAMOS gateway", version="1", description=DESCRIPTION, lifespan=lifespan,
+                  docs_url=None, redoc_url=None, openapi_url=None)  # mount_docs serves them
+    failures = AuthFailures(config.auth_failures_max, config.auth_failure_window_s)
+    guard = [Depends(bearer_guard(config.resolved_token(), failures))]
     app.include_router(router, dependencies=guard)
     app.include_router(robot_router, dependencies=guard)
     mount_page(app)
+    mount_docs(app, bearer_guard(config.resolved_token(), failures, basic_realm=DOCS_REALM))
     app.add_exception_handler(RequestValidationError, _validation_error)  # type: ignore[arg-type]
     app.add_exception_handler(StarletteHTTPException, _http_error)  # type: ignore[arg-type]
     app.add_middleware(BodyLimit, limit=config.max_body_bytes)
+    # outermost last: every answer gets the headers, and a forged Host is refused before anything
+    app.add_middleware(HostGuard, config=config, on_refused=lambda scope: _count_rejected(scope["app"], 403))
+    app.add_middleware(SecurityHeaders)
     return app
 
 

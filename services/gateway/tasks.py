@@ -5,7 +5,9 @@ and it ends ``done`` / ``failed`` (reported by the planner) or ``cancelled``
 (by a person); then the next queued task starts. The active task's TaskSpec is
 re-sent every ``republish_s`` because a single Zenoh put can be lost (a
 planner that starts later, or reconnects after a router restart, still gets
-it); a cancelled one is re-sent for ``cancel_linger_s`` for the same reason.
+it), with the progress the planner last reported (steps, distance, found), from
+which a restarted planner goes on; a cancelled one is re-sent for
+``cancel_linger_s`` for the same reason.
 
 Planner events for a task that is not the robot's active one (unknown, queued,
 already finished, another robot's) are counted and ignored: a late event must
@@ -288,5 +290,8 @@ class TaskManager:
 
 
 def _spec(record: TaskRecord, cancelled: bool = False) -> TaskSpec:
+    """The task with the progress the planner last reported: a planner restarted mid-task
+    resumes its count, distance and found targets from it instead of starting over."""
     return TaskSpec(task_id=record.id, targets=tuple(record.targets), max_steps=record.max_steps,
-                    cancelled=cancelled, stamp=time.time())
+                    cancelled=cancelled, stamp=time.time(), steps=record.steps,
+                    distance_m=record.distance_m, found=tuple(record.found))
