@@ -17,6 +17,7 @@ from services.camera.clock import DeviceClock, HostClock, make_clock
 from services.camera.config import CameraConfig, ClockConfig
 from services.camera.core import CLOCK_JUMP, DEPTH_ALL_ZERO, CameraCore
 from services.camera.pose import BasePose, Miss, OdometryBuffer, wrap_angle
+from shared.sessions import SessionSwitch
 from shared.camera import camera_pose as sim_camera_pose
 from shared.config import ServiceConfigError, read_config
 from shared.messages import CameraState, DriverMode, DriverState, Intrinsics, Odometry, RgbdFrame
@@ -221,10 +222,14 @@ def test_buffer_starts_again_when_the_driver_restarts() -> None:
     assert buf.pose_at(0.1 + WALL) is Miss.TOO_OLD
 
 
+AT_ONCE = {"messages": 1, "min_span_s": 0.0, "quiet_s": 0.0}
+"""A session switch on one message: for tests of what a switch does, not of when it happens."""
+
+
 def test_buffer_starts_again_with_a_new_odometry_session_and_frames_carry_theirs() -> None:
     """A restarted driver says so with a new session even when its seq and stamps look like a
     continuation; a late message of the old session is dropped; each frame names its session."""
-    core = make_core(0.0, lock_step=False)
+    core = make_core(0.0, lock_step=False, odometry={"window_s": 100.0, "session_switch": AT_ONCE})
     for k in range(10):
         core.on_odom(odom(k, k / 50, x=5.0, session="A"))
     core.on_frame(shot(0.1, 0.1))
@@ -234,11 +239,49 @@ def test_buffer_starts_again_with_a_new_odometry_session_and_frames_carry_theirs
     core.on_frame(shot(0.21, 0.21))
     published = core.poll(0.3)[0]
     assert [(f.odom_session, pose_of(f)[0]) for f in published] == [("A", 5.0), ("B", 0.0)]
-    buf = OdometryBuffer(window_s=2.0, tolerance_s=0.0)
+    buf = OdometryBuffer(window_s=2.0, tolerance_s=0.0, switch=SessionSwitch(**AT_ONCE))
     for k in range(3):
         buf.add(odom(k, k / 50, session="A"))
     assert buf.add(odom(3, 0.1, session="B")) and len(buf) == 1 and buf.restarts == 1
-    assert not buf.add(odom(3, 0.05, session="A")) and buf.dropped == 1 and buf.session == "B"
+    assert not buf.add(odom(3, 0.05, session="A")) and buf.stray == 1 and buf.session == "B"
+
+
+class FakeClock:
+    """Receipt times for the session evidence, advanced by the test."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_a_forged_session_does_not_restart_the_buffer_and_a_real_restart_does() -> None:
+    """Issue 33, finding 1: one odometry message of a made-up session emptied the buffer (every
+    frame after it posed in the forger's frame, or not at all)."""
+    clock = FakeClock()
+    buf = OdometryBuffer(window_s=2.0, tolerance_s=0.0, clock=clock)
+    for k in range(10):
+        clock.now = k / 50
+        assert buf.add(odom(k, k / 50, x=5.0, session="A"))
+    for forged in ("20991231T235959Z-ffffff", ""):
+        assert not buf.add(odom(10**6, 0.19, session=forged))
+    # a forged stream while the real driver still talks: no restart either
+    for k in range(10, 30):
+        clock.now = k / 50
+        assert not buf.add(odom(10**6 + k, k / 50, session="X"))
+        assert buf.add(odom(k, k / 50, x=5.0, session="A"))
+    assert buf.session == "A" and buf.restarts == 0 and buf.stray == 22 and len(buf) == 30
+    assert buf.pose_at(0.5 + WALL) == BasePose(5.0, 0.0, 0.0)
+    # the driver restarts: A goes quiet, B streams at 50 Hz; B is followed once the rule holds
+    took = []
+    for k in range(40):
+        clock.now = 1.5 + k / 50
+        took.append(buf.add(odom(k, 1.5 + k / 50, session="B")))
+    assert SessionSwitch() == SessionSwitch(messages=5, min_span_s=0.1, quiet_s=0.5)
+    assert took.index(True) == 5  # the 6th: 5 messages and more, spanning 0.1 s at 50 Hz
+    assert all(took[5:]) and buf.session == "B" and buf.restarts == 1 and len(buf) == 35
+    assert buf.sessions.switched_on is not None and buf.sessions.switched_on.quiet_for >= 0.5
 
 
 # -- interpolation through the core ---------------------------------------------------------------

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import Iterator
@@ -108,12 +109,21 @@ def test_snapshots_are_published_and_malformed_input_is_counted(service, sender,
     wait_for(lambda: mapping_stats().info["seq"] == 4, what="the service's info shows frame 4")
 
 
+SEQ = itertools.count(1)  # a driver's odometry seq, and a camera's frame seq, only ever grow
+
+
 def in_session(frame: RgbdFrame, session: str) -> RgbdFrame:
     return frame.model_copy(update={"odom_session": session})
 
 
+def streamed(frame: RgbdFrame, session: str) -> RgbdFrame:
+    """``frame`` as the next of a camera's stream posed in ``session`` (a higher seq each call)."""
+    return frame.model_copy(update={"odom_session": session, "seq": next(SEQ)})
+
+
 def odometry(session: str) -> Odometry:
-    return Odometry(seq=1, stamp=time.time(), odom_session=session, x=1.5, y=2.0, yaw=0.0)
+    """The next message of a driver's odometry stream in ``session``."""
+    return Odometry(seq=next(SEQ), stamp=time.time(), odom_session=session, x=1.5, y=2.0, yaw=0.0)
 
 
 def mapping_info(client: zenoh.Session) -> dict:
@@ -182,9 +192,10 @@ def test_a_new_odometry_session_starts_a_fresh_map_and_keeps_the_old_one(service
     assert new.seq == -1 and not new.explored.any()
     kept = load_checkpoint(tmp_path / "map.A.ckpt", service[1])
     assert kept.seq == 2 and np.array_equal(kept.explored, old.explored)
-    # a restarted driver's first frame may come before its first odometry: a new session too
-    newer = wait_for(lambda: pub_f.put(in_session(frames[1], "C")) or (s := query_snapshot(client))
-                     and s.odom_session == "C" and s.seq == 1 and s, what="session C's first frame")
+    # a restarted driver's first frames may come before its first odometry: a new session too
+    newer = wait_for(lambda: pub_f.put(streamed(frames[1], "C")) or (s := query_snapshot(client))
+                     and s.odom_session == "C" and s.seq >= 0 and s, what="session C's first frames")
+    assert mapping_info(client)["sessions"]["switches"] == 3  # A (the first seen), B, C
     pub_o.put(odometry("B"))  # late, of a session left behind: changes nothing
     pub_f.put(in_session(frames[4], "A"))
     wait_for(lambda: mapping_info(client)["other_session_dropped"].get("frame", 0) >= 1,
@@ -234,3 +245,34 @@ def test_the_map_command_draws_the_current_map(service, sender, client, frames, 
                               "--connect", endpoint, "--timeout", "1", "--out", str(tmp_path / "x.png")],
                              capture_output=True, text=True, timeout=60)
     assert missing.returncode == 2 and "no mapping service" in missing.stderr
+
+
+@pytest.mark.parametrize("forged", ["20991231T235959Z-ffffff", ""])
+def test_a_forged_odometry_session_mid_task_is_counted_and_ignored(service, sender, client, frames,
+                                                                   forged: str) -> None:
+    """Issue 33, finding 1: one odometry message of a session mapping had not seen (a made-up one,
+    or none) used to become the current session for good, every real frame after it dropped."""
+    pub_f = sender.publisher(keys.rgbd(ROBOT), RgbdFrame)
+    pub_o = sender.publisher(keys.odom(ROBOT), Odometry)
+    wait_for(lambda: pub_o.put(odometry("A")) or pub_f.put(in_session(frames[0], "A"))
+             or (s := query_snapshot(client)) and s.seq == 0, what="session A's map")
+    forger = Odometry(seq=10**6, stamp=time.time() + 10**6, odom_session=forged, x=0.0, y=0.0, yaw=0.0)
+    pub_o.put(forger)  # one message, mid-task
+    wait_for(lambda: mapping_info(client)["sessions"]["stray"].get("odom", 0) >= 1,
+             what="the forged message counted")
+    # a forged stream while the real driver still talks is no restart either
+    for k in range(20):
+        pub_o.put(forger.model_copy(update={"seq": 10**6 + 1 + k}))
+        pub_o.put(odometry("A"))
+        time.sleep(0.02)  # paces a stream of 50 Hz, as a driver's
+    pub_f.put(in_session(frames[1], "A"))  # the real camera's next frame is still fused
+    fused = wait_for(lambda: (s := query_snapshot(client)) and s.seq == 1 and s, what="frame 1 fused")
+    assert fused.odom_session == "A"
+    # (odometry is a newest-only input: not every message of the stream is read, or counted)
+    info = wait_for(lambda: (i := mapping_info(client)["sessions"])["stray"]["odom"] >= 2 and i,
+                    what="the forged stream counted")  # the info is refreshed every 0.5 s
+    assert info["session"] == "A" and info["switches"] == 1
+    # a real restart still switches: the old session goes quiet and the new one streams
+    fresh = wait_for(lambda: pub_o.put(odometry("B")) or (s := query_snapshot(client))
+                     and s.odom_session == "B" and s, what="the driver's real restart followed")
+    assert fresh.seq == -1

@@ -17,6 +17,7 @@ from services.camera.file import FileConfig
 from services.camera.oakd import OakdConfig
 from services.camera.realsense import RealSenseConfig
 from shared.config import ServiceConfig, StrictModel
+from shared.sessions import SessionSwitch
 
 __all__ = ["Mount", "ClockConfig", "OdometryConfig", "CameraConfig"]
 
@@ -95,6 +96,9 @@ class OdometryConfig(StrictModel):
                     "waits for a message after it before the tolerance decides")
     max_pending: int = Field(default=16, ge=1, description="frames waiting for odometry at most; "
                              "the oldest is skipped when more come")
+    session_switch: SessionSwitch = Field(
+        default_factory=SessionSwitch, description="when odometry of a new odometry session is "
+        "followed (the driver restarted); until then it is dropped and counted as stray")
 
 
 class CameraConfig(ServiceConfig):

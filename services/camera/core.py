@@ -125,7 +125,8 @@ class CameraCore:
         self.config = c = config
         self._wall_offset = wall_offset
         self._clock = make_clock(c.clock)
-        self._odom = OdometryBuffer(c.odometry.window_s, c.odometry.tolerance_s, c.odometry.max_gap_s)
+        self._odom = OdometryBuffer(c.odometry.window_s, c.odometry.tolerance_s, c.odometry.max_gap_s,
+                                    c.odometry.session_switch)
         self._mount = base_T_optical(c.mount)
         # selection
         self._armed: _Armed | None = _Armed(0, -math.inf)  # the start-up frame
@@ -284,7 +285,7 @@ class CameraCore:
                 "republished": self.republished, "rate_limited": self.rate_limited,
                 "skipped": dict(self.skipped), "rejected": dict(self.rejected),
                 "pending": self.pending, "odometry": len(self._odom),
-                "odometry_dropped": self._odom.dropped, "clock_resets": clock.resets,
+                "odometry_dropped": self._odom.dropped, "odometry_stray": self._odom.stray, "clock_resets": clock.resets,
                 "clock_offset_s": getattr(clock, "offset", None),
                 "lock_step_owed": None if self._armed is None else self._armed.action}
 

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import bisect
 import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
 
@@ -24,6 +26,7 @@ import numpy as np
 from services.camera.config import Mount
 from shared.camera import OPTICAL_TO_BODY
 from shared.messages import Odometry
+from shared.sessions import SessionFollower, SessionSwitch
 
 __all__ = ["BasePose", "Miss", "OdometryBuffer", "wrap_angle", "rotation_rpy", "base_T_optical",
            "world_T_base", "camera_pose"]
@@ -92,20 +95,24 @@ class OdometryBuffer:
 
     Times are the robot host's wall clock (``Odometry.stamp``, ``time.time()`` when the pose was
     measured). Messages arriving out of order are put in place; a message older than the window
-    or repeating a stamp is dropped (counted). A driver that restarts (a new ``odom_session``, or,
-    from a driver that says none, its ``seq`` starting again at a later stamp) starts the buffer
-    again: poses from before and after a restart are in different odometry frames and must not
-    be interpolated. A message of another session older than the newest is dropped (counted).
+    or repeating a stamp is dropped (counted). A driver that restarts (a new ``odom_session``
+    followed on evidence, ``switch``: see :mod:`shared.sessions`; or, from a driver that says
+    none, its ``seq`` starting again at a later stamp) starts the buffer again: poses from before
+    and after a restart are in different odometry frames and must not be interpolated. A message
+    of a session not followed is dropped (counted in ``stray``).
     """
 
-    def __init__(self, window_s: float, tolerance_s: float, max_gap_s: float = math.inf) -> None:
+    def __init__(self, window_s: float, tolerance_s: float, max_gap_s: float = math.inf,
+                 switch: SessionSwitch | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+        """``clock``: receipt time for the session evidence (host monotonic)."""
         if window_s <= 0 or tolerance_s < 0 or max_gap_s <= 0:
             raise ValueError("OdometryBuffer needs window_s > 0, tolerance_s >= 0, max_gap_s > 0")
         self.window_s, self.tolerance_s, self.max_gap_s = window_s, tolerance_s, max_gap_s
+        self.sessions = SessionFollower(switch or SessionSwitch(), clock=clock)
         self._stamps: list[float] = []
         self._msgs: list[Odometry] = []
         self.dropped = 0    # out of the window, or a repeated stamp
-        self.restarts = 0   # the driver's seq started again
+        self.restarts = 0   # the driver's seq started again, or its session changed
 
     def __len__(self) -> int:
         return len(self._msgs)
@@ -123,13 +130,17 @@ class OdometryBuffer:
         """The odometry session of the poses held ('' when none is held or the driver says none)."""
         return self._msgs[-1].odom_session if self._msgs else ""
 
+    @property
+    def stray(self) -> int:
+        """Messages of a session not followed (forged, replayed, or late from before a restart)."""
+        return self.sessions.stray["odom"]
+
     def add(self, msg: Odometry) -> bool:
         """Keep one message; False when it was dropped."""
+        if not self.sessions.observe("odom", msg.odom_session, msg.seq):
+            return False
         if self._msgs:
             last = self._msgs[-1]
-            if msg.odom_session != last.odom_session and msg.stamp <= self._stamps[-1]:
-                self.dropped += 1  # a late message of another session
-                return False
             if msg.odom_session != last.odom_session or (msg.seq < last.seq and msg.stamp > self._stamps[-1]):
                 self._stamps.clear()
                 self._msgs.clear()

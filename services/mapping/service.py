@@ -10,10 +10,12 @@ still) is not fused again, and a second result for a fused frame (perception
 re-scores its latest frame when targets are added) adds only the values of the
 targets the frame was not fused for; the newest fused frames are kept for that.
 
-One map per odometry session. The driver's current session is the newest one
-seen, on odometry or on a frame (a restarted driver's first frame may come
-before its first odometry; a session id is never used twice, so one not seen
-before is a new start). A new session starts a fresh map: the map of the
+One map per odometry session. The driver's current session changes only on the
+evidence of a restart (:mod:`shared.sessions`: a sustained stream of the new
+session, on odometry or on frames, while the current one is quiet), so one
+forged or replayed message cannot take the map away from the driver: it is
+counted (``sessions.stray``) and ignored. A session once left is never followed
+again (a session id is never used twice). A new session starts a fresh map: the map of the
 earlier one is kept on disk beside the checkpoint under its session id
 (:func:`~services.mapping.checkpoint.session_path`) and never fused into again,
 and frames and results of a session left behind are dropped and counted. The
@@ -42,6 +44,7 @@ from shared.bus import BusCore
 from shared.log import sampled
 from shared.messages import MapSnapshot, Odometry, PerceptionResult, RgbdFrame
 from shared.service import Service
+from shared.sessions import SessionFollower, SessionSwitch
 
 
 class MappingServiceConfig(MappingConfig):
@@ -52,6 +55,9 @@ class MappingServiceConfig(MappingConfig):
     checkpoint_path: Path | None = Field(
         default=None, description="'{robot_id}' in it is replaced: one map per robot, never another's")
     checkpoint_every_s: float = Field(default=5.0, gt=0)
+    session_switch: SessionSwitch = Field(
+        default_factory=SessionSwitch, description="when odometry or frames of a new odometry "
+        "session start a fresh map (the driver restarted)")
 
 
 class MappingService(Service):
@@ -71,8 +77,9 @@ class MappingService(Service):
         self._changed = True
         self._last_checkpoint = time.monotonic()
         self._session: str | None = None   # the driver's current odometry session, once known
-        self._left: set[str] = set()        # sessions that were current, or the held checkpoint's
         self._held = self._load_checkpoint()  # resumed once the session is known to be its own
+        self._sessions = SessionFollower(config.session_switch,
+                                         None if self._held is None else self._held.odom_session)
         self.state = MapState(config)
         self.other_session: Counter[str] = Counter()  # frames / results of another session: dropped
         self.repeated = 0                    # frames that came again after they were fused
@@ -92,16 +99,32 @@ class MappingService(Service):
 
     # -- the odometry session --------------------------------------------------------------------
     def _on_odom(self, odom: Odometry) -> None:
-        if odom.odom_session not in self._left:
-            self._follow(odom.odom_session)
+        self._admit("odom", odom.seq, odom.odom_session)
+
+    def _admit(self, kind: str, seq: int, session: str) -> bool:
+        """Whether odometry or a frame is of the current session, following a new one when the
+        message completes the evidence of a restart; others are counted (and sampled in the log)."""
+        if self._left_behind(kind, seq, session):
+            return False
+        if not self._sessions.observe(kind, session, seq):
+            if sampled(self._sessions.stray[kind]):
+                self.log.warning("ignored %s %d of odometry session %r: the driver's is %r, and no "
+                                 "sustained stream of %r says it restarted", kind, seq, session,
+                                 self._sessions.current, session)
+            return False
+        if self._sessions.current != self._session:
+            evidence = self._sessions.switched_on
+            if self._session is not None and evidence is not None:
+                self.log.warning("the driver restarted: odometry session %r follows %r (%s of it)",
+                                 evidence.session, self._session, evidence.describe())
+            self._follow(session)
+        return True
 
     def _follow(self, session: str) -> None:
         """Make ``session`` the current one, with its own map: the held checkpoint when it is that
         session's, else a fresh map (a map of another session is kept on disk, see the module)."""
         if session == self._session:
             return
-        if self._session is not None:
-            self._left.add(self._session)
         self._session, held, self._held = session, self._held, None
         self._frames = {s: p for s, p in self._frames.items() if p[0].odom_session == session}
         self._results = {s: r for s, r in self._results.items() if r.odom_session == session}
@@ -111,7 +134,6 @@ class MappingService(Service):
                           self.config.checkpoint_path, session, held.seq)
             return
         if held is not None:
-            self._left.add(held.odom_session)
             self._keep(held, "the checkpoint's map")
         if self.state.odom_session != session:
             if self.state.seq >= 0:
@@ -133,20 +155,19 @@ class MappingService(Service):
                          "is now %r; kept as %s", what, state.odom_session, self._session, kept)
 
     def _left_behind(self, kind: str, seq: int, session: str) -> bool:
-        """Whether a frame or result is of a session left behind (then it is counted)."""
-        if session not in self._left:
+        """Whether a message is of a session left behind (then it is counted)."""
+        if session not in self._sessions.left:  # were current, or the held checkpoint's
             return False
         self.other_session[kind] += 1
-        if sampled(self.other_session[kind]):
+        if kind != "odom" and sampled(self.other_session[kind]):
             self.log.warning("dropped %s %d of odometry session %r: the map is of session %r",
                              kind, seq, session, self._session)
         return True
 
     # -- inputs --------------------------------------------------------------------------------
     def _on_frame(self, frame: RgbdFrame) -> None:
-        if self._left_behind("frame", frame.seq, frame.odom_session):
-            return
-        self._follow(frame.odom_session)  # a new one: before its odometry, or frames replayed alone
+        if not self._admit("frame", frame.seq, frame.odom_session):
+            return  # a new session's frames count as evidence: they may come before its odometry
         if self.state.has_fused(frame):
             self.repeated += 1  # re-published: its result, if one comes again, is matched below
             return
@@ -167,7 +188,7 @@ class MappingService(Service):
             pending = None
         if pending is not None:
             self._fuse(pending[0], result)
-        elif fused is not None and fused.stamp == result.stamp:
+        elif fused is not None and fused.stamp == result.stamp and fused.odom_session == result.odom_session:
             self._fuse(fused, result)  # a second result (re-scored): new targets' values only
         else:
             self._results[result.seq] = result
@@ -207,7 +228,8 @@ class MappingService(Service):
                 "explored_m2": round(float(self.state.explored.sum()) * self.config.resolution ** 2, 2),
                 "objects": len(self.state.objects.instances()),
                 "pending_frames": len(self._frames), "pending_results": len(self._results),
-                "other_session_dropped": dict(self.other_session), "repeated_frames": self.repeated}
+                "other_session_dropped": dict(self.other_session), "repeated_frames": self.repeated,
+                "sessions": self._sessions.info()}
 
     def stop(self) -> None:
         if self.config.checkpoint_path:
