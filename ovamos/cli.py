@@ -176,6 +176,9 @@ def router(config: Annotated[Optional[Path], typer.Option(help="Zenoh router con
            robot_id: Annotated[str, typer.Option(
                "--robot-id", help="With access control: the robot whose keys carry the router's stats.")]
            = "robot1",
+           robots: Annotated[Optional[list[str]], typer.Option(
+               "--robot", help="A laptop router's robots (repeatable): each robot's certificate "
+               "(CN robot-<id>) is bound to its own keys; default: --robot-id alone.")] = None,
            log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Run a Zenoh router (a Python session in router mode).
 
@@ -190,7 +193,7 @@ def router(config: Annotated[Optional[Path], typer.Option(help="Zenoh router con
         cfg = build_config("router", file=config, listen=listen or (), connect=connect or (),
                            tls=_tls(certs, cert))
         stop = threading.Event()
-        run_router(cfg, robot_id=robot_id, name=cert or "0", stop=stop,
+        run_router(cfg, robot_id=robot_id, name=cert or "0", stop=stop, robots=robots or (),
                    on_open=lambda: install_signal_handlers(stop))
     except ZenohConfigError as exc:
         raise _fail(str(exc)) from None
@@ -205,13 +208,15 @@ def certs_init(folder: Annotated[Path, typer.Argument(help="Folder for ca.pem an
         path = init_ca(folder, days=days)
     except CertError as exc:
         raise _fail(str(exc)) from None
-    console.print(f"CA created: {path} (and {folder / 'ca.key'}, mode 0600: keep it off the robot)")
+    console.print(f"CA created: {path} (and {folder / 'ca.key'}, mode 0600: keep it off the robot); "
+                  f"{folder} is mode 0700")
 
 
 @certs_app.command("issue")
 def certs_issue(folder: Annotated[Path, typer.Argument(help="The CA's folder (from `ovamos certs init`).")],
                 name: Annotated[str, typer.Argument(help="The role, written as the certificate's CN: laptop, "
-                                                         "robot, operator, ...")],
+                                                         "robot (a fleet's: robot-<id>, e.g. robot-r2), "
+                                                         "operator, ...")],
                 host: Annotated[Optional[list[str]], typer.Option(
                     "--host", help="An address (IP or DNS name) the holder is reached at (repeatable); "
                                    "needed on the router that listens on the link.")] = None,
@@ -486,12 +491,15 @@ def replay(recording: Annotated[Path, typer.Argument(help="MCAP file written by 
            keys_: KeyNames = None,
            robot_id: Annotated[Optional[str], typer.Option(
                "--robot-id", help="Publish on this robot's keys (default: the recorded robot's).")] = None,
+           force: Annotated[bool, typer.Option(
+               "--force", help="Replay even onto a robot whose driver is alive (its odometry and "
+               "map would mix with the recording's).")] = False,
            zenoh_file: ZenohFile = None, connect: Connect = None, endpoints: Endpoints = None,
            open_timeout: OpenTimeout = 10.0,
            log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Publish a recording's raw channels back on Zenoh, with their recorded timing."""
     from ovamos.record.channels import UnknownKeyError
-    from ovamos.record.live import replay as run_replay
+    from ovamos.record.live import LiveRobotError, replay as run_replay
     from ovamos.record.replay import RecordingError
     from shared.keys import KeyExprError
     setup_logging(json_lines=log_json, level=log_level)
@@ -500,8 +508,8 @@ def replay(recording: Annotated[Path, typer.Argument(help="MCAP file written by 
     zcfg = _tool_config(zenoh_file, connect, endpoints, open_timeout)
     try:
         report = run_replay(zcfg, recording, rate=None if as_fast else rate, names=keys_, robot_id=robot_id,
-                            stop=threading.Event())
-    except (RecordingError, UnknownKeyError, ZenohConfigError, KeyExprError) as exc:
+                            stop=threading.Event(), force=force)
+    except (RecordingError, UnknownKeyError, ZenohConfigError, KeyExprError, LiveRobotError) as exc:
         raise _fail(str(exc)) from None
     counts = ", ".join(f"{k} {n}" for k, n in sorted(report.read.items())) or "nothing"
     err.print(f"replayed {counts}")

@@ -140,7 +140,8 @@ class Profile(StrictModel):
                 *_repeat("--connect", connect)]
         if router.cert is not None:
             folder = (certs or DEFAULT_CERTS).resolve()
-            argv += ["--certs", str(folder), "--cert", router.cert, "--robot-id", self.robot_id]
+            argv += ["--certs", str(folder), "--cert", router.cert, "--robot-id", self.robot_id,
+                     *_repeat("--robot", self.robots)]
         return Entry(router.name, tuple(argv), ready=self._router_address(listen))
 
     def _config_listen(self) -> list[str]:

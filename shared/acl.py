@@ -1,4 +1,15 @@
-"""What a router's access control refused: each denial logged (sampled) and counted.
+"""A router's access control: each robot's certificate bound to its own keys, and what the rules
+refused, each denial logged (sampled) and counted.
+
+Robots' identities (:func:`bind_robots`): the laptop's router config names one subject,
+``robot``, and the rules a robot gets over ``ovamos/*/...`` keys. At start-up it becomes one
+subject per robot, certificate CN ``robot-<id>`` (``ovamos certs issue DIR robot-<id>``; the one
+robot of a single-robot deployment may keep CN ``robot``), whose rules name that robot's keys
+(``ovamos/<id>/...``) for what it asserts and what it is sent: its puts, liveliness tokens,
+queryables, replies and subscriptions in, the puts out. A stolen robot key therefore cannot
+publish another robot's frames or odometry, nor read its commands. The laptop's own interest
+(its subscriptions and queries out, a robot's queries in) keeps ``ovamos/*``: ``ovamos status``
+and a perception serving every robot ask with wildcards, and asking grants nothing.
 
 Zenoh's access control drops a message its rules do not allow without telling
 anyone but its own trace log, which goes to the process's standard output. A
@@ -25,12 +36,87 @@ import logging
 import os
 import re
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import zenoh
 
 log = logging.getLogger("ovamos.acl")
+
+#: the subject of a laptop router's config that stands for every robot (see :func:`bind_robots`)
+ROBOT_SUBJECT = "robot"
+#: how the rules of :data:`ROBOT_SUBJECT` name any robot's keys
+_ANY_ROBOT = "ovamos/*/"
+#: (flow, message) of a robot's rules bound to its own keys: what it asserts, and what it is sent
+_BOUND = frozenset({("ingress", m) for m in ("put", "delete", "declare_subscriber", "liveliness_token",
+                                             "declare_queryable", "reply")} | {("egress", "put"), ("egress", "delete")})
+
+
+class AclConfigError(ValueError):
+    """An access-control config this project cannot bind to its robots."""
+
+
+def robot_common_names(robot: str, *, only: bool) -> list[str]:
+    """The certificate CNs that speak for ``robot``: ``robot-<id>``, and for the ``only`` robot of a
+    single-robot deployment also plain ``robot`` (the name its certificates always had)."""
+    return [f"{ROBOT_SUBJECT}-{robot}", *([ROBOT_SUBJECT] if only else [])]
+
+
+def _bind_rule(rule: dict[str, Any], robot: str) -> list[dict[str, Any]]:
+    """``rule`` for one robot: split per flow into the part bound to ``ovamos/<robot>/`` (its
+    messages in :data:`_BOUND`) and the part that keeps its keys."""
+    out = []
+    for flow in rule["flows"]:
+        bound = [m for m in rule["messages"] if (flow, m) in _BOUND]
+        free = [m for m in rule["messages"] if (flow, m) not in _BOUND]
+        for messages, tag in ((bound, "own"), (free, "any")):
+            if not messages:
+                continue
+            keys = rule["key_exprs"]
+            if tag == "own":
+                wrong = [k for k in keys if not k.startswith(_ANY_ROBOT)]
+                if wrong:
+                    raise AclConfigError(f"access control rule {rule['id']!r} of subject {ROBOT_SUBJECT!r} names "
+                                         f"{', '.join(wrong)}: a robot's keys are {_ANY_ROBOT}..., bound to each "
+                                         f"robot's own at start-up")
+                keys = [f"ovamos/{robot}/{k[len(_ANY_ROBOT):]}" for k in keys]
+            out.append({**rule, "id": f"{rule['id']}/{flow}/{tag}/{robot}", "flows": [flow],
+                        "messages": messages, "key_exprs": keys})
+    return out
+
+
+def bind_robots(acl: dict[str, Any], robots: Sequence[str]) -> dict[str, Any]:
+    """``access_control`` with its :data:`ROBOT_SUBJECT` replaced by one subject per robot, each
+    allowed its policies' rules on its own keys only (the module docstring says which); unchanged
+    without that subject (a robot's router, where every robot-side peer is this one robot)."""
+    if not acl.get("enabled"):
+        return acl
+    template = next((s for s in acl.get("subjects") or [] if s["id"] == ROBOT_SUBJECT), None)
+    if template is None:
+        return acl
+    if not robots:
+        raise AclConfigError(f"access control subject {ROBOT_SUBJECT!r} needs the robots it stands for")
+    all_rules, all_policies = acl.get("rules") or [], acl.get("policies") or []
+    rules = {r["id"]: r for r in all_rules}
+    policies = [p for p in all_policies if ROBOT_SUBJECT in p["subjects"]]
+    if any(p["subjects"] != [ROBOT_SUBJECT] for p in policies):
+        raise AclConfigError(f"access control subject {ROBOT_SUBJECT!r} must have policies of its own")
+    subjects = [s for s in acl["subjects"] if s["id"] != ROBOT_SUBJECT]
+    kept = [p for p in all_policies if p not in policies]
+    bound_rules = []
+    for robot in robots:
+        subject = f"{ROBOT_SUBJECT}-{robot}"
+        subjects.append({**template, "id": subject,
+                         "cert_common_names": robot_common_names(robot, only=len(robots) == 1)})
+        for policy in policies:
+            own = [b for rule_id in policy["rules"] for b in _bind_rule(rules[rule_id], robot)]
+            bound_rules += own
+            kept.append({**policy, "id": f"{policy.get('id', ROBOT_SUBJECT)} ({robot})", "subjects": [subject],
+                         "rules": [r["id"] for r in own]})
+    used = {r for p in kept for r in p["rules"]}
+    return {**acl, "subjects": subjects, "policies": kept,
+            "rules": [r for r in all_rules if r["id"] in used] + bound_rules}
 
 #: the trace target whose lines say what the access control allowed and refused
 TRACE_TARGET = "zenoh::net::routing::interceptor"

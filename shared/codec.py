@@ -54,6 +54,8 @@ ALLOWED_DTYPES = frozenset(np.dtype(d).str for d in (
 MAX_META_BYTES = 1 << 20
 # Layouts are cached; the cap bounds what a hostile peer can make the cache hold.
 MAX_LAYOUT_BYTES = 1 << 14
+# The codec's own ceiling on any body; each message type declares a tighter one (its largest
+# honest arrays, see ``BinaryMessage.MAX_BODY_BYTES``) that :func:`unpack` checks before inflating.
 MAX_BODY_BYTES = 1 << 30
 MAX_NDIM = 8
 
@@ -120,6 +122,17 @@ def _forget_loan(key: int) -> Callable[[weakref.ref[np.ndarray]], None]:
     return lambda _ref: _LOANS.pop(key, None)
 
 
+def _spec_layout(arrays: Mapping[str, Spec]) -> _Layout:
+    """The layout of arrays named -> (shape, dtype), in this order."""
+    return _layout("", 0, tuple((n, tuple(shape), np.dtype(d).str) for n, (shape, d) in arrays.items()))
+
+
+def body_size(arrays: Mapping[str, Spec]) -> int:
+    """Body bytes of a payload with these arrays (name -> (shape, dtype)), padding included: what
+    a message type's largest honest arrays take, from which its decode limit is derived."""
+    return _spec_layout(arrays).body_size
+
+
 def loan(arrays: Mapping[str, Spec]) -> dict[str, np.ndarray]:
     """Writable arrays (name -> (shape, dtype)) that live inside a fresh payload buffer.
 
@@ -129,7 +142,7 @@ def loan(arrays: Mapping[str, Spec]) -> dict[str, np.ndarray]:
     (Zenoh copies during ``put``); a payload kept for later needs ``bytes(...)``.
     Filling the arrays is the producer's job (they start zeroed).
     """
-    layout = _layout("", 0, tuple((n, tuple(shape), np.dtype(d).str) for n, (shape, d) in arrays.items()))
+    layout = _spec_layout(arrays)
     buffer = bytearray(BODY_OFFSET + layout.body_size + SLACK)
     loaned = {}
     for s in layout.slots:
@@ -252,19 +265,27 @@ def _parse_layout(encoded: bytes) -> _Layout:
 
 
 def _decompress(data: memoryview, size: int) -> bytes:
+    """The body inflated, never past ``size`` + 1 bytes: a stream that would inflate further (its
+    declared size lies) stops there and is refused, so memory is bounded by what was checked."""
     inflater = zlib.decompressobj()
     try:
         body = inflater.decompress(data, size + 1)  # max_length 0 would mean "no limit"
     except zlib.error as exc:
         raise DecodeError(f"compressed body is corrupt: {exc}") from None
-    if len(body) != size or not inflater.eof or inflater.unconsumed_tail or inflater.unused_data:
+    if len(body) > size:
+        raise DecodeError(f"compressed body inflates past the declared {size} bytes")
+    if len(body) != size or not inflater.eof or inflater.unused_data:
         raise DecodeError(f"compressed body does not inflate to the declared {size} bytes")
     return body
 
 
-def unpack(payload: bytes | bytearray | memoryview, kind: str, version: int
-           ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+def unpack(payload: bytes | bytearray | memoryview, kind: str, version: int,
+           max_body: int = MAX_BODY_BYTES) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Decode a payload of the given kind and version into (fields, arrays).
+
+    ``max_body`` is the most body bytes a message of this kind may declare (its largest honest
+    arrays): a larger one is refused before anything is parsed or inflated, so a small
+    compressed payload cannot make the receiver allocate more than that.
 
     Arrays are views into ``payload`` (read-only when it is ``bytes``), so the
     payload must stay alive as long as they do; numpy's views keep it referenced.
@@ -291,6 +312,9 @@ def unpack(payload: bytes | bytearray | memoryview, kind: str, version: int
         raise DecodeError(f"expected a {kind!r} message, got {layout.kind!r}")
     if layout.version != version:
         raise DecodeError(f"{kind} version {layout.version!r} is not supported (expected {version})")
+    if layout.body_size > max_body:
+        raise DecodeError(f"{kind} body of {layout.body_size} bytes exceeds the {max_body} bytes "
+                          f"a {kind} message may declare")
     try:
         # pydantic's Rust parser: the fields are parsed per message (the layout once, cached), and
         # json.loads' Python layers cost twice as much, more on a cold cache between frames.

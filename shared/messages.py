@@ -23,12 +23,13 @@ from typing import Annotated, Any, ClassVar, Literal, Self
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from shared.codec import DecodeError, loan, pack, unpack
+from shared.codec import DecodeError, body_size, loan, pack, unpack
 from shared.detections import Detection
 from shared.motion import Action
 from shared.robot import Primitives
 
-__all__ = ["DecodeError", "OdomSession", "new_odom_session", "JsonMessage", "BinaryMessage", "ArraySpec",
+__all__ = ["DecodeError", "MAX_TEXT_CHARS", "MAX_NAME_CHARS", "MAX_TARGETS", "MAX_FRAME_SHAPE",
+           "MAX_DETECTIONS", "MAX_MAP_SIDE", "WIRE_CONFIG", "Name", "OdomSession", "new_odom_session", "JsonMessage", "BinaryMessage", "ArraySpec",
            "Intrinsics", "RgbdFrame",
            "MapSnapshot", "ObjectInstance", "PerceptionResult", "CounterSet", "ServiceStats", "CameraState", "Odometry", "PlanCommand", "DriverMode",
            "Outcome", "DriverState", "EStop", "TaskSpec", "TaskStatus", "FINAL", "FoundObject",
@@ -42,6 +43,42 @@ OdomSession = Annotated[str, Field(
 """Which odometry frame a pose is in. Poses, frames and maps of two sessions must never be mixed: a
 restarted driver's odometry starts again at its initial pose, wherever the robot stands. Letters,
 digits, '-' and '_' only: the mapping service names files with it."""
+
+MAX_TEXT_CHARS = 4096
+"""The longest string any wire message carries (free text: a reason, a fault, an exception's
+message; tighter bounds where a field says so): ample for what the services write, short enough
+that a forged message cannot bloat every log line and event stream it reaches."""
+
+MAX_NAME_CHARS = 256
+"""The longest target, label or map layer name: four times the gateway's 64 characters a target
+(labels are target or simulated class names), so no honest name comes near it."""
+
+Name = Annotated[str, Field(max_length=MAX_NAME_CHARS)]
+"""A target, label or map layer name."""
+
+MAX_TARGETS = 16
+"""Most targets a task searches for (the gateway's limit too): a perception result scores at most
+these, so a map holds at most this many value layers."""
+
+MAX_FRAME_SHAPE = (1080, 1920)
+"""(height, width) of the largest frame a camera of the stack sends: 1080p. A RealSense D4xx
+streams colour and depth at one size, 1280 x 720 at most (its depth's largest mode); the OAK-D and
+the simulator default to 640 x 480; 1080p leaves room for depth aligned to a 1080p colour camera.
+A perception result's masks have the frame's shape."""
+
+MAX_DETECTIONS = 32
+"""Most detections one perception result carries: the perception service keeps 20 by default
+(its ``max_detections``), with room above that."""
+
+MAX_MAP_SIDE = 1500
+"""Cells a side of the largest map grid: the mapping default (and the deployed config) is 1000,
+50 m at 5 cm (a large house, an office floor); half as much again leaves room for 75 m."""
+
+WIRE_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False, str_max_length=MAX_TEXT_CHARS)
+"""What every model that travels on the wire shares: unknown fields are errors, floats are finite
+(NaN and inf never travel honestly: pydantic writes them as ``null``, and a NaN pose or stamp
+poisons whatever fuses it) and strings are bounded. ``from_bytes`` also validates strictly: no
+bool or string is taken as a number (an int still is, for a float: JSON may write 1.0 as 1)."""
 
 
 def new_odom_session() -> str:
@@ -58,10 +95,23 @@ def _validation_error(cls: type, exc: ValidationError) -> DecodeError:
                        f"({exc.error_count()} error(s))")
 
 
-class JsonMessage(BaseModel):
-    """A small message sent as JSON; unknown fields are rejected, not ignored."""
+def _tuples(value: Any) -> Any:
+    """Parsed JSON with its arrays as tuples, for strict validation: pydantic's strict mode takes a
+    tuple field from a JSON array but, from Python input, only from a tuple."""
+    if isinstance(value, list):
+        return tuple(map(_tuples, value))
+    if isinstance(value, dict):
+        return {k: _tuples(v) for k, v in value.items()}
+    return value
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+
+class JsonMessage(BaseModel):
+    """A small message sent as JSON; unknown fields are rejected, not ignored.
+
+    Producers build messages leniently (a numpy scalar is a number), but what is decoded from the
+    wire is validated strictly: ``true`` or ``"1"`` is no number there."""
+
+    model_config = ConfigDict(**WIRE_CONFIG, frozen=True)
     VERSION: ClassVar[int] = 1
     v: int = 1
 
@@ -83,7 +133,7 @@ class JsonMessage(BaseModel):
     @classmethod
     def from_bytes(cls, data: bytes | bytearray | memoryview) -> Self:
         try:
-            return cls.__pydantic_validator__.validate_json(bytes(data))
+            return cls.__pydantic_validator__.validate_json(bytes(data), strict=True)
         except ValidationError as exc:
             raise _validation_error(cls, exc) from None
 
@@ -94,25 +144,37 @@ class ArraySpec:
 
     dtypes: tuple[str, ...]
     ndim: int
+    finite: bool = False
+    """Float values must be finite on the wire. Checked on receipt only: no honest producer sends
+    NaN or inf where this is set, while the cores built in-process tolerate them (the mapping core
+    leaves non-finite depth out), so only a payload from outside needs refusing."""
 
     def check(self, name: str, arr: np.ndarray) -> None:
         if arr.dtype.str not in self.dtypes or arr.ndim != self.ndim:
             raise ValueError(f"{name} must be a {self.ndim}-d array of {'/'.join(self.dtypes)}, "
                              f"got {arr.ndim}-d {arr.dtype}")
 
+    def non_finite(self, arr: np.ndarray) -> bool:
+        """Whether ``arr`` holds NaN or inf where this spec wants finite floats."""
+        return self.finite and arr.dtype.kind == "f" and not np.isfinite(arr).all()
+
 
 class BinaryMessage(BaseModel):
     """A message whose ``ARRAYS`` fields travel as raw bytes (see :mod:`shared.codec`).
 
-    Subclasses declare ``KIND``, ``ARRAYS`` and, for large but sparse content
+    Subclasses declare ``KIND``, ``ARRAYS``, ``MAX_BODY_BYTES`` and, for large but sparse content
     such as map grids, ``COMPRESS_LEVEL``. Array shapes and dtypes are checked
     when a message is built, so a producer bug fails at the producer.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True, arbitrary_types_allowed=True)
+    model_config = ConfigDict(**WIRE_CONFIG, frozen=True, arbitrary_types_allowed=True)
     KIND: ClassVar[str]
     VERSION: ClassVar[int] = 1
     ARRAYS: ClassVar[dict[str, ArraySpec]]
+    MAX_BODY_BYTES: ClassVar[int]
+    """The most array bytes a message of this type may declare: its largest honest arrays. A
+    payload declaring more is refused before it is inflated (a 1 MB zlib stream can inflate to
+    1 GiB)."""
     COMPRESS_LEVEL: ClassVar[int | None] = None
 
     @model_validator(mode="after")
@@ -132,14 +194,17 @@ class BinaryMessage(BaseModel):
 
     @classmethod
     def from_bytes(cls, data: bytes | bytearray | memoryview) -> Self:
-        fields, arrays = unpack(data, cls.KIND, cls.VERSION)
+        fields, arrays = unpack(data, cls.KIND, cls.VERSION, cls.MAX_BODY_BYTES)
         unknown = set(arrays) - set(cls.ARRAYS)
         if unknown:
             raise DecodeError(f"invalid {cls.__name__}: unexpected arrays {sorted(unknown)}")
         if clash := set(fields) & set(cls.ARRAYS):
             raise DecodeError(f"invalid {cls.__name__}: fields named like arrays {sorted(clash)}")
+        if bad := [name for name, arr in arrays.items() if cls.ARRAYS[name].non_finite(arr)]:
+            raise DecodeError(f"invalid {cls.__name__}: {bad[0]} holds NaN or inf values")
         try:
-            return cls.__pydantic_validator__.validate_python({**fields, **arrays})
+            return cls.__pydantic_validator__.validate_python({**_tuples(fields), **arrays},
+                                                              strict=True)
         except ValidationError as exc:
             raise _validation_error(cls, exc) from None
 
@@ -147,7 +212,7 @@ class BinaryMessage(BaseModel):
 class Intrinsics(BaseModel):
     """Pinhole intrinsics in pixels."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(**WIRE_CONFIG, frozen=True)
     fx: float = Field(gt=0)
     fy: float = Field(gt=0)
     cx: float
@@ -178,9 +243,13 @@ class RgbdFrame(BinaryMessage):
     KIND: ClassVar[str] = "rgbd"
     ARRAYS: ClassVar[dict[str, ArraySpec]] = {
         "rgb": ArraySpec(("|u1",), 3),
-        "depth": ArraySpec(("<f4", "<u2"), 2),
+        "depth": ArraySpec(("<f4", "<u2"), 2, finite=True),  # no reading is 0, never NaN
         "instance_ids": ArraySpec(("<i4",), 2),
     }
+    MAX_BODY_BYTES: ClassVar[int] = body_size({
+        "rgb": ((*MAX_FRAME_SHAPE, 3), "|u1"), "depth": (MAX_FRAME_SHAPE, "<f4"),
+        "instance_ids": (MAX_FRAME_SHAPE, "<i4")})
+    """A :data:`MAX_FRAME_SHAPE` frame with float depth and instance ids: 11 bytes a pixel, 22.8 MB."""
     seq: int = Field(ge=0)
     stamp: float
     after_action: int = Field(default=0, ge=0, description="last completed command at capture")
@@ -223,8 +292,8 @@ class RgbdFrame(BinaryMessage):
 class ObjectInstance(BaseModel):
     """One object the map believes exists (world metres)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    label: str
+    model_config = ConfigDict(**WIRE_CONFIG, frozen=True)
+    label: Name
     x: float
     y: float
     z: float = 0.0
@@ -264,13 +333,21 @@ class MapSnapshot(BinaryMessage):
         "searched": ArraySpec(("|b1",), 3),
         "frontiers": ArraySpec(("<f8",), 2),
     }
+    MAX_BODY_BYTES: ClassVar[int] = body_size({
+        "obstacle": ((MAX_MAP_SIDE,) * 2, "|b1"), "explored": ((MAX_MAP_SIDE,) * 2, "|b1"),
+        **{name: ((MAX_TARGETS, MAX_MAP_SIDE, MAX_MAP_SIDE), dtype) for name, dtype in (
+            ("counts", "<u2"), ("values", "<f4"), ("confidence", "<f4"), ("searched", "|b1"))},
+        "frontiers": ((MAX_MAP_SIDE ** 2 // 4, 2), "<f8")})
+    """A checkpoint (confidences and searched areas included) of a :data:`MAX_MAP_SIDE` grid with
+    :data:`MAX_TARGETS` layers: 2 + 11 x 16 bytes a cell, and at most one frontier a 2 x 2 block
+    of cells (frontier segments are 8-connected components, so two never touch): 410 MB."""
     seq: int = Field(ge=-1, description="seq of the last fused frame, -1 before the first")
     after_action: int = Field(default=0, ge=0, description="newest after_action of a fused frame")
     odom_session: OdomSession = ""
     stamp: float
     resolution: float = Field(gt=0)
     origin: tuple[float, float]
-    layers: tuple[str, ...]
+    layers: tuple[Name, ...] = Field(max_length=MAX_TARGETS)
     objects: tuple[ObjectInstance, ...] = ()
     obstacle: np.ndarray
     explored: np.ndarray
@@ -315,12 +392,15 @@ class PerceptionResult(BinaryMessage):
         "boxes": ArraySpec(("<i4",), 2),
         "masks": ArraySpec(("|b1",), 3),
     }
+    MAX_BODY_BYTES: ClassVar[int] = body_size({
+        "boxes": ((MAX_DETECTIONS, 4), "<i4"), "masks": ((MAX_DETECTIONS, *MAX_FRAME_SHAPE), "|b1")})
+    """:data:`MAX_DETECTIONS` masks of a :data:`MAX_FRAME_SHAPE` frame: 66 MB."""
     seq: int = Field(ge=0, description="seq of the frame this result is for")
     stamp: float
     odom_session: OdomSession = ""
-    targets: tuple[str, ...]
+    targets: tuple[Name, ...] = Field(max_length=MAX_TARGETS)
     scores: tuple[float, ...]
-    labels: tuple[str, ...] = ()
+    labels: tuple[Name, ...] = ()
     detection_scores: tuple[float, ...] = ()
     boxes: np.ndarray
     masks: np.ndarray
@@ -357,7 +437,7 @@ class PerceptionResult(BinaryMessage):
 class CounterSet(BaseModel):
     """Traffic on one key, as seen by one service instance."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = WIRE_CONFIG
     received: int = 0
     dropped: int = 0
     malformed: int = 0
@@ -506,21 +586,32 @@ FINAL = (TaskStatus.DONE, TaskStatus.FAILED, TaskStatus.CANCELLED)
 class TaskSpec(JsonMessage):
     """The task a robot should work on (re-published by its owner until it ends).
 
-    ``cancelled`` tells the planner to stop; targets may change while searching.
+    ``cancelled`` tells the planner to stop; targets may change while searching. ``steps``,
+    ``distance_m``, ``found``, ``last_action`` and the position (``x``, ``y`` in the frame of
+    ``odom_session``) are the task's progress as its owner recorded it from the planner's events:
+    a planner that restarts mid-task goes on from them (its step budget too), and books the
+    commands its predecessor completed after ``last_action`` unreported, measured from there.
     """
 
     task_id: str = Field(min_length=1, max_length=64)
-    targets: tuple[str, ...] = Field(min_length=1, max_length=16)
+    targets: tuple[Name, ...] = Field(min_length=1, max_length=MAX_TARGETS)
     max_steps: int = Field(default=500, ge=1, le=100_000)
     cancelled: bool = False
     stamp: float
+    steps: int = Field(default=0, ge=0)
+    distance_m: float = Field(default=0.0, ge=0)
+    found: tuple[FoundObject, ...] = ()
+    last_action: int = Field(default=0, ge=0)
+    x: float | None = None
+    y: float | None = None
+    odom_session: OdomSession = ""
 
 
 class FoundObject(BaseModel):
     """A target declared found: where (world metres) and at which step of its task."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    label: str
+    model_config = ConfigDict(**WIRE_CONFIG, frozen=True)
+    label: Name
     x: float
     y: float
     step: int = Field(ge=0)
@@ -542,8 +633,8 @@ class Miss(str, Enum):
 class TargetMiss(BaseModel):
     """A target a task did not find, and how far its search got (the planner's word on it)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    label: str
+    model_config = ConfigDict(**WIRE_CONFIG, frozen=True)
+    label: Name
     stage: Miss
     detections: int = Field(default=0, ge=0, description="detections the map holds of the label")
 
@@ -559,11 +650,11 @@ class Goal(BaseModel):
     """Where the planner is taking the robot (world metres): a confirmed object to stop beside, a
     candidate of the value map, or a frontier; shown on the operator's map."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(**WIRE_CONFIG, frozen=True)
     kind: Literal["object", "candidate", "frontier"]
     x: float
     y: float
-    label: str | None = None
+    label: Name | None = None
 
 
 class TaskEvent(JsonMessage):
@@ -571,7 +662,7 @@ class TaskEvent(JsonMessage):
 
     task_id: str
     status: TaskStatus
-    targets: tuple[str, ...]
+    targets: tuple[Name, ...]
     found: tuple[FoundObject, ...] = ()
     steps: int = Field(ge=0)
     distance_m: float = Field(ge=0)
@@ -582,6 +673,7 @@ class TaskEvent(JsonMessage):
     goal: Goal | None = None  # the goal being driven to; None between goals and once over
     odom_session: OdomSession = ""  # the driver's odometry session: the frame x, y and goal are in
     misses: tuple[TargetMiss, ...] = ()  # once failed: each target not found and how far it got
+    last_action: int = Field(default=0, ge=0)  # the newest command booked as a step (0: none)
 
 
 class TraceOption(BaseModel):
@@ -593,7 +685,7 @@ class TraceOption(BaseModel):
     (None when the policy ran no POUCT).
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(**WIRE_CONFIG, frozen=True)
     kind: Literal["candidate", "frontier"]
     x: float
     y: float
@@ -617,7 +709,7 @@ class DecisionTrace(JsonMessage):
     map_seq: int = Field(ge=-1, description="seq of the snapshot the decision read")
     robot_x: float
     robot_y: float
-    remaining: tuple[str, ...]
+    remaining: tuple[Name, ...]
     options: tuple[TraceOption, ...] = ()
     goal: Goal | None = None
     reason: str

@@ -31,7 +31,7 @@ class Primitives(BaseModel):
     enough to pass a 0.9 m doorway with a few heading corrections.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # on the wire in DriverState
     forward_m: float = Field(default=0.25, gt=0, description="length of MOVE_FORWARD")
     turn_deg: float = Field(default=30.0, gt=0, le=180, description="angle of TURN_LEFT/RIGHT")
 

@@ -61,6 +61,8 @@ class Evidence:
     quiet_for: float = 0.0
 
     def describe(self) -> str:
+        if math.isinf(self.quiet_for):
+            return "its first message, with no session followed (a start, or the source back after it was gone)"
         return (f"{self.messages} messages in order over {self.last_at - self.first_at:.2f} s, "
                 f"the session before quiet for {self.quiet_for:.2f} s")
 
@@ -84,6 +86,7 @@ class SessionFollower:
         self.switches = 0
         self.switched_on: Evidence | None = None
         self.left: set[str] = set()                # sessions that were current
+        self._reconnected_from: str | None = None  # the session before a reconnection
 
     def observe(self, stream: str, session: str, order: float) -> bool:
         """Whether a message (``order``: its seq or stamp) is of the current session, after
@@ -114,9 +117,19 @@ class SessionFollower:
         self.stray[stream] += 1
         return False
 
-    def _switch(self, ev: Evidence) -> None:
+    def reconnected(self) -> None:
+        """The driver's source was gone (its liveliness lost) and is back: the next message's
+        session is taken at once, as at the start, since a restarted driver is expected. The
+        session before is not left: a driver that only lost its link goes on with it."""
         if self.current is not None:
-            self.left.add(self.current)
+            self._current_at, self._candidates = -math.inf, {}
+            self.current, self._reconnected_from = None, self.current
+
+    def _switch(self, ev: Evidence) -> None:
+        left = self.current if self.current is not None else self._reconnected_from
+        if left is not None and left != ev.session:
+            self.left.add(left)
+        self._reconnected_from = None
         self.current, self.switched_on = ev.session, ev
         self.switches += 1
         self._candidates.clear()

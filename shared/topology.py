@@ -88,6 +88,9 @@ TOPOLOGY: dict[str, Node] = {
     "monitor": Node(inputs=(Port("robot_all", None),)),
 }
 
+DRIVERS = tuple(name for name, node in TOPOLOGY.items() if any(p.name == "driver_state" for p in node.outputs))
+"""The services that drive a robot: their liveliness says whether it is reachable, and live."""
+
 
 def graph() -> dict[str, Any]:
     """The table as plain data: ``{"services": {name: {"inputs": [...], "outputs": [...], ...}}}``."""

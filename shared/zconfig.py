@@ -10,21 +10,25 @@ TLS (the link between the laptop's and the robot's routers): ``tls=`` a
 :class:`TlsFiles` (a certificate folder made by ``ovamos certs`` and this host's
 role) fills ``transport.link.tls`` for mutual authentication. Whatever the
 source of a TLS setting (that argument or a config file), the certificates it
-names are checked before Zenoh sees them: a missing or expired one is a
-:class:`ZenohConfigError` with the date, not a link that silently never comes up.
+names are checked before Zenoh sees them (:func:`check_tls`: each key its
+certificate's and its owner's alone, the CA writable by its owner only, all valid
+now): a fault is a :class:`ZenohConfigError` saying what to do, not a link that
+silently never comes up. A router with a ``tls/`` link keeps its plain listeners on
+loopback (:func:`check_plain_listeners`).
 """
 
 from __future__ import annotations
 
+import ipaddress
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 from collections.abc import Sequence
 
 import zenoh
 
-from shared.certs import CA_CERT, CertError, check_certificate, check_key
+from shared.certs import CA_CERT, CertError, CertInfo, check_ca, check_certificate, check_key
 
 Mode = Literal["client", "peer", "router"]
 DEFAULT_PORT = 7447
@@ -66,36 +70,80 @@ class TlsFiles:
                 "enable_mtls": True, "close_link_on_expiration": True}
 
 
-_TLS_CERTS = ("root_ca_certificate", "listen_certificate", "connect_certificate")
-_TLS_KEYS = ("listen_private_key", "connect_private_key")
+#: ``transport.link.tls``'s (certificate, its key) pairs: for accepting links, and for opening them
+_TLS_PAIRS = (("listen_certificate", "listen_private_key"), ("connect_certificate", "connect_private_key"))
 
 
-def check_tls(cfg: zenoh.Config) -> list[str]:
-    """Check every certificate and key ``transport.link.tls`` names (existing, valid now);
-    returns the certificates' descriptions. Raises :class:`ZenohConfigError`."""
-    tls = _get(cfg, "transport/link/tls") or {}
-    found = []
+def check_tls(cfg: zenoh.Config) -> list[CertInfo]:
+    """Check every certificate and key ``transport.link.tls`` names: the CA (:func:`check_ca`),
+    and each certificate valid now with its own key (:func:`check_key`); returns what was found,
+    the CA first, each file once. Raises :class:`ZenohConfigError`."""
+    tls = tls_settings(cfg)
+    found: dict[str, CertInfo] = {}
     try:
-        for field in _TLS_CERTS:
-            if tls.get(field) and (info := check_certificate(tls[field]).describe()) not in found:
-                found.append(info)
-        for field in _TLS_KEYS:
-            if tls.get(field):
-                check_key(tls[field])
+        if tls.get("root_ca_certificate"):
+            found[tls["root_ca_certificate"]] = check_ca(tls["root_ca_certificate"])
+        for cert, key in _TLS_PAIRS:
+            if tls.get(cert):
+                found.setdefault(tls[cert], check_certificate(tls[cert]))
+            if tls.get(key):
+                check_key(tls[key], tls.get(cert))
     except CertError as exc:
         raise ZenohConfigError(str(exc)) from None
-    return found
+    return list(found.values())
+
+
+def endpoint_host(endpoint: str) -> str | None:
+    """The host of ``proto/host:port[#...]`` (an IPv6 address without its brackets); None for an
+    endpoint without one (a unix socket)."""
+    proto, sep, rest = endpoint.partition("/")
+    address = rest.split("#", 1)[0].split("?", 1)[0]
+    if not sep or proto.startswith("unix") or ":" not in address:
+        return None
+    host = address.rsplit(":", 1)[0]
+    return host[1:-1] if host.startswith("[") and host.endswith("]") else host
+
+
+def _on_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # a DNS name: it may resolve anywhere
+
+
+def check_plain_listeners(cfg: zenoh.Config) -> None:
+    """A router with a ``tls/`` link listens without TLS on loopback only: a plain listener on
+    another address (``tcp/0.0.0.0``, the host's address on the robot network) would let anyone
+    on that network in without a certificate, and the access control's ``local`` subject (the
+    loopback interface) is the second line, not the first. Raises :class:`ZenohConfigError`."""
+    if not uses_tls(cfg):
+        return
+    for endpoint in endpoints(cfg, "listen"):
+        host = endpoint_host(endpoint)
+        if not endpoint.startswith("tls/") and host is not None and not _on_loopback(host):
+            raise ZenohConfigError(f"listen endpoint {endpoint} is plain (no TLS) and not on loopback: on a "
+                                   f"router with a tls/ link, anyone who reaches {host} would get in without "
+                                   f"a certificate; listen on tcp/127.0.0.1:PORT for this host's services and "
+                                   f"put the other host's link on tls/")
 
 
 def uses_tls(cfg: zenoh.Config) -> bool:
     """Whether the config listens on or connects to a ``tls/`` endpoint."""
-    return any(str(e).startswith("tls/") for kind in ("listen", "connect") for e in _endpoints(cfg, kind))
+    return any(e.startswith("tls/") for kind in ("listen", "connect") for e in endpoints(cfg, kind))
 
 
-def _endpoints(cfg: zenoh.Config, kind: Literal["listen", "connect"]) -> list[object]:
+def endpoints(cfg: zenoh.Config, kind: Literal["listen", "connect"]) -> list[str]:
     """The ``listen`` or ``connect`` endpoints: a list, or (Zenoh takes both) a list per mode."""
     value = _get(cfg, f"{kind}/endpoints")
-    return [e for v in value.values() for e in v] if isinstance(value, dict) else list(value or [])
+    return [str(e) for e in ([e for v in value.values() for e in v] if isinstance(value, dict) else value or [])]
+
+
+def tls_settings(cfg: zenoh.Config) -> dict[str, Any]:
+    """``transport.link.tls`` as set (empty without)."""
+    value = _get(cfg, "transport/link/tls")
+    return value if isinstance(value, dict) else {}
 
 
 def _get(cfg: zenoh.Config, key: str) -> object:
@@ -166,7 +214,7 @@ def build_config(mode: Mode | None = None, *, file: str | Path | None = None,
     if not require_certs:
         return cfg
     check_tls(cfg)
-    if uses_tls(cfg) and not (_get(cfg, "transport/link/tls") or {}).get("root_ca_certificate"):
+    if uses_tls(cfg) and not tls_settings(cfg).get("root_ca_certificate"):
         raise ZenohConfigError("a tls/ endpoint needs certificates: give the folder made by "
                                "`ovamos certs` (--certs DIR --cert NAME)")
     return cfg
@@ -186,9 +234,9 @@ def open_session(cfg: zenoh.Config) -> zenoh.Session:
         if isinstance(timeout_ms, dict):  # Zenoh also takes one per mode
             timeout_ms = timeout_ms.get(_get(cfg, "mode"))
         if "Timeout" in str(exc) and isinstance(timeout_ms, int) and timeout_ms >= 0:
-            tried = ", ".join(map(str, _endpoints(cfg, "connect")))
+            tried = ", ".join(endpoints(cfg, "connect"))
             raise RouterUnreachableError(f"no Zenoh router answered at {tried} within {timeout_ms / 1000:g} s "
                                          f"({_STACK_HINT})") from None
-        endpoints = {k: _get(cfg, f"{k}/endpoints") for k in ("listen", "connect")}
+        configured = {k: _get(cfg, f"{k}/endpoints") for k in ("listen", "connect")}
         raise ZenohConfigError(f"cannot open a Zenoh {_get(cfg, 'mode')} session "
-                               f"({endpoints}): {exc}") from None
+                               f"({configured}): {exc}") from None

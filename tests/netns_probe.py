@@ -6,12 +6,17 @@ monotonic clock (the same in every namespace), until killed.
 ``attack``: try to open a session (a TLS one with the given certificate, or none) and, if that
 works, publish velocity commands and an e-stop clear and subscribe to the camera; print one JSON
 line saying what happened.
+``router``: a router as ``ovamos router`` runs it (:func:`ovamos.router.run_router`), told the
+robots a fleet's laptop router binds (``--robot``, repeatable); ``--unchecked``: the same config
+opened by Zenoh as written, without ovamos's start-up (no checks, no robots bound), which is what
+a router did before, to reproduce what it let through.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 import threading
 import time
@@ -23,7 +28,8 @@ import zenoh  # noqa: E402
 
 from shared import keys  # noqa: E402
 from shared.messages import EStop, PlanCommand  # noqa: E402
-from shared.zconfig import build_config  # noqa: E402
+from shared.log import setup_logging  # noqa: E402
+from shared.zconfig import TlsFiles, build_config, open_session  # noqa: E402
 
 _lock = threading.Lock()
 
@@ -80,6 +86,21 @@ def attack(args: argparse.Namespace) -> None:
     emit(opened=True, frames=len(frames))
 
 
+def router(args: argparse.Namespace) -> None:
+    from ovamos.router import run_router
+    setup_logging()
+    cfg = build_config("router", file=args.config, listen=args.listen, connect=args.connect,
+                       tls=TlsFiles.from_folder(args.certs, args.cert), require_certs=not args.unchecked)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    if args.unchecked:
+        session = open_session(cfg)
+        stop.wait()
+        session.close()
+        return
+    run_router(cfg, robot_id=args.robot_id, robots=args.robot, name=args.cert, stop=stop)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     sub = parser.add_subparsers(dest="mode", required=True)
@@ -93,8 +114,17 @@ def main() -> None:
     a.add_argument("--ca")
     a.add_argument("--cert")
     a.add_argument("--key")
+    r = sub.add_parser("router")
+    r.add_argument("--config", required=True)
+    r.add_argument("--certs", required=True)
+    r.add_argument("--cert", required=True)
+    r.add_argument("--listen", action="append", default=[])
+    r.add_argument("--connect", action="append", default=[])
+    r.add_argument("--robot-id", default="robot1")
+    r.add_argument("--robot", action="append", default=[])
+    r.add_argument("--unchecked", action="store_true")
     args = parser.parse_args()
-    (watch if args.mode == "watch" else attack)(args)
+    {"watch": watch, "attack": attack, "router": router}[args.mode](args)
 
 
 if __name__ == "__main__":

@@ -35,6 +35,7 @@ SETTINGS = settings(max_examples=50, deadline=None,
 finite = st.floats(allow_nan=False, allow_infinity=False)
 positive = st.floats(min_value=1e-6, max_value=1e6, allow_nan=False, allow_infinity=False)
 small_text = st.text(max_size=12)
+finite_depth = st.floats(width=32, allow_nan=False, allow_infinity=False)  # a frame's float depth is finite
 
 
 @st.composite
@@ -51,7 +52,7 @@ def rgbd_frames(draw: st.DrawFn, max_side: int = 32) -> RgbdFrame:
         camera_pose=tuple(draw(st.lists(finite, min_size=16, max_size=16))),
         depth_scale=draw(positive),
         rgb=draw(hnp.arrays(np.uint8, (h, w, 3))),
-        depth=draw(hnp.arrays(depth_dtype, (h, w))),
+        depth=draw(hnp.arrays(depth_dtype, (h, w), elements=finite_depth if depth_dtype.kind == "f" else None)),
         instance_ids=draw(hnp.arrays(np.dtype("<i4"), (h, w))) if with_ids else None,
     )
 
@@ -689,6 +690,18 @@ def test_zip_bomb_declaring_an_empty_body_is_not_inflated() -> None:
     finally:
         tracemalloc.stop()
     assert peak < 8 << 20, f"decoding a {len(payload)} B payload peaked at {peak >> 20} MiB"
+
+
+def test_body_size_is_what_pack_lays_out_and_max_body_bounds_it() -> None:
+    """``body_size`` (from which each message type's limit is derived) matches what ``pack`` writes;
+    ``unpack`` takes a body of exactly ``max_body`` and refuses one byte less, before inflating."""
+    arrays = {"a": np.ones((3, 5), np.float32), "b": np.ones(7, np.uint8)}
+    size = codec.body_size({name: (arr.shape, arr.dtype.str) for name, arr in arrays.items()})
+    payload = bytes(pack("k", 1, {}, arrays, compress_level=1))
+    assert json.loads(split(payload).layout)["body"] == size
+    assert unpack(payload, "k", 1, max_body=size)[1]["b"].sum() == 7
+    with pytest.raises(DecodeError, match=f"body of {size} bytes exceeds the {size - 1} bytes"):
+        unpack(payload, "k", 1, max_body=size - 1)
 
 
 def test_bytes_after_the_compressed_stream_are_rejected() -> None:

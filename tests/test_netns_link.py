@@ -202,6 +202,24 @@ class Deployment:
         return subprocess.run(self.hosts.argv(role, argv), capture_output=True, text=True, timeout=timeout,
                               cwd=REPO)
 
+    def gateway(self, method: str, path: str, body: dict[str, Any] | None = None) -> tuple[int, dict[str, Any]]:
+        """An HTTP request to the laptop's gateway, from the laptop: (status, JSON answer)."""
+        script = ("import json, sys, urllib.error, urllib.request\n"
+                  f"req = urllib.request.Request('http://127.0.0.1:{HTTP_PORT}' + sys.argv[2], method=sys.argv[1], "
+                  "data=sys.argv[3].encode() or None, headers={'Content-Type': 'application/json'})\n"
+                  "try:\n    r = urllib.request.urlopen(req, timeout=30)\n"
+                  "except urllib.error.HTTPError as e:\n    r = e\n"
+                  "print(r.status, r.read().decode())\n")
+        done = self.run_in("laptop", [sys.executable, "-c", script, method, path, json.dumps(body) if body else ""])
+        assert done.returncode == 0, done.stderr
+        code, _, text = done.stdout.partition(" ")
+        return int(code), json.loads(text)
+
+    def estop_latched(self) -> bool:
+        code, state = self.gateway("GET", f"/v1/robots/{ROBOT}")
+        assert code == 200, state
+        return bool(state["driver"]["estop_latched"])
+
     def status(self, role: str) -> list[dict[str, Any]]:
         port = 7447 if role == "laptop" else 7448
         done = self.run_in(role, [sys.executable, "-m", "ovamos.cli", "status", "--json", "--connect",
@@ -322,38 +340,82 @@ def _commands_received(dep: Deployment) -> tuple[int, int]:
 
 def test_netns_an_intruder_cannot_make_the_robot_move(deployment: Deployment) -> None:
     """No certificate, another CA's, a valid one of the wrong role, plaintext TCP: the robot's driver
-    never sees a command, and the routers log and count what they refused."""
+    never sees a command, and the routers log and count what they refused. The operator's
+    certificate engages the e-stop but cannot clear it (driver/estop/clear is the laptop's)."""
     dep, certs, other = deployment, deployment.certs, deployment.root / "other-ca"
-    before = _commands_received(dep)
-    robot_tls, laptop_tls = f"tls/{ROBOT_FROM_INTRUDER}:{OPERATOR_PORT}", f"tls/{LAPTOP_FROM_INTRUDER}:{LINK_PORT}"
-    ca = ["--ca", str(certs / "ca.pem")]
-    forged = [*ca, "--cert", str(other / "laptop.pem"), "--key", str(other / "laptop.key")]
-    refused = [(endpoint, creds) for endpoint in (robot_tls, laptop_tls)
-               for creds in (ca, forged)]  # no certificate; another CA's, even with the laptop's CN
-    # plaintext TCP to the TLS ports, and to the routers' TCP ports (on loopback only)
-    refused += [(endpoint, []) for endpoint in (
-        f"tcp/{ROBOT_FROM_INTRUDER}:{OPERATOR_PORT}", f"tcp/{LAPTOP_FROM_INTRUDER}:{LINK_PORT}",
-        f"tcp/{ROBOT_FROM_INTRUDER}:7448", f"tcp/{LAPTOP_FROM_INTRUDER}:7447")]
-    # valid certificates of the wrong role get a session, and nothing through
-    wrong_role = [("intruder", robot_tls), ("intruder", laptop_tls), ("operator", robot_tls), ("robot", laptop_tls)]
-    let_in = [(endpoint, [*ca, "--cert", str(certs / f"{name}.pem"), "--key", str(certs / f"{name}.key")])
-              for name, endpoint in wrong_role]
-    results = _attacks(dep, refused + let_in)
-    for (endpoint, _), got in zip(refused, results):
-        assert got["opened"] is False, f"{endpoint}: {got}"
-    for (name, endpoint), got in zip(wrong_role, results[len(refused):]):
-        assert got["opened"] is True, f"CN {name} at {endpoint}: {got}"
-        if name != "robot":
-            assert got["frames"] == 0, f"CN {name} read the camera"
-    time.sleep(1.0)
-    assert _commands_received(dep) == before, "a command reached the driver"
-    robot_router = next(s for s in dep.status("robot") if s["service"] == "router")
-    denied = robot_router["stats"]["counters"][f"ovamos/{ROBOT}/plan/command"]["denied"]
-    assert denied >= 20  # 10 each from CN intruder and CN operator
-    log = dep.router_log("robot")
-    assert f"Put (ingress) on ovamos/{ROBOT}/plan/command from CN intruder" in log
-    assert f"Put (ingress) on ovamos/{ROBOT}/plan/command from CN operator" in log
-    assert "access control denied" in dep.router_log("laptop")
+    code, state = dep.gateway("POST", f"/v1/robots/{ROBOT}/estop", {"reason": "intruder test"})
+    assert code == 200 and state["driver"]["estop_latched"], state
+    try:
+        before = _commands_received(dep)
+        robot_tls, laptop_tls = f"tls/{ROBOT_FROM_INTRUDER}:{OPERATOR_PORT}", f"tls/{LAPTOP_FROM_INTRUDER}:{LINK_PORT}"
+        ca = ["--ca", str(certs / "ca.pem")]
+        forged = [*ca, "--cert", str(other / "laptop.pem"), "--key", str(other / "laptop.key")]
+        refused = [(endpoint, creds) for endpoint in (robot_tls, laptop_tls)
+                   for creds in (ca, forged)]  # no certificate; another CA's, even with the laptop's CN
+        # plaintext TCP to the TLS ports, and to the routers' TCP ports (on loopback only)
+        refused += [(endpoint, []) for endpoint in (
+            f"tcp/{ROBOT_FROM_INTRUDER}:{OPERATOR_PORT}", f"tcp/{LAPTOP_FROM_INTRUDER}:{LINK_PORT}",
+            f"tcp/{ROBOT_FROM_INTRUDER}:7448", f"tcp/{LAPTOP_FROM_INTRUDER}:7447")]
+        # valid certificates of the wrong role get a session, and nothing through
+        wrong_role = [("intruder", robot_tls), ("intruder", laptop_tls), ("operator", robot_tls), ("robot", laptop_tls)]
+        let_in = [(endpoint, [*ca, "--cert", str(certs / f"{name}.pem"), "--key", str(certs / f"{name}.key")])
+                  for name, endpoint in wrong_role]
+        results = _attacks(dep, refused + let_in)
+        for (endpoint, _), got in zip(refused, results):
+            assert got["opened"] is False, f"{endpoint}: {got}"
+        for (name, endpoint), got in zip(wrong_role, results[len(refused):]):
+            assert got["opened"] is True, f"CN {name} at {endpoint}: {got}"
+            if name != "robot":
+                assert got["frames"] == 0, f"CN {name} read the camera"
+        time.sleep(1.0)
+        assert _commands_received(dep) == before, "a command reached the driver"
+        robot_router = next(s for s in dep.status("robot") if s["service"] == "router")
+        denied = robot_router["stats"]["counters"][f"ovamos/{ROBOT}/plan/command"]["denied"]
+        assert denied >= 20  # 10 each from CN intruder and CN operator
+        log = dep.router_log("robot")
+        assert f"Put (ingress) on ovamos/{ROBOT}/plan/command from CN intruder" in log
+        assert f"Put (ingress) on ovamos/{ROBOT}/plan/command from CN operator" in log
+        assert "access control denied" in dep.router_log("laptop")
+        # the operator's clears (driver/estop/clear, and engage=false on driver/estop) left it latched ...
+        assert f"Put (ingress) on ovamos/{ROBOT}/driver/estop/clear from CN operator" in log
+        assert dep.estop_latched(), "the operator's certificate released the e-stop"
+    finally:  # the laptop's clear, through both routers, releases it (and leaves the robot free to move)
+        code, state = dep.gateway("POST", f"/v1/robots/{ROBOT}/estop/clear", {"confirm": True})
+    assert code == 200 and not state["driver"]["estop_latched"], state
+
+
+def test_netns_a_plain_listener_off_loopback_gives_its_clients_nothing(deployment: Deployment) -> None:
+    """The access control's ``local`` subject is plain TCP on the loopback interface: a plain listener
+    on the robot network (the plain profile's advice, copied into a secure config, and started by
+    Zenoh as written; ``ovamos router`` refuses it) lets the intruder open a session but gives it
+    nothing. With the subject matching every TCP link, as it was, the intruder commands the robot."""
+    dep = deployment
+    shipped = REPO / "deploy" / "zenoh" / "laptop-router-secure.json5"
+    as_before = dep.root / "laptop-router-any-interface.json5"
+    as_before.write_text(shipped.read_text().replace('{ id: "local", interfaces: ["lo"], link_protocols: ["tcp"] }',
+                                                     '{ id: "local", link_protocols: ["tcp"] }'))
+    assert as_before.read_text() != shipped.read_text()
+    got = {}
+    for name, config, port in (("before", as_before, 7460), ("after", shipped, 7462)):
+        exposed = f"tcp/{LAPTOP_FROM_INTRUDER}:{port + 1}"
+        router = subprocess.Popen(dep.hosts.argv("laptop", [
+            sys.executable, str(REPO / "tests" / "netns_probe.py"), "router", "--unchecked", "--config", str(config),
+            "--certs", str(dep.certs), "--cert", "laptop", "--listen", f"tcp/127.0.0.1:{port}", "--listen", exposed]),
+            stdout=(dep.root / f"router-{name}.log").open("ab"), stderr=subprocess.STDOUT, cwd=REPO,
+            start_new_session=True)
+        watcher = Lines(dep.hosts.argv("laptop", [sys.executable, str(REPO / "tests" / "netns_probe.py"), "watch",
+                                                  "--robot-id", ROBOT, "--connect", f"tcp/127.0.0.1:{port}",
+                                                  "--keys", "plan_command"]), dep.root / f"watch-{name}.log")
+        try:
+            wait_for(lambda: watcher.snapshot("ready"), 30, f"a client of the {name} router")
+            opened = _attacks(dep, [(exposed, [])])[0]["opened"]
+            time.sleep(0.5)
+            got[name] = (opened, len(watcher.snapshot("plan_command")))
+        finally:
+            watcher.stop()
+            _stop_group(router)
+    assert got["before"][0] and got["before"][1] > 0, f"the fault is not reproduced: {got}"
+    assert got["after"] == (True, 0), f"a plain link off loopback was given rights: {got}"
 
 
 def _interrupted_task(dep: Deployment, interrupt: Callable[[], None], resume: Callable[[], None],

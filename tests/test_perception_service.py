@@ -10,17 +10,20 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
+from services.perception.backend import Job, Seen
 from services.perception.config import PerceptionServiceConfig, SimBackendConfig
+from services.perception.service import PerceptionService
 from services.perception.sim_backend import SimBackend
 from shared import keys
 from shared.bus import Bus
 from shared.codec import pack
+from shared.fake_bus import FakeNetwork
 from shared.messages import PerceptionResult, RgbdFrame, TaskSpec
 from shared.service import INFO_EVERY_S
 from shared.status import live_services
 from shared.zconfig import build_config
 from tests.polling import wait_for
-from tests.perception_helpers import ROBOT, RunningPerception, render_frames
+from tests.perception_helpers import ROBOT, Robot, RunningPerception, render_frames
 from tests.sim_scenes import two_rooms
 
 
@@ -188,6 +191,60 @@ def test_a_replica_still_loading_its_models_gets_no_frames(inproc_router, sim_co
             assert stats(client, "a").info["replicas"] == ["a"]
     finally:
         running.close()
+
+
+def test_a_target_the_simulated_house_cannot_hold_is_named_in_the_info_and_the_rest_scored(
+        inproc_router, sim_config, sender, client, frames) -> None:
+    """``candel`` is no class of the simulated house: the info names it and the closest class (the
+    planner fails the task with it), and the frames are scored for the other targets (the backend
+    raised on every frame before, so no result came at all)."""
+    service = RunningPerception(inproc_router, sim_config)
+    try:
+        task = TaskSpec(task_id="t1", targets=("fridge", "candel"), stamp=0.0)
+
+        def scored() -> PerceptionResult | None:
+            sender.tasks.put(task)
+            sender.frames.put(frames[0])
+            return next((r for r in sender.results(frames[0].seq) if r.targets), None)
+        assert wait_for(scored, what="a result for the known target").targets == ("fridge",)
+        s = wait_for(lambda: (s := stats(client, "0")) and s.info["unknown_targets"] and s,
+                     what="the unknown target in the info")
+        (entry,) = s.info["unknown_targets"].values()
+        assert list(s.info["unknown_targets"]) == [ROBOT] and entry["targets"] == ["candel"]
+        assert entry["reason"].startswith("unknown target 'candel' for the simulated house: "
+                                          "did you mean 'candle'? it can have: ")
+        sender.tasks.put(task.model_copy(update={"cancelled": True}))
+        wait_for(lambda: not stats(client, "0").info["unknown_targets"], what="forgotten with the task")
+    finally:
+        service.close()
+
+
+class OpenVocabulary:
+    """A stand-in (mock) for a real model: any word is a target it may see, so it names none."""
+
+    name = "open"
+
+    def score(self, frame: RgbdFrame, targets: tuple[str, ...]) -> dict[str, float]:
+        return {t: 0.5 for t in targets}
+
+    def detect(self, frame: RgbdFrame, targets: tuple[str, ...]) -> list:
+        return []
+
+    def process(self, jobs: list[Job], detect: bool) -> list[Seen]:
+        return [Seen(self.score(job.frame, job.targets)) for job in jobs]
+
+
+def test_an_open_vocabulary_backend_takes_any_word(frames) -> None:
+    network = FakeNetwork()
+    service = PerceptionService(network.bus(ROBOT, "perception"), PerceptionServiceConfig(), OpenVocabulary())
+    service.start()
+    robot = Robot(network)
+    network.pump()
+    robot.tasks.put(TaskSpec(task_id="t1", targets=("candel",), stamp=0.0))
+    robot.frames.put(frames[0])
+    network.pump()
+    assert service.info()["unknown_targets"] == {}
+    assert [r.score_map() for r in robot.results] == [{"candel": 0.5}]
 
 
 def test_unusable_frames_are_rejected_and_counted_and_the_service_goes_on(inproc_router, sim_config,

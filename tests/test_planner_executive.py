@@ -352,12 +352,39 @@ def test_a_driver_restart_is_a_new_odometry_session_and_no_plan_is_made_on_the_o
     assert ex.in_flight is None                               # command 1 was decided in the old frame
     assert ex.map_wanted() == 0                               # the map is asked for at once
     out = ex.poll(0.1)
-    assert commands(out) == [] and events(out)[-1].message == OLD_MAP
+    assert commands(out) == [] and events(out)[-1].message == f"{OLD_MAP} (the map is of session 'A', the driver's is 'B')"
     assert events(out)[-1].odom_session == "B"
     ex.on_snapshot(snapshot(1, after=1, session="A"))         # a late map of session A changes nothing
-    assert commands(ex.poll(0.2)) == [] and ex.waiting == OLD_MAP
+    assert commands(ex.poll(0.2)) == [] and ex.waiting.startswith(OLD_MAP)
     ex.on_snapshot(snapshot(0, after=0, session="B"))         # the fresh map (its seq starts again)
     assert ex.map_wanted() is None
     out = ex.poll(0.3)
     assert [c.action for c in commands(out)] == [Action.TURN_LEFT]  # a new look-around, then on
     assert [c.action_id for c in commands(out)] == [2] and ex.task.steps == 0 and ex.waiting == ""
+
+
+def test_a_forged_driver_state_is_ignored_and_a_restart_is_followed_on_evidence() -> None:
+    """Issue 33, finding 1: one driver state of a made-up session dropped the command in flight
+    and held the task waiting for a map of that session."""
+    clock = [0.0]
+    ex = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=2)), receipt_clock=lambda: clock[0])
+    ex.on_task(spec())
+    ex.on_driver(driver(session="A", stamp=1.0))
+    ex.on_snapshot(snapshot(0, session="A"))
+    ex.on_odom(odom(session="A"))
+    assert [c.action_id for c in commands(ex.poll(0.0))] == [1]
+    for forged in ("20991231T235959Z-ffffff", ""):
+        clock[0] += 0.1
+        ex.on_driver(driver(session=forged, stamp=10**9))
+    assert ex.in_flight is not None and ex.driver is not None and ex.driver.odom_session == "A"
+    assert not ex.waiting
+    # the driver restarts without its link being lost: A goes quiet, B's states stream at 5 Hz
+    clock[0] += 1.0
+    for k in range(5):
+        clock[0] += 0.2
+        ex.on_driver(driver(session="B", stamp=2.0 + k * 0.2))
+    assert ex.in_flight is None and ex.driver is not None and ex.driver.odom_session == "B"
+    out = ex.poll(0.5)
+    assert events(out)[-1].message == f"{OLD_MAP} (the map is of session 'A', the driver's is 'B')"
+    ex.on_driver(driver(session="A", stamp=3.0))  # a late state of the session left: ignored
+    assert ex.driver.odom_session == "B"

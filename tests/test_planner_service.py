@@ -14,14 +14,17 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
+from services.perception.config import PerceptionServiceConfig, SimBackendConfig
 from services.planner.service import PlannerService, PlannerServiceConfig
 from shared import keys
 from shared.bus import Bus
 from shared.messages import (DriverMode, DriverState, MapSnapshot, ObjectInstance, Odometry, PlanCommand,
                              ServiceStats, TaskEvent, TaskSpec, TaskStatus)
 from shared.zconfig import build_config
+from tests.perception_helpers import RunningPerception
 from tests.polling import wait_for
 from tests.service_helpers import Running
+from tests.sim_scenes import two_rooms
 
 ROBOT = "r1"
 N = 120
@@ -117,3 +120,33 @@ def test_a_malformed_task_is_counted_and_the_service_keeps_running(planner, inpr
         wait_for(planner_counted_it, what="the malformed task is counted")
         wait_for(lambda: session.put(keys.task_current(ROBOT), spec.to_bytes())
                  or any(e.task_id == "t2" for e in events), what="a valid task is still accepted")
+
+
+def test_a_target_the_simulated_house_cannot_hold_fails_the_task_naming_the_closest_class(
+        planner, inproc_router, tmp_path) -> None:
+    """``candel`` with the sim backend: perception never scores it, so the map never gets its
+    values; the planner asks perception why and fails the task with its words (before, the task
+    sat at step 0 for ever, waiting for perception)."""
+    scene_file = tmp_path / "scene.json"
+    two_rooms().save(scene_file)
+    perception = RunningPerception(inproc_router, PerceptionServiceConfig(sim=SimBackendConfig(
+        scene_file=scene_file)))
+    events: list[TaskEvent] = []
+    try:
+        with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-mock") as bus:
+            base = MockBaseAndMap(bus)  # its map has values of the cup only
+            bus.subscribe(keys.task_events(ROBOT), TaskEvent, events.append)
+            task_pub = bus.publisher(keys.task_current(ROBOT), TaskSpec)
+            spec = TaskSpec(task_id="t3", targets=("cup", "candel"), stamp=time.time())
+
+            def failed() -> TaskEvent | None:
+                task_pub.put(spec)  # the gateway's re-publication, which perception reads too
+                base.publish()
+                return next((e for e in events if e.status is TaskStatus.FAILED), None)
+
+            event = wait_for(failed, timeout=30, what="the task failed")
+    finally:
+        perception.close()
+    assert event.message.startswith("unknown target 'candel' for the simulated house: did you mean "
+                                    "'candle'? it can have: ")
+    assert event.steps == 0 and base.completed == 0

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import subprocess
+import sys
 import threading
 import time
 from collections import defaultdict
@@ -32,7 +34,7 @@ from mcap.reader import NonSeekingReader, make_reader
 
 from ovamos.demo import DEMO_EPISODE, DEMO_SEED, SERVICES, demo_entries, write_configs
 from ovamos.record.channels import META_KEY, RawChannel, recorded_ports
-from ovamos.record.live import replay
+from ovamos.record.live import LiveRobotError, replay
 from ovamos.record.replay import RecordingError, read_raw
 from ovamos.record.views import TOPICS
 from ovamos.supervisor import Entry, Supervisor, port_open
@@ -308,3 +310,31 @@ def test_replay_at_max_speed_ignores_the_recorded_gaps_and_loses_nothing(tmp_pat
         report = replay(zcfg, path, rate=None, names=None, robot_id="desk", stop=threading.Event())
         wait_for(lambda: len(got) == len(payloads), timeout=20, what="every replayed message")
     assert report.read == {"odom": 300} and got == payloads
+
+
+def test_a_replay_onto_a_live_robot_is_refused_unless_forced(tmp_path: Path, inproc_router: str) -> None:
+    """Issue 33, finding 1: a recording replayed onto the live robot id mixed its odometry session
+    and frames with the robot's own. A driver's liveliness token makes the robot id live."""
+    path = tmp_path / "odom.mcap"
+    context = foxglove.Context()
+    writer = foxglove.open_mcap(path, context=context)
+    channel = RawChannel("odom", Odometry, "desk").open(context)
+    payloads = [Odometry(seq=i, stamp=float(i), x=0.0, y=0.0, yaw=0.0).to_bytes() for i in range(5)]
+    for i, payload in enumerate(payloads):
+        channel.log(payload, log_time=(1_000 + i) * 10**9)
+    writer.close()
+    zcfg = build_config(connect=[inproc_router])
+    got: list[bytes] = []
+    with Bus.open(zcfg, "desk", "sim", "7") as live, Bus.open(zcfg, "desk", "test") as bus:
+        assert live.robot_id == "desk"
+        bus.tap(keys.odom("desk"), lambda key, payload: got.append(payload))
+        with pytest.raises(LiveRobotError, match=r"robot 'desk' is live \(sim/7 alive\).*--robot-id "
+                                                 r"desk-replay.*--force"):
+            replay(zcfg, path, rate=None, names=None, robot_id=None, stop=threading.Event())
+        # the CLI says the same and exits non-zero; nothing was published
+        proc = subprocess.run([sys.executable, "-m", "ovamos.cli", "replay", str(path), "--max",
+                               "--connect", inproc_router], capture_output=True, text=True, timeout=60)
+        assert proc.returncode != 0 and "robot 'desk' is live (sim/7 alive)" in proc.stderr
+        report = replay(zcfg, path, rate=None, names=None, robot_id=None, stop=threading.Event(), force=True)
+        wait_for(lambda: len(got) == len(payloads), what="the forced replay's messages")
+    assert report.read == {"odom": 5} and got == payloads  # none came before the forced replay

@@ -36,11 +36,11 @@ def test_a_payload_beyond_the_budget_is_dropped_and_counted_and_so_is_an_unknown
 
 def test_split_files_each_close_with_an_index_and_hold_every_message_once(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
-    config = RecorderConfig(split_bytes=200_000, flush_s=0.05, compression="none", views=False)
+    config = RecorderConfig(split_bytes=10_000, flush_s=0.05, compression="none", views=False)
     rec = Recorder(path, select(["task_current"]), "r1", config)
     sent = []
-    for i in range(12):  # ~100 kB each: the targets are long names
-        spec = TaskSpec(task_id=f"t{i}", targets=tuple(f"{i}-{'x' * 6000}-{k}" for k in range(16)), stamp=float(i))
+    for i in range(12):  # ~4 kB each: the targets are long names
+        spec = TaskSpec(task_id=f"t{i}", targets=tuple(f"{i}-{'x' * 240}-{k}" for k in range(16)), stamp=float(i))
         sent.append(bytes(spec.to_bytes()))
         assert rec.offer("task_current", sent[-1])
         time.sleep(0.08)  # past a flush: the size check sees the file grow

@@ -7,6 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from services.perception.backend import Job, Seen
+from services.perception.sim_backend import SimBackend
 from services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
 from services.sim.perception_presets import PERCEPTION_PRESETS, perception_preset
 from services.sim.prior import ObjectPrior
@@ -110,6 +112,24 @@ def test_frames_without_instance_ids_are_refused(prior) -> None:
     frame = render(scene).model_copy(update={"instance_ids": None})
     with pytest.raises(ValueError, match="simulated frames"):
         SimPerception(FrameLabels.of(scene), prior).score(frame, TARGETS)
+
+
+def test_an_unknown_target_is_named_with_the_closest_class_and_the_rest_scored(prior) -> None:
+    """A typo (``candel``) names no class a simulated house can hold: the backend says so, with
+    the closest class, and scores the other targets (it raised on every frame, and the task sat
+    at step 0 for ever)."""
+    scene = two_rooms()
+    frame = render(scene)
+    backend = SimBackend(scene, prior)
+    unknown, why = backend.unknown_targets(["fridge", "candel"])
+    assert unknown == ("candel",)
+    assert why.startswith("unknown target 'candel' for the simulated house: did you mean 'candle'? "
+                          "it can have: alarm_clock, apple, ")
+    assert why.endswith(", ".join(prior.classes[-2:]))
+    assert backend.unknown_targets(TARGETS) == ((), "")
+    (seen,) = backend.process([Job("r1", frame, ("fridge", "candel"))], detect=True)
+    assert isinstance(seen, Seen) and seen.scores == backend.score(frame, ["fridge"])
+    assert {d.label for d in seen.detections} <= {"fridge"}
 
 
 def test_presets_get_worse_in_every_figure_from_ideal_to_hard() -> None:

@@ -152,6 +152,9 @@ def test_every_shipped_config_is_safe() -> None:
             continue
         if "secure" in path.name and get(cfg, "access_control/enabled") is not True:
             problems.append(f"{path.name}: a secure router without access control")
+        for subject in get(cfg, "access_control/subjects") or []:
+            if "tcp" in (subject.get("link_protocols") or []) and subject.get("interfaces") != ["lo"]:
+                problems.append(f"{path.name}: subject {subject['id']!r} lets plain TCP in from any interface")
         if get(cfg, "scouting/multicast/enabled") is not False:
             problems.append(f"{path.name}: multicast enabled after build_config")
         for which in ("listen", "connect"):

@@ -8,6 +8,10 @@ Payloads are taken on Zenoh's threads straight into the recorder's byte-bounded 
 
 The recorder and the viewer declare a ``ready`` liveliness token once their subscriptions
 are in place: a test or a launcher that waits for it knows nothing published after it is lost.
+
+A replay refuses a robot id whose driver is alive (:class:`LiveRobotError`) unless forced: the
+recording's odometry and driver states would mix with the live ones (another odometry session,
+poses of another run) and its frames would be fused into the live map.
 """
 
 from __future__ import annotations
@@ -30,10 +34,16 @@ from ovamos.record.views import ViewPump
 from shared import keys
 from shared.bus import Bus
 from shared.service import install_signal_handlers
+from shared.topology import DRIVERS
 
-__all__ = ["record", "replay", "view", "STATUS_EVERY_S"]
+__all__ = ["record", "replay", "view", "STATUS_EVERY_S", "LiveRobotError"]
 
 STATUS_EVERY_S = 1.0
+LIVE_CHECK_S = 2.0  # how long a replay asks who is alive before it publishes (a liveliness query)
+
+
+class LiveRobotError(RuntimeError):
+    """A replay onto a robot id whose driver is alive, not forced."""
 
 
 def _tool_bus(zenoh_config: zenoh.Config, robot_id: str, service: str, stop: threading.Event) -> Bus:
@@ -78,10 +88,12 @@ def record(zenoh_config: zenoh.Config, robot_id: str, ports: Mapping[str, type],
 
 
 def replay(zenoh_config: zenoh.Config, path: Path, *, rate: float | None, names: Sequence[str] | None,
-           robot_id: str | None, stop: threading.Event) -> ReadReport:
+           robot_id: str | None, stop: threading.Event, force: bool = False) -> ReadReport:
     """Publish the raw channels of ``path`` (those in ``names``) on ``robot_id``'s keys (the
     recorded robot's when None) at ``rate`` times their recorded pace; None: as fast as the
-    subscribers' links take them (puts wait while one is congested instead of dropping)."""
+    subscribers' links take them (puts wait while one is congested instead of dropping).
+    :class:`LiveRobotError` before anything is published when that robot's driver is alive,
+    unless ``force``."""
     report = ReadReport()
     messages = read_raw(path, names, report)
     first = next(messages, None)  # a file that is not a recording fails before Zenoh is opened
@@ -90,6 +102,12 @@ def replay(zenoh_config: zenoh.Config, path: Path, *, rate: float | None, names:
     robot = robot_id or first.channel.robot_id
     bus = _tool_bus(zenoh_config, robot, "replay", stop)
     try:
+        live = _live_drivers(bus)
+        if live and not force:
+            raise LiveRobotError(
+                f"robot {robot!r} is live ({', '.join(live)} alive): replaying onto it would mix the "
+                f"recording's odometry, driver states and frames with the robot's own. Replay onto "
+                f"another robot id (--robot-id {robot}-replay), or pass --force if that is meant")
         publishers: dict[str, Any] = {}
         for msg in paced(itertools.chain((first,), messages), rate, stopped=stop.is_set):
             pub = publishers.get(msg.channel.name)
@@ -100,6 +118,17 @@ def replay(zenoh_config: zenoh.Config, path: Path, *, rate: float | None, names:
     finally:
         bus.close()
     return report
+
+
+def _live_drivers(bus: Bus) -> list[str]:
+    """The driver instances alive on the bus's robot (``sim/0``, ``base_driver/1234``)."""
+    alive = []
+    for service in DRIVERS:
+        for reply in bus.session.liveliness().get(keys.alive(bus.robot_id, service), timeout=LIVE_CHECK_S):
+            if reply.ok is not None:
+                key = keys.parse_service_key(str(reply.ok.key_expr))
+                alive.append(f"{key.service}/{key.instance}")
+    return sorted(alive)
 
 
 def view(zenoh_config: zenoh.Config, robot_id: str, ports: Mapping[str, type], *, host: str, port: int,

@@ -17,9 +17,9 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from services.gateway.config import MAX_STEPS_LIMIT, GatewayConfig
 from services.gateway.store import TaskRecord
-from shared.messages import FINAL, DriverState, FoundObject, Goal, ObjectInstance, TargetMiss, TaskStatus
+from shared.messages import (FINAL, MAX_TARGETS, DriverState, FoundObject, Goal, ObjectInstance, TargetMiss,
+                             TaskStatus)
 
-MAX_TARGETS = 16
 MAX_TARGET_CHARS = 64
 
 

@@ -54,6 +54,7 @@ CREATE TABLE IF NOT EXISTS tasks (
     path TEXT NOT NULL DEFAULT '[]',
     odom_session TEXT,
     misses TEXT NOT NULL DEFAULT '[]',
+    last_action INTEGER NOT NULL DEFAULT 0,
     created REAL NOT NULL,
     started REAL,
     updated REAL NOT NULL,
@@ -63,7 +64,8 @@ CREATE UNIQUE INDEX IF NOT EXISTS one_search_per_robot ON tasks(robot_id) WHERE 
 CREATE INDEX IF NOT EXISTS by_robot_status ON tasks(robot_id, status, seq);
 """
 #: columns added since the first schema, with their type: added to a file made before them
-_ADDED_COLUMNS = {"odom_session": "TEXT", "misses": "TEXT NOT NULL DEFAULT '[]'"}
+_ADDED_COLUMNS = {"odom_session": "TEXT", "misses": "TEXT NOT NULL DEFAULT '[]'",
+                  "last_action": "INTEGER NOT NULL DEFAULT 0"}
 
 
 class StoreError(RuntimeError):
@@ -87,6 +89,7 @@ class TaskRecord:
     path: list[tuple[float, float]] = field(default_factory=list)
     odom_session: str | None = None  # of the planner's latest report: the frame of path and found
     misses: list[TargetMiss] = field(default_factory=list)  # once failed: the targets not found, why
+    last_action: int = 0  # the newest command the planner booked as a step: a restarted one goes on after it
     created: float = 0.0
     started: float | None = None
     updated: float = 0.0
@@ -105,7 +108,7 @@ def _record(row: sqlite3.Row) -> TaskRecord:
         steps=row["steps"], distance_m=row["distance_m"], message=row["message"],
         path=[tuple(p) for p in json.loads(row["path"])], odom_session=row["odom_session"],
         misses=[TargetMiss.model_validate(m) for m in json.loads(row["misses"])],
-        created=row["created"],
+        last_action=row["last_action"], created=row["created"],
         started=row["started"], updated=row["updated"], finished=row["finished"])
 
 
@@ -267,7 +270,7 @@ class TaskStore:
 
     def progress(self, task_id: str, *, found: tuple[FoundObject, ...], steps: int, distance_m: float,
                  message: str, position: tuple[float, float] | None, odom_session: str | None = None,
-                 misses: tuple[TargetMiss, ...] = ()) -> None:
+                 misses: tuple[TargetMiss, ...] = (), last_action: int = 0) -> None:
         """Record the planner's latest report; ``position`` extends the task's path, whose points
         (and the found objects') are in the frame of ``odom_session``."""
         with self._write_lock, self._db:
@@ -279,7 +282,8 @@ class TaskStore:
                 path = (path + [list(position)])[-MAX_PATH_POINTS:]
             self._db.execute(
                 "UPDATE tasks SET found = ?, steps = ?, distance_m = ?, message = ?, path = ?, "
-                "odom_session = COALESCE(?, odom_session), misses = ?, updated = ? WHERE id = ?",
+                "odom_session = COALESCE(?, odom_session), misses = ?, last_action = ?, updated = ? "
+                "WHERE id = ?",
                 (json.dumps([f.model_dump() for f in found]), steps, distance_m, message,
                  json.dumps(path), odom_session, json.dumps([m.model_dump(mode="json") for m in misses]),
-                 time.time(), task_id))
+                 last_action, time.time(), task_id))

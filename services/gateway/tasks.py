@@ -205,7 +205,7 @@ class TaskManager:
         position = (event.x, event.y) if event.x is not None and event.y is not None else None
         self.store.progress(record.id, found=event.found, steps=event.steps, distance_m=event.distance_m,
                             message=event.message, position=position, odom_session=event.odom_session,
-                            misses=event.misses)
+                            misses=event.misses, last_action=event.last_action)
         self._count("events_applied")
         self._live[robot_id] = (record.id, event.goal)
         if event.status in FINAL:
@@ -292,6 +292,8 @@ class TaskManager:
 def _spec(record: TaskRecord, cancelled: bool = False) -> TaskSpec:
     """The task with the progress the planner last reported: a planner restarted mid-task
     resumes its count, distance and found targets from it instead of starting over."""
+    x, y = record.position or (None, None)
     return TaskSpec(task_id=record.id, targets=tuple(record.targets), max_steps=record.max_steps,
                     cancelled=cancelled, stamp=time.time(), steps=record.steps,
-                    distance_m=record.distance_m, found=tuple(record.found))
+                    distance_m=record.distance_m, found=tuple(record.found), last_action=record.last_action,
+                    x=x, y=y, odom_session=record.odom_session or "")

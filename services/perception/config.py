@@ -10,6 +10,7 @@ from pydantic import Field, field_validator
 from services.sim.perception import SimPerceptionConfig
 from shared.config import ServiceConfig, StrictModel
 from shared.keys import check_chunk
+from shared.messages import MAX_DETECTIONS
 
 
 class SceneChoice(StrictModel):
@@ -54,7 +55,8 @@ class HfBackendConfig(StrictModel):
     prompt: str = Field(default="Seems like there is a {target} ahead.", pattern=r"\{target\}")
     box_threshold: float = Field(default=0.35, ge=0, le=1)
     text_threshold: float = Field(default=0.25, ge=0, le=1)
-    max_detections: int = Field(default=20, ge=1)
+    max_detections: int = Field(default=20, ge=1, le=MAX_DETECTIONS,
+                                description="a result with more could not be sent (shared.messages.MAX_DETECTIONS)")
 
 
 class FrameLimits(StrictModel):

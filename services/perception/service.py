@@ -31,6 +31,12 @@ back into its slot, unless a newer one waits there, and is scored again for the
 new list: the view in front of a robot standing still is not lost for the new
 targets (the map fuses only the values of targets it had not fused that frame for).
 
+A target the backend can never see (the sim backend's vocabulary is closed: the classes a
+simulated house can hold; a real model's is open, any word goes) is not scored; the service
+says so in its info (``unknown_targets``: per robot the targets and why, ``did you mean
+'candle'?``), where the planner reads it to fail the task with that reason instead of waiting
+for a map layer that never comes.
+
 A frame no backend can use (wrong size, or a camera frame sent to the sim
 backend) is rejected: counted as ``malformed`` on its frame key (as the bus
 counts undecodable ones), logged (sampled) and answered with no result.
@@ -47,6 +53,7 @@ from __future__ import annotations
 
 import time
 from collections import defaultdict
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from services.perception.backend import Job, PerceptionBackend, Seen, load_backend
@@ -85,6 +92,10 @@ class PerceptionService(Service):
         self._last_batch = 0
         self._last_rejection = ""
         self._ready: Any = None
+        # a closed-vocabulary backend's (the sim's) check of a target list; None: any word goes
+        self._vocabulary: Callable[[Sequence[str]], tuple[tuple[str, ...], str]] | None = \
+            getattr(self.backend, "unknown_targets", None)
+        self._unknown: dict[str, tuple[tuple[str, ...], str]] = {}  # per robot: targets never seen, why
 
     def start(self) -> None:
         robot = self.bus.robot_id
@@ -113,11 +124,23 @@ class PerceptionService(Service):
     def _retarget(self, robot: str, gained: bool) -> None:
         """A robot's list gained a target: its latest processed frame is scored again (unless a
         newer frame of it is waiting, which will be scored for the new list anyway)."""
+        self._check_vocabulary(robot)
         latest = self._latest.get(robot)
         if gained and latest is not None and robot not in self.slots:
             self._rescored += 1
             self.slots.put(robot, latest, time.monotonic())
             self.tick()
+
+    def _check_vocabulary(self, robot: str) -> None:
+        """Note (and say once) which of the robot's targets the backend can never see."""
+        if self._vocabulary is None:
+            return
+        unknown, why = self._vocabulary(self._targets[robot].targets)
+        if not unknown:
+            self._unknown.pop(robot, None)
+        elif self._unknown.get(robot) != (unknown, why):
+            self._unknown[robot] = (unknown, why)
+            self.log.warning("%s: %s", robot, why)
 
     def _on_frame(self, robot: str, frame: RgbdFrame) -> None:
         if self.replicas.owns(frame.seq):
@@ -170,6 +193,8 @@ class PerceptionService(Service):
         members = self.replicas.members()
         return {"backend": self.backend.name, "robots": self.robots,
                 "targets": {r: list(t.targets) for r, t in self._targets.items()},
+                "unknown_targets": {r: {"targets": list(unknown), "reason": why}
+                                    for r, (unknown, why) in self._unknown.items()},
                 "replicas": members, "replica_index": members.index(self.bus.instance),
                 "processed": sum(self._processed.values()), "processed_by_robot": dict(self._processed),
                 "replaced_by_robot": dict(self.slots.replaced), "rescored": self._rescored,

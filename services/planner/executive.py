@@ -24,8 +24,11 @@ rules be tested message by message:
   restarted) is waited for, and new ids continue after it, so the driver
   never drops a new command as a duplicate of an old one;
 * one odometry session (:data:`shared.messages.OdomSession`): a decision only on a map of the
-  driver's current session, else the task waits ("map from an earlier odometry session");
-  when the driver's session changes (it restarted: odometry starts again at its initial pose,
+  driver's current session, else the task waits (naming both sessions);
+  the driver's session changes on evidence only (:mod:`shared.sessions`: a sustained stream of
+  driver states of the new one while the current one is quiet, or the first state after the
+  robot was unreachable), so a forged driver state is counted and ignored; when it changes
+  (the driver restarted: odometry starts again at its initial pose,
   wherever the robot is) the command in flight is forgotten and the search goes on with a
   new agent (a look-around first) on the task's progress so far, since every place the old
   agent remembers is in the old frame;
@@ -59,15 +62,18 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
 from services.planner.task import SearchTask, SearchTaskError
+from shared.log import sampled
 from shared.messages import (FINAL, CameraState, DecisionTrace, DriverMode, DriverState, JsonMessage,
                              MapSnapshot, Odometry, Goal, PlanCommand, TaskEvent, TaskSpec, TaskStatus)
 from shared.motion import Pose
+from shared.sessions import SessionFollower, SessionSwitch
 
 
 log = logging.getLogger("ovamos.planner")
 
 OLD_MAP = "map from an earlier odometry session: waiting for a new map"
-"""Why the planner waits while its map is of another odometry session than the driver's."""
+"""Why the planner waits while its map is of another odometry session than the driver's (the
+waiting message goes on with both sessions)."""
 ROBOT_UNREACHABLE = "robot unreachable"
 """Why it waits once every driver's token is gone without a word (the link, or the driver died)."""
 DRIVER_OFF = "the robot's driver shut down"
@@ -80,6 +86,9 @@ class ExecutiveConfig(BaseModel):
     lock_step: bool = Field(default=True, description="decide only on a map with the newest frame")
     resend_s: float = Field(default=0.3, gt=0, description="re-send an unacknowledged command")
     event_every_s: float = Field(default=1.0, gt=0, description="re-publish the task's progress")
+    session_switch: SessionSwitch = Field(
+        default_factory=SessionSwitch, description="when driver states of a new odometry session "
+        "are followed (the driver restarted) while the robot stays reachable")
 
 
 @dataclass
@@ -92,7 +101,9 @@ class _InFlight:
 
 class Executive:
     def __init__(self, config: ExecutiveConfig | None = None,
-                 wall_clock: Callable[[], float] = time.time) -> None:
+                 wall_clock: Callable[[], float] = time.time,
+                 receipt_clock: Callable[[], float] = time.monotonic) -> None:
+        """``receipt_clock``: when a driver state came (the evidence of a session change)."""
         self.config = config or ExecutiveConfig()
         self._wall_clock = wall_clock
         self.task: SearchTask | None = None
@@ -106,7 +117,8 @@ class Executive:
         self.robot_reachable = True  # False once every driver's liveliness token is gone
         self.unreachable_why = ROBOT_UNREACHABLE  # a link lost, or a driver that said it shut down
         self._next_id = 1
-        self._odom_session: str | None = None  # the driver's, kept while it is unreachable
+        self._sessions = SessionFollower(self.config.session_switch, clock=receipt_clock)  # states taken
+        self._odom_session: str | None = None  # of the last one taken, kept while it is unreachable
         self._decided_on = -2       # snapshot seq of the last decision (free-running mode)
         self._event_due = True
         self._last_event = -math.inf
@@ -119,7 +131,7 @@ class Executive:
                 return  # a cancelled task this planner never ran: nothing to do
             if task is not None and task.state not in FINAL:
                 task.cancel()  # superseded (the gateway runs one task per robot)
-            self.task = SearchTask(spec.task_id, list(spec.targets), max_steps=spec.max_steps)
+            self.task = SearchTask.from_spec(spec)  # a restarted planner goes on from its progress
             self.agent = SearchAgent(self.task, self.config.agent)
             self.in_flight = None
             self._event_due = True
@@ -142,18 +154,29 @@ class Executive:
         self._event_due = self._event_due or bool(added or removed)
 
     def on_driver(self, state: DriverState) -> None:
-        if self._odom_session is not None and state.odom_session != self._odom_session:
-            self._new_odom_session(state.odom_session)
+        """A driver state: taken only when of the driver's session (see the module)."""
+        before = self._odom_session
+        if not self._sessions.observe("driver_state", state.odom_session, state.stamp):
+            if sampled(self._sessions.stray["driver_state"]):
+                log.warning("ignored a driver state of odometry session %r: the driver's is %r and "
+                            "no sustained stream of %r says it restarted (%d such states so far)",
+                            state.odom_session, self._sessions.current, state.odom_session,
+                            self._sessions.stray["driver_state"])
+            return
+        if before is not None and state.odom_session != before:
+            self._new_odom_session(state.odom_session, before)
         self.driver, self._odom_session = state, state.odom_session
         newest = max(state.last_completed, state.active_action or 0)
         if newest >= self._next_id:  # ids continue after the driver's (a planner restart)
             self._next_id = newest + 1
 
-    def _new_odom_session(self, session: str) -> None:
+    def _new_odom_session(self, session: str, before: str) -> None:
         """The driver restarted its odometry: nothing decided in the old frame still holds."""
-        log.warning("the driver's odometry session is now %r (was %r): the command in flight is "
-                    "dropped; the search goes on, with a look-around, on a map of the new session",
-                    session, self._odom_session)
+        evidence = self._sessions.switched_on
+        assert evidence is not None  # a switch has just happened
+        log.warning("the driver's odometry session is now %r (was %r; on %s): the command in flight "
+                    "is dropped; the search goes on, with a look-around, on a map of the new session",
+                    session, before, evidence.describe())
         self.in_flight = None
         if self.task is not None and self.task.state is TaskStatus.SEARCHING:
             self.agent = SearchAgent(self.task, self.config.agent)
@@ -165,6 +188,8 @@ class Executive:
             off = self.driver is not None and self.driver.mode is DriverMode.OFF
             self.unreachable_why = DRIVER_OFF if off else ROBOT_UNREACHABLE
             self.driver = None  # whatever it said before the loss may be stale when it returns
+        if reachable and not self.robot_reachable:
+            self._sessions.reconnected()  # a restarted driver's first state is its session
         self.robot_reachable = reachable
 
     def on_camera(self, state: CameraState) -> None:
@@ -217,7 +242,8 @@ class Executive:
                          message=task.reason or self.waiting or (agent.condition if searching else ""),
                          misses=agent.misses() if task.state is TaskStatus.FAILED and agent is not None else (),
                          x=None if pose is None else pose.x, y=None if pose is None else pose.y,
-                         goal=self._goal(), odom_session="" if self.odom is None else self.odom.odom_session)
+                         goal=self._goal(), last_action=task.last_action,
+                         odom_session="" if self.odom is None else self.odom.odom_session)
 
     def _goal(self) -> Goal | None:
         """The agent's goal while the task searches (the operator's map shows it)."""
@@ -263,6 +289,7 @@ class Executive:
             pose = self._pose() or flight.pose
             moved = math.hypot(pose.x - flight.pose.x, pose.y - flight.pose.y)
             self.agent.executed(flight.step, moved, d.last_outcome == "blocked", flight.pose)
+            self.agent.task.last_action = action_id  # reported: a restarted planner goes on after it
             self._event_due = True
             return self._decide(now, d) if self.task and self.task.state is TaskStatus.SEARCHING else []
         if now - flight.sent >= self.config.resend_s:  # lost, or running: the driver's keep-alive
@@ -278,7 +305,8 @@ class Executive:
         if snapshot is None or pose is None:
             return self._wait("waiting for the map" if snapshot is None else "waiting for odometry")
         if snapshot.odom_session != d.odom_session:
-            return self._wait(OLD_MAP)
+            return self._wait(f"{OLD_MAP} (the map is of session {snapshot.odom_session!r}, the "
+                              f"driver's is {d.odom_session!r})")
         if self.odom is not None and self.odom.odom_session != d.odom_session:
             return self._wait("waiting for odometry of the driver's odometry session")
         if self.config.lock_step:

@@ -11,35 +11,54 @@ The robot is reachable while the liveliness token of a service that drives it
 (one whose outputs include ``driver/state``: ``base_driver``, ``sim``) is seen;
 once every one has gone (the link to the robot is down), the executive waits
 with the reason "robot unreachable" and resumes when one is back.
+
+A planner restarted mid-task (killed, crashed) goes on with the progress the gateway's
+TaskSpec carries (steps, distance, found targets, the budget left), and books as steps the
+commands its predecessor sent after the last one it reported (``last_action``) that the
+driver completed: the task's count is the commands the robot ran, whatever restarted.
+
+While the map has no values of a remaining target, the planner asks perception (its stats,
+every ``perception_check_s``) whether it can see that target at all: a closed vocabulary (the
+sim backend's, the classes a simulated house can hold) names the targets it never will and
+why (``did you mean 'candle'?``), and the task fails with that reason instead of waiting at
+step 0 for ever. A real model's vocabulary is open: it names none, and nothing changes.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
-from pydantic import Field
+from pydantic import BaseModel, Field, ValidationError
 
 from services.planner.executive import DRIVER_OFF, Executive, ExecutiveConfig
 from shared import keys
 from shared.bus import BusCore
 from shared.config import ServiceConfig
-from shared.messages import DecisionTrace, MapSnapshot, PlanCommand, TaskEvent
+from shared.messages import (DecisionTrace, MapSnapshot, PlanCommand, ServiceStats, TaskEvent, TaskSpec,
+                             TaskStatus)
 from shared.service import Service
-from shared.topology import TOPOLOGY
-
-#: the services that drive a robot: their liveliness says whether it is reachable
-DRIVERS = tuple(name for name, node in TOPOLOGY.items()
-                if any(p.name == "driver_state" for p in node.outputs))
+from shared.topology import DRIVERS, TOPOLOGY
 
 
 _PORTS = {PlanCommand: "plan_command", TaskEvent: "task_events", DecisionTrace: "plan_trace"}
 """The output port of each message type :meth:`Executive.poll` returns."""
 
 
+class _UnknownTargets(BaseModel):
+    """Perception's word on a robot's targets it can never see (its info's ``unknown_targets``)."""
+
+    targets: tuple[str, ...]
+    reason: str
+
+
 class PlannerServiceConfig(ServiceConfig, ExecutiveConfig):
     tick_hz: float = Field(default=20.0, gt=0, description="how often the protocol is polled")
     query_timeout_s: float = Field(default=0.5, gt=0, description="wait this long for a map on request")
+    perception_check_s: float = Field(
+        default=2.0, gt=0, description="while the map has no values of a target, ask perception this "
+                                       "often whether it can see that target at all")
 
 
 class PlannerService(Service):
@@ -55,10 +74,14 @@ class PlannerService(Service):
         self._asked_for: int | None = None  # the command a map request in flight is for
         self._map_key = TOPOLOGY[self.name].port("queries", "map_snapshot").key(bus.robot_id)
         self._drivers: set[str] = set()  # the live tokens of services driving the robot
+        self._perception_key = keys.stats(bus.robot_id, "perception")
+        self._asking_perception = False
+        self._next_perception_check = 0.0  # time.monotonic()
+        self._resumed: TaskSpec | None = None  # a task taken over mid-way, until its commands are booked
 
     def start(self) -> None:
         ex = self.executive
-        self.wire({"task_current": ex.on_task, "driver_state": ex.on_driver, "camera_state": ex.on_camera,
+        self.wire({"task_current": self._on_task, "driver_state": ex.on_driver, "camera_state": ex.on_camera,
                    "odom": ex.on_odom, "map_snapshot": ex.on_snapshot})
         for service in DRIVERS:
             self.bus.watch_liveliness(keys.alive(self.bus.robot_id, service), self._on_driver_token)
@@ -76,13 +99,82 @@ class PlannerService(Service):
                 self.log.warning("robot unreachable: %s gone (the link to the robot is down, or its "
                                  "driver died); waiting for it", key)
 
+    def _on_task(self, spec: TaskSpec) -> None:
+        """A task new to this planner that already booked commands (``last_action``) is taken over
+        mid-way from a planner that stopped: its unreported commands are booked once seen."""
+        task = self.executive.task
+        self.executive.on_task(spec)
+        if self.executive.task is not task:
+            self._resumed = spec if spec.last_action else None
+
+    def _book_unreported(self) -> None:
+        """Book the commands of a resumed task that the driver completed after the last one
+        reported, once it is idle and the odometry after them is in (what the first decision
+        waits for too), measured from the task's last reported position. Not once this planner
+        has sent a command of its own: the driver's count would hold it."""
+        spec, ex = self._resumed, self.executive
+        task, d, odom = ex.task, ex.driver, ex.odom
+        if spec is None:
+            return
+        if ex.in_flight is not None or task is None or task.state is not TaskStatus.SEARCHING:
+            self._resumed = None
+            return
+        if d is None or d.active_action is not None or odom is None or odom.after_action < d.last_completed:
+            return
+        self._resumed = None
+        if d.last_completed > task.last_action:
+            moved = 0.0  # unknown without a reported position in the driver's frame
+            if spec.x is not None and spec.y is not None and spec.odom_session == odom.odom_session:
+                moved = math.hypot(odom.x - spec.x, odom.y - spec.y)
+            self.log.warning("task %s: booking commands %d-%d (%.2f m), completed after the last one the "
+                             "planner before this one reported", task.task_id, task.last_action + 1,
+                             d.last_completed, moved)
+            task.book_unreported(d.last_completed, moved)
+            self._publish_event()
+
+    def _publish_event(self) -> None:
+        """The task's state now, not at the executive's next periodic event."""
+        self.out["task_events"].put(self.executive.event())
+
     def tick(self) -> None:
         wanted = self.executive.map_wanted()
         if wanted is not None and self._asked_for is None:
             self._asked_for = wanted
             self.bus.request(self._map_key, MapSnapshot, self._on_map_reply, self.config.query_timeout_s)
-        for msg in self.executive.poll(time.monotonic()):
+        self._book_unreported()
+        now = time.monotonic()
+        for msg in self.executive.poll(now):
             self.out[_PORTS[type(msg)]].put(msg)
+        if self._unseen_targets() and not self._asking_perception and now >= self._next_perception_check:
+            self._asking_perception, self._next_perception_check = True, now + self.config.perception_check_s
+            self.bus.request(self._perception_key, ServiceStats, self._on_perception_stats,
+                             self.config.query_timeout_s)
+
+    def _unseen_targets(self) -> list[str]:
+        """The searching task's remaining targets the newest map has no values of."""
+        task, snapshot = self.executive.task, self.executive.snapshot
+        if task is None or task.state is not TaskStatus.SEARCHING:
+            return []
+        return [t for t in task.remaining if snapshot is None or t not in snapshot.layers]
+
+    def _on_perception_stats(self, stats: ServiceStats | None) -> None:
+        """Fail the task when perception says it can never see one of its remaining targets."""
+        self._asking_perception = False
+        reports = None if stats is None else stats.info.get("unknown_targets")
+        entry = reports.get(self.bus.robot_id) if isinstance(reports, dict) else None
+        if entry is None:
+            return
+        try:
+            unknown = _UnknownTargets.model_validate(entry)
+        except ValidationError:
+            self.log.warning("perception's unknown_targets of %s not understood: %r", self.bus.robot_id, entry)
+            return
+        task = self.executive.task
+        if task is not None and task.state is TaskStatus.SEARCHING and set(unknown.targets) & set(
+                task.remaining):
+            task.fail(unknown.reason)
+            self.log.warning("task %s failed: %s", task.task_id, unknown.reason)
+            self._publish_event()
 
     def _on_map_reply(self, snapshot: MapSnapshot | None) -> None:
         self._asked_for = None

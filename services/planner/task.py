@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from shared.messages import FoundObject, TaskStatus
+from shared.messages import FoundObject, TaskSpec, TaskStatus
 
 
 class SearchTaskError(RuntimeError):
@@ -30,10 +30,20 @@ class SearchTask:
     distance: float = 0.0
     found: dict[str, FoundObject] = field(default_factory=dict)
     reason: str = ""  # why the task failed
+    last_action: int = 0  # the id of the newest command booked as a step (0: none yet)
 
     def __post_init__(self) -> None:
         if not self.targets or len(set(self.targets)) != len(self.targets):
             raise SearchTaskError("a task needs at least one target and no duplicates")
+
+    @classmethod
+    def from_spec(cls, spec: TaskSpec) -> SearchTask:
+        """The task a spec names, with the progress its owner recorded (steps, distance, found
+        targets, the last command booked): a planner restarted mid-task goes on counting, with
+        the step budget left, instead of starting the task again."""
+        return cls(spec.task_id, list(spec.targets), max_steps=spec.max_steps, steps=spec.steps,
+                   distance=spec.distance_m, last_action=spec.last_action,
+                   found={f.label: f for f in spec.found if f.label in spec.targets})
 
     @property
     def remaining(self) -> list[str]:
@@ -45,8 +55,12 @@ class SearchTask:
                                   f"this needs {' or '.join(s.value for s in states)}")
 
     def start(self) -> None:
+        """Searching, unless the progress it resumes from left nothing to do: every target found,
+        or the step budget spent (a planner killed between the last step and its report)."""
         self._require(TaskStatus.QUEUED)
-        self.state = TaskStatus.SEARCHING
+        self.state = TaskStatus.SEARCHING if self.remaining else TaskStatus.DONE
+        if self.state is TaskStatus.SEARCHING and self.steps >= self.max_steps:
+            self.fail(f"step limit {self.max_steps} reached")
 
     def record_step(self, distance: float, found: tuple[str, float, float] | None = None) -> None:
         """One executed command (a STOP that declared ``found``, (label, x, y), included);
@@ -58,6 +72,15 @@ class SearchTask:
             self.mark_found(*found)
         if self.state is TaskStatus.SEARCHING and self.steps >= self.max_steps:
             self.fail(f"step limit {self.max_steps} reached")
+
+    def book_unreported(self, last_completed: int, distance: float) -> None:
+        """Book as steps the commands after ``last_action`` up to the driver's ``last_completed``:
+        those a killed planner sent for this task and completed without reporting them (its
+        last event was lost with it); ``distance``: how far the robot got over them together."""
+        while self.state is TaskStatus.SEARCHING and self.last_action < last_completed:
+            self.record_step(distance)
+            self.last_action += 1
+            distance = 0.0
 
     def mark_found(self, label: str, x: float, y: float) -> None:
         self._require(TaskStatus.SEARCHING)
