@@ -13,7 +13,6 @@ import json
 import subprocess
 import sys
 import threading
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -30,6 +29,7 @@ REPO = Path(__file__).resolve().parents[1]
 ZENOH = REPO / "deploy" / "zenoh"
 PROBE = REPO / "tests" / "netns_probe.py"
 FLEET = ("r1", "r2")
+SENTINEL = b"sentinel"  # put last, on a key every setup lets through
 
 
 @pytest.fixture(scope="module")
@@ -113,6 +113,7 @@ class Link:
         self.robot = zenoh.open(build_config("client", connect=[loopback(robot_port)]))
         self._lock = threading.Lock()
         self.on_laptop: list[str] = []
+        self.sentinels: set[str] = set()  # keys a sentinel arrived on
         self.on_robot: list[str] = []
         self._subs = [self.laptop.declare_subscriber("ovamos/*/odom", lambda s: self._got(self.on_laptop, s))]
         self._subs += [self.robot.declare_subscriber(f"ovamos/{robot}/plan/command",
@@ -125,6 +126,8 @@ class Link:
     def _got(self, into: list[str], sample: zenoh.Sample) -> None:
         with self._lock:
             into.append(str(sample.key_expr))
+            if sample.payload.to_bytes() == SENTINEL:
+                self.sentinels.add(str(sample.key_expr))
 
     def exchange(self) -> tuple[set[str], set[str]]:
         """Once r1's odometry reaches the laptop (the link is up): r1's router publishes r1's and r2's
@@ -133,12 +136,15 @@ class Link:
             self.robot.put("ovamos/r1/odom", b"{}")
             return bool(self.on_laptop)
         wait_for(linked, 30, "r1's odometry on the laptop (the TLS link up)", interval=0.2)
-        for _ in range(5):
-            for robot in FLEET:
-                self.robot.put(f"ovamos/{robot}/odom", b"{}")
-                self.laptop.put(f"ovamos/{robot}/plan/command", b"{}")
-            time.sleep(0.1)
-        time.sleep(1.0)
+        for robot in FLEET:
+            self.robot.put(f"ovamos/{robot}/odom", b"{}")
+            self.laptop.put(f"ovamos/{robot}/plan/command", b"{}")
+        # sentinels on keys every setup lets through, put last: once both are in, whatever was put
+        # before them on the same sessions and link has come, or was refused
+        self.robot.put("ovamos/r1/odom", SENTINEL)
+        self.laptop.put("ovamos/r1/plan/command", SENTINEL)
+        wait_for(lambda: self.sentinels == {"ovamos/r1/odom", "ovamos/r1/plan/command"}, 20,
+                 "the sentinels through the link")
         with self._lock:
             return set(self.on_laptop), set(self.on_robot)
 

@@ -15,7 +15,6 @@ import resource
 import subprocess
 import sys
 import threading
-import time
 import zlib
 from pathlib import Path
 from typing import Any
@@ -119,7 +118,7 @@ def test_the_bomb_is_a_megabyte_that_inflates_to_a_gibibyte(bomb: bytes, bomb_st
 
 
 _DECODE_IN_CHILD = """
-import json, resource, sys, time
+import json, resource, sys
 from pathlib import Path
 from shared import codec
 from shared.messages import DecodeError, PerceptionResult
@@ -127,14 +126,16 @@ payload = Path(sys.argv[1]).read_bytes()
 decode = {"codec-wide bound": lambda: codec.unpack(payload, PerceptionResult.KIND, PerceptionResult.VERSION),
           "PerceptionResult.from_bytes": lambda: PerceptionResult.from_bytes(payload)}[sys.argv[2]]
 before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-start = time.perf_counter()
+inflated = 0
 try:
-    decode()
+    decoded = decode()
+    arrays = decoded[1] if isinstance(decoded, tuple) else {}
+    inflated = sum(a.nbytes for a in arrays.values())
     outcome = "decoded"
 except DecodeError as exc:
     outcome = str(exc)
 print(json.dumps({"peak_increase": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) * 1024,
-                  "seconds": time.perf_counter() - start, "outcome": outcome}))
+                  "outcome": outcome, "inflated": inflated}))
 """
 
 
@@ -149,13 +150,14 @@ def decode_in_child(payload: bytes, how: str, tmp_path: Path) -> dict[str, Any]:
 
 def test_the_bomb_is_refused_before_inflating_with_memory_bounded(bomb: bytes, tmp_path: Path) -> None:
     # The attack: with only the codec's own 1 GiB ceiling (every receiver before the fix), the
-    # 1 MB payload costs a gibibyte.
+    # 1 MB payload is inflated into a gibibyte of arrays (what RSS shows of it depends on the
+    # kernel's handling of zero pages, so the arrays are what is checked)
     before = decode_in_child(bomb, "codec-wide bound", tmp_path)
-    assert before["outcome"] == "decoded" and before["peak_increase"] >= BOMB_BYTES
+    assert before["outcome"] == "decoded" and before["inflated"] >= BOMB_BYTES - (64 << 10), before
     # The fix: the perception result's own limit refuses it before inflating.
     after = decode_in_child(bomb, "PerceptionResult.from_bytes", tmp_path)
     assert f"exceeds the {PerceptionResult.MAX_BODY_BYTES} bytes" in after["outcome"]
-    assert after["peak_increase"] < RSS_BOUND and after["seconds"] < 0.5, after
+    assert after["peak_increase"] < RSS_BOUND and after["inflated"] == 0, after
 
 
 def test_the_bomb_through_the_bus_is_counted_malformed_and_the_service_keeps_serving(
@@ -206,11 +208,9 @@ def test_a_lying_declared_size_is_refused_by_the_bounded_inflater(bomb_stream: b
     parts = split(honest_result().to_bytes())
     declared = json.loads(parts.layout)["body"]
     lying = assemble(parts.flags, bomb_stream, parts.layout, parts.fields)
-    start = time.perf_counter()
     peak_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     with pytest.raises(DecodeError, match=f"inflates past the declared {declared} bytes"):
         PerceptionResult.from_bytes(lying)
-    assert time.perf_counter() - start < 0.5
     assert (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak_before) << 10 < RSS_BOUND
 
 
