@@ -7,6 +7,7 @@ import math
 from collections.abc import Callable
 
 from services.base_driver.controller import BaseDriver
+from services.base_driver.kinematics import integrate_arc
 from services.sim.robot import SimRobot
 from services.sim.wheels import WheeledSimRobot
 from shared.messages import DriverMode, PlanCommand
@@ -117,3 +118,29 @@ class FakeHardware:
 
     def close(self) -> None:
         pass
+
+
+class FakeOdometryBase(FakeHardware):
+    """An ideal base that keeps its own odometry, as a ROS 2 base publishes ``nav_msgs/Odometry``:
+    its pose (from ``start``, in its own frame) and body velocity, no wheel positions; with
+    ``report_velocity`` False, the pose alone."""
+
+    name = "fake-odometry"
+
+    def __init__(self, clock: Callable[[], float], start: Pose, report_velocity: bool = True) -> None:
+        super().__init__(clock)
+        self.pose, self.report_velocity = start, report_velocity
+
+    def _advance(self) -> None:
+        now = self.clock()
+        dt = now - self.last
+        super()._advance()
+        self.pose = integrate_arc(self.pose, (self.v - self.w * self.track / 2) * dt,
+                                  (self.v + self.w * self.track / 2) * dt, self.track)
+
+    def feedback(self):  # type: ignore[no-untyped-def]
+        from services.base_driver.hardware import WheelFeedback
+        self._advance()
+        return WheelFeedback(stamp=self.stamp, left_pos_rad=0.0, right_pos_rad=0.0, pose=self.pose,
+                             body_vel=(self.v, self.w) if self.report_velocity else None,
+                             bumpers=self.bumpers)

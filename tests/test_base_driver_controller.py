@@ -12,7 +12,8 @@ from services.base_driver.controller import BaseController, make_hardware
 from services.base_driver.odrive_can import ODriveCanHardware
 from shared.messages import DriverMode
 from shared.motion import Action
-from tests.base_driver_helpers import FakeHardware, command
+from shared.motion import Pose
+from tests.base_driver_helpers import FakeHardware, FakeOdometryBase, command
 
 DT = 0.02
 
@@ -210,3 +211,39 @@ def test_an_estop_halts_at_once_and_holds_the_wheels(rig: Rig) -> None:
     rig.hw.bumpers = ()
     rig.d.clear_estop("test")
     rig.until(lambda: rig.mode is DriverMode.READY, 1.0)
+
+
+@pytest.mark.parametrize("report_velocity", [True, False])
+def test_a_base_with_its_own_odometry_is_taken_as_it_is_and_its_primitives_land(report_velocity: bool) -> None:
+    """A base that reports a pose and no wheel positions (a ROS 2 base's ``nav_msgs/Odometry``):
+    the controller's odometry is that pose, in the base's own frame (here starting at (5, 3),
+    facing 60 deg), not something integrated again; primitives close the loop on it, and with
+    the pose alone the controller derives the velocities that decide a primitive has settled."""
+    t = [0.0]
+    config = DriverConfig(recover_every_s=0.2)
+    start = Pose(x=5.0, y=3.0, yaw=math.radians(60))
+    hw = FakeOdometryBase(lambda: t[0], start, report_velocity=report_velocity)
+    d = BaseController(config, hw, clock=lambda: t[0])
+
+    def until(predicate) -> None:  # type: ignore[no-untyped-def]
+        for _ in range(round(20.0 / DT)):
+            if predicate():
+                return
+            t[0] += DT
+            d.tick()
+        raise AssertionError(f"not reached: {d.state()}")
+
+    until(lambda: d.state().mode is DriverMode.READY)
+    assert (d.odometry().x, d.odometry().y) == (5.0, 3.0)
+    cmd = command(Action.MOVE_FORWARD)
+    assert d.submit(cmd) == "accepted"
+    until(lambda: d.state().last_completed == cmd.action_id)
+    assert d.state().last_outcome == "done"
+    moved = math.hypot(d.odometry().x - 5.0, d.odometry().y - 3.0)
+    assert moved == pytest.approx(config.primitives.forward_m, abs=0.005)
+    assert (d.odometry().x, d.odometry().y, d.odometry().yaw) == (hw.pose.x, hw.pose.y, hw.pose.yaw)
+    cmd = command(Action.TURN_LEFT)
+    d.submit(cmd)
+    until(lambda: d.state().last_completed == cmd.action_id)
+    assert math.degrees(d.odometry().yaw) == pytest.approx(60 + config.primitives.turn_deg, abs=0.5)
+    assert d.odometry().yaw == hw.pose.yaw

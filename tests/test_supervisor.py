@@ -364,7 +364,8 @@ def test_shipped_service_configs_fit_their_services() -> None:
     for path in sorted((REPO / "deploy" / "services").glob("*.toml")):
         load_config(service_class(path.stem.split("-")[0]), path)
         checked.append(path.stem)
-    assert checked == ["base_driver-kobuki", "base_driver-opencr", "base_driver", "camera", "gateway-laptop",
+    assert checked == ["base_driver-kobuki", "base_driver-opencr", "base_driver-ros2-tb3", "base_driver-ros2-tb4",
+                       "base_driver", "camera", "gateway-laptop",
                        "gateway", "mapping", "perception-fleet", "perception-hf", "perception-sim", "planner", "sim"]
 
 

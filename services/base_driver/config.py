@@ -19,6 +19,7 @@ from services.base_driver.kobuki import KobukiConfig
 from services.base_driver.kobuki_protocol import WHEEL_RADIUS_M as KOBUKI_WHEEL_RADIUS_M
 from services.base_driver.opencr import OpenCRConfig
 from services.base_driver.opencr_table import MODELS as TB3_MODELS
+from services.base_driver.ros2 import Ros2BaseConfig
 from shared.config import StrictModel
 from shared.motion import Pose
 from shared.robot import PRIMITIVES, ROBOT, Primitives
@@ -61,12 +62,14 @@ class ODriveConfig(StrictModel):
 
 
 class DriverConfig(StrictModel):
-    hardware: Literal["odrive_can", "kobuki", "opencr"] = Field(
+    hardware: Literal["odrive_can", "kobuki", "opencr", "ros2"] = Field(
         default="odrive_can", description="the base's hardware interface: odrive_can (a custom CAN base), "
-                                          "kobuki (TurtleBot 2), opencr (TurtleBot 3)")
+                                          "kobuki (TurtleBot 2), opencr (TurtleBot 3), ros2 (a base run by "
+                                          "ROS 2: cmd_vel out, its odometry in)")
     odrive: ODriveConfig = Field(default_factory=ODriveConfig)
     kobuki: KobukiConfig = Field(default_factory=KobukiConfig)
     opencr: OpenCRConfig = Field(default_factory=OpenCRConfig)
+    ros2: Ros2BaseConfig = Field(default_factory=Ros2BaseConfig)
     # geometry
     wheel_radius_m: float = Field(default=ROBOT.wheel_radius_m, gt=0)
     track_width_m: float = Field(default=ROBOT.track_width_m, gt=0)

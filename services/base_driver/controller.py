@@ -56,7 +56,7 @@ from services.base_driver.hardware import BaseHardware, HardwareError, WheelFeed
 from services.base_driver.kinematics import Geometry, WheelOdometry, toward
 from services.base_driver.primitives import PrimitiveTracker
 from shared.messages import DriverMode, DriverState, Odometry, Outcome, PlanCommand, new_odom_session
-from shared.motion import Action, ActionIds
+from shared.motion import Action, ActionIds, wrap_angle
 
 log = logging.getLogger("ovamos.base_driver")
 
@@ -74,6 +74,9 @@ def make_hardware(config: DriverConfig, clock: Callable[[], float] = time.monoto
     if config.hardware == "opencr":
         from services.base_driver.opencr import OpenCRHardware
         return OpenCRHardware(config.opencr)
+    if config.hardware == "ros2":
+        from services.base_driver.ros2 import Ros2Hardware
+        return Ros2Hardware(config.ros2, clock=clock)
     raise ValueError(f"unknown base hardware {config.hardware!r}")
 
 
@@ -188,7 +191,16 @@ class BaseController:
         except HardwareError as exc:
             self._fault("hardware", str(exc), now)
             return None
-        if fb is not None:
+        if fb is not None and fb.pose is not None:  # the base's own odometry (see WheelFeedback)
+            prev, self._odom.pose = self._odom.pose, fb.pose
+            if fb.body_vel is not None:
+                self._wheels = self.geometry.wheels_rev_s(*fb.body_vel)
+            elif self._feedback is not None and fb.stamp > self._feedback.stamp:
+                dt = fb.stamp - self._feedback.stamp
+                forward = (fb.pose.x - prev.x) * math.cos(prev.yaw) + (fb.pose.y - prev.y) * math.sin(prev.yaw)
+                self._wheels = self.geometry.wheels_rev_s(forward / dt, wrap_angle(fb.pose.yaw - prev.yaw) / dt)
+            self._feedback = fb
+        elif fb is not None:
             left, right = fb.left_pos_rad / _TWO_PI, fb.right_pos_rad / _TWO_PI
             prev = self._feedback
             self._odom.update(left, right)

@@ -14,6 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from shared.motion import Pose
+
 __all__ = ["HardwareError", "WheelFeedback", "BaseHardware"]
 
 
@@ -28,6 +30,12 @@ class WheelFeedback:
     Positions are cumulative (unwrapped: a 16-bit tick counter's wrap is the
     interface's to undo). ``stamp`` is this host's ``time.monotonic()`` when the
     feedback arrived: the controller calls feedback older than its limit stale.
+
+    A base that keeps its own odometry and reports no wheel positions (a ROS 2 base's
+    ``nav_msgs/Odometry``, fused with its IMU) sets ``pose`` (in its odometry frame) and
+    ``body_vel`` (m/s, rad/s) instead: the controller then takes that pose as the robot's, as
+    it is, and integrates nothing (wheel positions are ignored: pass 0.0), since integrating
+    the base's velocities again would only add error to a pose the base already has.
     """
 
     stamp: float
@@ -40,6 +48,8 @@ class WheelFeedback:
     cliffs: tuple[str, ...] = ()          # cliff sensors seeing a drop now: "left", "centre", "right"
     faults: tuple[str, ...] = ()          # errors the device itself reports
     extra: dict[str, float] = field(default_factory=dict)  # e.g. battery voltage, for status
+    pose: Pose | None = None              # the base's own odometry, when it keeps one (see above)
+    body_vel: tuple[float, float] | None = None  # with ``pose``: its velocity, m/s and rad/s
 
 
 class BaseHardware(Protocol):

@@ -1,0 +1,160 @@
+"""A ROS 2 base behind the controller: velocity out on ``cmd_vel``, the robot's own odometry in.
+
+For a base already run by ROS 2 (TurtleBot 3 on Jazzy: ``turtlebot3_node``; TurtleBot 4: the
+Create 3; any nav2 robot), left as it is. The controller keeps primitives, deadman, e-stop
+latch, limits, ramps and faults; this interface only carries (v, w) out and the pose in:
+
+* out: ``geometry_msgs/TwistStamped`` (TurtleBot 3 on Jazzy, nav2) or ``Twist`` (the Create 3)
+  on ``cmd_vel``, sent at the controller's rate (the Create 3 stops when commands stop coming);
+  reliable, depth 10, as the bases subscribe.
+* in: ``nav_msgs/Odometry`` on ``odom``, best effort (which matches reliable and best-effort
+  publishers alike). Its pose is the robot's pose as it is (:class:`WheelFeedback` ``pose``):
+  the base's odometry (wheels, often fused with its IMU) is better than anything re-integrated
+  from its velocities here. A message with a non-finite pose or twist is counted and dropped.
+* no odometry for the controller's ``feedback_timeout_s``: a stale fault whose reason names the
+  topic; it clears when odometry comes again (the controller's recovery).
+
+Topic names are relative to ``namespace`` (``/robot1`` makes ``/robot1/cmd_vel``), as ROS
+remaps them.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
+
+from pydantic import Field, field_validator
+
+from services.base_driver.hardware import HardwareError, WheelFeedback
+from shared.config import StrictModel
+from shared.motion import Pose
+from shared.ros2 import Network, Ros2Unavailable, node
+
+__all__ = ["Ros2BaseConfig", "Ros2Hardware"]
+
+
+class Ros2BaseConfig(StrictModel):
+    """Which ROS 2 topics drive the base and report its odometry."""
+
+    namespace: str = Field(default="", description="the robot's ROS namespace, e.g. '/robot1' ('' for none)")
+    cmd_vel: str = Field(default="cmd_vel", description="velocity command topic (relative to namespace)")
+    odom: str = Field(default="odom", description="nav_msgs/Odometry topic (relative to namespace)")
+    stamped: bool = Field(default=True, description="TwistStamped (TurtleBot 3 on Jazzy, nav2) or, false, "
+                                                     "Twist (the Create 3 / TurtleBot 4)")
+    frame_id: str = Field(default="base_link", description="header.frame_id of a TwistStamped")
+    network: Network = Field(default="loopback", description="'loopback': DDS only in a loopback-only "
+                             "namespace (tests, demo); 'host': the robot's own ROS network")
+
+    @field_validator("namespace")
+    @classmethod
+    def _namespace(cls, value: str) -> str:
+        if value and (not value.startswith("/") or value.endswith("/") or " " in value):
+            raise ValueError(f"namespace {value!r}: write '/name' (or '' for none)")
+        return value
+
+    def topic(self, name: str) -> str:
+        """``name`` under the namespace."""
+        return name if name.startswith("/") else f"{self.namespace}/{name}" if self.namespace else name
+
+
+class Ros2Hardware:
+    """The :class:`~services.base_driver.hardware.BaseHardware` of a ROS 2 base (module docstring)."""
+
+    name = "ros2"
+
+    def __init__(self, config: Ros2BaseConfig, clock: Callable[[], float] = time.monotonic) -> None:
+        self.config, self._clock = config, clock
+        self._lock = threading.Lock()
+        self._feedback: WheelFeedback | None = None
+        self._counts: Counter[str] = Counter()
+        self._pub: Any = None
+        self._sub: Any = None
+        self._make_twist: Callable[[float, float], Any] | None = None
+
+    def open(self) -> None:
+        if self._pub is not None:
+            return
+        try:
+            ros = node(self.config.network)
+        except Ros2Unavailable as exc:
+            raise HardwareError(str(exc)) from None
+        from geometry_msgs.msg import Twist, TwistStamped
+        from nav_msgs.msg import Odometry
+        from rclpy.qos import qos_profile_sensor_data
+
+        cfg = self.config
+        if cfg.stamped:
+            def make(linear: float, angular: float) -> Any:
+                msg = TwistStamped()
+                msg.header.stamp = ros.get_clock().now().to_msg()
+                msg.header.frame_id = cfg.frame_id
+                msg.twist.linear.x, msg.twist.angular.z = linear, angular
+                return msg
+        else:
+            def make(linear: float, angular: float) -> Any:
+                msg = Twist()
+                msg.linear.x, msg.angular.z = linear, angular
+                return msg
+        self._make_twist = make
+        self._pub = ros.create_publisher(TwistStamped if cfg.stamped else Twist, cfg.topic(cfg.cmd_vel), 10)
+        self._sub = ros.create_subscription(Odometry, cfg.topic(cfg.odom), self._on_odom, qos_profile_sensor_data)
+
+    def _on_odom(self, msg: Any) -> None:
+        """On the executor's thread: the newest odometry, handed over under the lock."""
+        p, q, t = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
+        numbers = (p.x, p.y, q.x, q.y, q.z, q.w, t.linear.x, t.angular.z)
+        if not all(math.isfinite(v) for v in numbers) or q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w < 1e-6:
+            with self._lock:
+                self._counts["ros2_odom_malformed"] += 1
+            return
+        yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+        fb = WheelFeedback(stamp=self._clock(), left_pos_rad=0.0, right_pos_rad=0.0,
+                           pose=Pose(x=p.x, y=p.y, yaw=yaw), body_vel=(t.linear.x, t.angular.z))
+        with self._lock:
+            self._feedback = fb
+            self._counts["ros2_odom"] += 1
+
+    def set_velocity(self, linear_m_s: float, angular_rad_s: float) -> None:
+        if self._pub is None or self._make_twist is None:
+            raise HardwareError("the ros2 base is not open")
+        self._pub.publish(self._make_twist(linear_m_s, angular_rad_s))
+        with self._lock:
+            self._counts["ros2_cmd"] += 1
+
+    def halt(self) -> None:
+        """A zero command, every cycle while halted (a base restarted meanwhile gets one too; a
+        TurtleBot 3 keeps its last command for ever)."""
+        if self._pub is None or self._make_twist is None:
+            return
+        self._pub.publish(self._make_twist(0.0, 0.0))
+        with self._lock:
+            self._counts["ros2_cmd"] += 1
+
+    def feedback(self) -> WheelFeedback | None:
+        with self._lock:
+            return self._feedback
+
+    def stale_reason(self, now: float) -> str:
+        topic = self.config.topic(self.config.odom)
+        with self._lock:
+            fb = self._feedback
+        if fb is None:
+            return (f"no nav_msgs/Odometry on {topic} yet: is the robot's ROS driver up, with the same "
+                    "ROS_DOMAIN_ID and namespace?")
+        return f"no nav_msgs/Odometry on {topic} for {now - fb.stamp:.2f} s"
+
+    def counters(self) -> dict[str, int]:
+        with self._lock:
+            return dict(self._counts)
+
+    def close(self) -> None:
+        ros, self._make_twist = None, None
+        for entity in (self._pub, self._sub):
+            if entity is not None:
+                ros = ros or node(self.config.network)
+                (ros.destroy_publisher if entity is self._pub else ros.destroy_subscription)(entity)
+        self._pub = self._sub = None
