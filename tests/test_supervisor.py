@@ -365,7 +365,7 @@ def test_shipped_service_configs_fit_their_services() -> None:
         load_config(service_class(path.stem.split("-")[0]), path)
         checked.append(path.stem)
     assert checked == ["base_driver-kobuki", "base_driver-opencr", "base_driver-ros2-tb3", "base_driver-ros2-tb4",
-                       "base_driver", "camera", "gateway-laptop",
+                       "base_driver", "camera-ros2-oakd", "camera-ros2-realsense", "camera", "gateway-laptop",
                        "gateway", "mapping", "perception-fleet", "perception-hf", "perception-sim", "planner", "sim"]
 
 

@@ -60,8 +60,9 @@ class BaseHardware(Protocol):
     must stay continuous across a re-open (the controller's odometry does not re-baseline).
 
     Optional, looked up by the controller: ``estop()`` (an e-stop stronger than :meth:`halt`,
-    e.g. the ODrive's Estop message) and ``stale_reason(now) -> str`` (why feedback is late, in
-    the interface's words)."""
+    e.g. the ODrive's Estop message), ``stale_reason(now) -> str`` (why feedback is late, in
+    the interface's words) and ``bind_estop(engage)`` (an interface with an e-stop input of its
+    own, such as a ROS topic, is given the controller's ``engage_estop(source, reason)``)."""
 
     name: str
 

@@ -13,6 +13,9 @@ latch, limits, ramps and faults; this interface only carries (v, w) out and the 
   from its velocities here. A message with a non-finite pose or twist is counted and dropped.
 * no odometry for the controller's ``feedback_timeout_s``: a stale fault whose reason names the
   topic; it clears when odometry comes again (the controller's recovery).
+* an e-stop a ROS user can press: ``std_msgs/Bool`` true on ``estop`` engages the controller's
+  latch, the same as the gateway's E-STOP; false is ignored and counted (a clear comes from the
+  laptop, on ``driver/estop/clear``, as for every other e-stop source).
 
 Topic names are relative to ``namespace`` (``/robot1`` makes ``/robot1/cmd_vel``), as ROS
 remaps them.
@@ -46,6 +49,8 @@ class Ros2BaseConfig(StrictModel):
     stamped: bool = Field(default=True, description="TwistStamped (TurtleBot 3 on Jazzy, nav2) or, false, "
                                                      "Twist (the Create 3 / TurtleBot 4)")
     frame_id: str = Field(default="base_link", description="header.frame_id of a TwistStamped")
+    estop: str | None = Field(default="estop", description="std_msgs/Bool topic whose true engages the "
+                              "e-stop (relative to namespace); none: no ROS e-stop")
     network: Network = Field(default="loopback", description="'loopback': DDS only in a loopback-only "
                              "namespace (tests, demo); 'host': the robot's own ROS network")
 
@@ -74,6 +79,13 @@ class Ros2Hardware:
         self._pub: Any = None
         self._sub: Any = None
         self._make_twist: Callable[[float, float], Any] | None = None
+        self._engage: Callable[[str, str], None] | None = None
+        self._estop_sub: Any = None
+
+    def bind_estop(self, engage: Callable[[str, str], None]) -> None:
+        """The controller's ``engage_estop(source, reason)``, for the ROS e-stop topic (the
+        controller's optional hook)."""
+        self._engage = engage
 
     def open(self) -> None:
         if self._pub is not None:
@@ -102,6 +114,16 @@ class Ros2Hardware:
         self._make_twist = make
         self._pub = ros.create_publisher(TwistStamped if cfg.stamped else Twist, cfg.topic(cfg.cmd_vel), 10)
         self._sub = ros.create_subscription(Odometry, cfg.topic(cfg.odom), self._on_odom, qos_profile_sensor_data)
+        if cfg.estop is not None and self._estop_sub is None:  # kept across re-opens: never deaf to it
+            from std_msgs.msg import Bool
+            self._estop_sub = ros.create_subscription(Bool, cfg.topic(cfg.estop), self._on_estop, 10)
+
+    def _on_estop(self, msg: Any) -> None:
+        """On the executor's thread: the controller's latch is thread-safe and halts at once."""
+        with self._lock:
+            self._counts["ros2_estop" if msg.data else "ros2_estop_false_ignored"] += 1
+        if msg.data and self._engage is not None:
+            self._engage("ros2", f"std_msgs/Bool true on {self.config.topic(self.config.estop or '')}")
 
     def _on_odom(self, msg: Any) -> None:
         """On the executor's thread: the newest odometry, handed over under the lock."""
@@ -152,6 +174,8 @@ class Ros2Hardware:
             return dict(self._counts)
 
     def close(self) -> None:
+        """Drop the velocity publisher and the odometry subscription; the e-stop subscription
+        stays, so the ROS e-stop works while the controller recovers."""
         ros, self._make_twist = None, None
         for entity in (self._pub, self._sub):
             if entity is not None:

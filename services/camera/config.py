@@ -16,6 +16,7 @@ from pydantic import Field, model_validator
 from services.camera.file import FileConfig
 from services.camera.oakd import OakdConfig
 from services.camera.realsense import RealSenseConfig
+from services.camera.ros2 import Ros2CameraConfig
 from shared.config import ServiceConfig, StrictModel
 from shared.sessions import SessionSwitch
 
@@ -104,12 +105,14 @@ class OdometryConfig(StrictModel):
 class CameraConfig(ServiceConfig):
     """The camera service: which backend, where it is mounted, how frames are timed and gated."""
 
-    backend: Literal["realsense", "file", "oakd"] = "realsense"
+    backend: Literal["realsense", "file", "oakd", "ros2"] = "realsense"
     realsense: RealSenseConfig = Field(default_factory=RealSenseConfig,
                                        description="backend realsense: which camera, size, rate, filters")
     file: FileConfig | None = Field(default=None, description="backend file: the recording to play "
                                                               "(required with backend = 'file')")
     oakd: OakdConfig = Field(default_factory=OakdConfig, description="backend oakd (refused: see oakd.py)")
+    ros2: Ros2CameraConfig = Field(default_factory=Ros2CameraConfig,
+                                   description="backend ros2: a camera run by ROS 2 (its topics)")
     mount: Mount = Field(default_factory=Mount)
     clock: ClockConfig = Field(default_factory=ClockConfig)
     odometry: OdometryConfig = Field(default_factory=OdometryConfig)

@@ -54,6 +54,9 @@ def make_backend(config: CameraConfig) -> CameraBackend:
         from services.camera.file import FileBackend
         assert config.file is not None  # the config's validator requires it
         return FileBackend(config.file)
+    if config.backend == "ros2":
+        from services.camera.ros2 import Ros2Backend
+        return Ros2Backend(config.ros2)
     from services.camera.oakd import OakdBackend
     return OakdBackend(config.oakd)
 

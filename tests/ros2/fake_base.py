@@ -3,7 +3,9 @@ Create 3): takes velocity on ``cmd_vel`` (TwistStamped, or Twist with ``--twist`
 differential base by it at 50 Hz, stops when commands stop for 0.5 s (as a Create 3 does), and
 publishes ``nav_msgs/Odometry`` on ``odom`` at 30 Hz from ``--start X Y YAW``. Every command
 received is printed as a JSON line ``{"v": .., "w": .., "t": monotonic}``; a line ``pause`` on
-stdin stops the odometry, ``resume`` starts it again. Run it only in a loopback-only namespace."""
+stdin stops the odometry, ``resume`` starts it again, ``estop`` / ``estop-false`` publishes
+``std_msgs/Bool`` true / false on ``estop`` (a ROS user's e-stop button). Run it only in a
+loopback-only namespace."""
 
 from __future__ import annotations
 
@@ -18,10 +20,11 @@ from shared.dds import check_loopback_only
 
 check_loopback_only()
 
+from nodes import serve  # noqa: E402  (this folder: the script's own)
 import rclpy  # noqa: E402  (after the check, by design)
 from geometry_msgs.msg import Twist, TwistStamped  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
-from rclpy.executors import ExternalShutdownException  # noqa: E402
+from std_msgs.msg import Bool  # noqa: E402
 
 
 def main() -> None:
@@ -45,6 +48,7 @@ def main() -> None:
 
     node.create_subscription(Twist if args.twist else TwistStamped, "cmd_vel", on_cmd, 10)
     odom_pub = node.create_publisher(Odometry, "odom", 10)
+    estop_pub = node.create_publisher(Bool, "estop", 10)
 
     def physics() -> None:
         with lock:
@@ -72,15 +76,15 @@ def main() -> None:
 
     def read_stdin() -> None:
         for line in sys.stdin:
+            said = line.strip()
+            if said.startswith("estop"):
+                estop_pub.publish(Bool(data=said == "estop"))
+                continue
             with lock:
-                state["odom"] = line.strip() != "pause"
+                state["odom"] = said != "pause"
 
     threading.Thread(target=read_stdin, daemon=True).start()
-    print(json.dumps({"ready": True}), flush=True)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+    serve(node)
 
 
 if __name__ == "__main__":

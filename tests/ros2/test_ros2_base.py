@@ -4,13 +4,8 @@ it, the deadman's zeros on cmd_vel, stale odometry a fault naming the topic and 
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
-import threading
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
@@ -20,55 +15,22 @@ from shared.messages import DriverMode
 from shared.motion import Action
 from tests.base_driver_helpers import command, run, wait_for_mode
 from tests.polling import wait_for
+from tests.ros2.nodes import MockNode
 
-HERE = Path(__file__).resolve().parent
 START = (2.0, -1.0, math.radians(45))
 
 
-class FakeBase:
-    """The mock base's process: every command it received, and its odometry paused or not."""
-
-    def __init__(self, twist: bool, namespace: str) -> None:
-        argv = [sys.executable, str(HERE / "fake_base.py"), "--start", *map(str, START)]
-        argv += ["--twist"] if twist else []
-        argv += ["--namespace", namespace] if namespace else []
-        self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-                                     cwd=HERE.parent.parent)
-        self._lock = threading.Lock()
-        self._commands: list[dict[str, float]] = []
-        self._ready = threading.Event()
-        threading.Thread(target=self._read, daemon=True).start()
-        assert self._ready.wait(30), "the mock base did not start"
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            got = json.loads(line)
-            if got.get("ready"):
-                self._ready.set()
-                continue
-            with self._lock:
-                self._commands.append(got)
-
-    def commands(self) -> list[dict[str, float]]:
-        with self._lock:
-            return list(self._commands)
-
-    def say(self, line: str) -> None:
-        assert self.proc.stdin is not None
-        self.proc.stdin.write(line + "\n")
-        self.proc.stdin.flush()
-
-    def close(self) -> None:
-        self.proc.terminate()
-        self.proc.wait(10)
+def fake_base(twist: bool, namespace: str) -> MockNode:
+    """The mock base: its lines are the commands it received (``v``, ``w``, ``t``)."""
+    return MockNode("fake_base.py", "--start", *map(str, START), *(["--twist"] if twist else []),
+                    *(["--namespace", namespace] if namespace else []))
 
 
 @pytest.fixture(params=[False, True], ids=["TwistStamped", "Twist"])
-def rig(request: pytest.FixtureRequest) -> Iterator[tuple[FakeBase, BaseController]]:
+def rig(request: pytest.FixtureRequest) -> Iterator[tuple[MockNode, BaseController]]:
     twist = request.param
     namespace = "/robot1" if twist else ""
-    base = FakeBase(twist, namespace)
+    base = fake_base(twist, namespace)
     config = DriverConfig(hardware="ros2", ros2={"stamped": not twist, "namespace": namespace})  # type: ignore[arg-type]
     driver = BaseController(config).start()
     try:
@@ -79,7 +41,7 @@ def rig(request: pytest.FixtureRequest) -> Iterator[tuple[FakeBase, BaseControll
         base.close()
 
 
-def test_a_primitive_through_ros_lands_on_the_bases_own_odometry(rig: tuple[FakeBase, BaseController]) -> None:
+def test_a_primitive_through_ros_lands_on_the_bases_own_odometry(rig: tuple[MockNode, BaseController]) -> None:
     base, driver = rig
     start = driver.odometry()
     assert (start.x, start.y, start.yaw) == pytest.approx(START, abs=1e-6)  # its frame, not ours
@@ -87,22 +49,22 @@ def test_a_primitive_through_ros_lands_on_the_bases_own_odometry(rig: tuple[Fake
     end = driver.odometry()
     assert math.hypot(end.x - start.x, end.y - start.y) == pytest.approx(0.25, abs=0.02)
     assert math.atan2(end.y - start.y, end.x - start.x) == pytest.approx(START[2], abs=0.05)
-    assert max(c["v"] for c in base.commands()) > 0.05
+    assert max(c["v"] for c in base.lines()) > 0.05
     assert run(driver, command(Action.TURN_LEFT)) == "done"
     assert math.degrees(driver.odometry().yaw - end.yaw) == pytest.approx(30.0, abs=2.0)
     assert driver.counters["ros2_odom"] > 0 and driver.counters["ros2_cmd"] > 0
 
 
-def test_the_deadman_sends_zero_velocity_on_cmd_vel(rig: tuple[FakeBase, BaseController]) -> None:
+def test_the_deadman_sends_zero_velocity_on_cmd_vel(rig: tuple[MockNode, BaseController]) -> None:
     base, driver = rig
     assert driver.submit(command(linear=0.1)) == "accepted"
-    wait_for(lambda: any(c["v"] > 0.05 for c in base.commands()), what="the base driven")
-    moving = next(c["t"] for c in base.commands() if c["v"] > 0.05)
-    wait_for(lambda: (cs := base.commands())[-1]["v"] == 0.0 and cs[-1]["t"] > moving, 10,
+    wait_for(lambda: any(c["v"] > 0.05 for c in base.lines()), what="the base driven")
+    moving = next(c["t"] for c in base.lines() if c["v"] > 0.05)
+    wait_for(lambda: (cs := base.lines())[-1]["v"] == 0.0 and cs[-1]["t"] > moving, 10,
              what="zero velocity on cmd_vel after the deadman")
 
 
-def test_stale_odometry_is_a_fault_naming_the_topic_and_recovers(rig: tuple[FakeBase, BaseController]) -> None:
+def test_stale_odometry_is_a_fault_naming_the_topic_and_recovers(rig: tuple[MockNode, BaseController]) -> None:
     base, driver = rig
     base.say("pause")
     wait_for_mode(driver, DriverMode.FAULT)
@@ -111,3 +73,25 @@ def test_stale_odometry_is_a_fault_naming_the_topic_and_recovers(rig: tuple[Fake
     base.say("resume")
     wait_for_mode(driver, DriverMode.READY, timeout=15)
     assert run(driver, command(Action.TURN_RIGHT)) == "done"
+
+
+def test_a_ros_e_stop_engages_the_same_latch_and_only_the_laptop_clears_it(
+        rig: tuple[MockNode, BaseController]) -> None:
+    base, driver = rig
+    assert driver.submit(command(linear=0.1)) == "accepted"
+    wait_for(lambda: any(c["v"] > 0.05 for c in base.lines()), what="the base driven")
+    base.say("estop-false")  # false is no clear, and no e-stop
+    wait_for(lambda: driver.counters["ros2_estop_false_ignored"] == 1, what="the false counted")
+    assert driver.state().mode is not DriverMode.ESTOP
+    base.say("estop")
+    wait_for_mode(driver, DriverMode.ESTOP)
+    state = driver.state()
+    assert state.estop_latched and any(f.startswith("e-stop by ros2: std_msgs/Bool true on ") for f in state.faults)
+    pressed = len(base.lines())
+    wait_for(lambda: len(base.lines()) > pressed + 5, what="commands after the press")
+    assert all(c["v"] == 0.0 and c["w"] == 0.0 for c in base.lines()[pressed + 1:])  # zeros only
+    base.say("estop-false")  # a ROS false does not release it
+    wait_for(lambda: driver.counters["ros2_estop_false_ignored"] == 2, what="the second false counted")
+    assert driver.state().mode is DriverMode.ESTOP
+    driver.clear_estop("laptop")  # what driver/estop/clear does
+    wait_for_mode(driver, DriverMode.READY, timeout=15)

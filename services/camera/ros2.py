@@ -1,0 +1,188 @@
+"""A ROS 2 RGB-D camera as a backend: colour, depth aligned to colour, and the colour camera's info.
+
+For a camera already run by ROS 2: the ``realsense2_camera`` driver (launched with
+``align_depth.enable:=true``, so that ``aligned_depth_to_color`` exists) or a TurtleBot 4's OAK-D.
+Colour (``rgb8`` or ``bgr8``) and depth (``16UC1`` millimetres or ``32FC1`` metres) are paired by
+header stamp within ``pair_tolerance_s``; the colour camera's ``CameraInfo`` gives the
+intrinsics. The colour stamp is the capture time on the device's clock (the camera core maps it
+to this host's, as for a RealSense).
+
+Subscriptions are best effort (``qos_profile_sensor_data``), which matches reliable and
+best-effort publishers alike; rclpy's callbacks only keep the newest few messages under a lock.
+What cannot make a frame is a :class:`~services.camera.capture.CameraError` with the reason (an
+encoding this cannot read, sizes that differ, no camera info for ``info_timeout_s`` while images
+come); a colour image no depth image pairs with is dropped and counted (``unpaired``).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter, deque
+from typing import Any
+
+import numpy as np
+from pydantic import Field
+
+from services.camera.capture import CameraError, CapturedFrame
+from shared.config import StrictModel
+from shared.messages import Intrinsics
+from shared.ros2 import Network, Ros2Unavailable, node
+
+__all__ = ["Ros2CameraConfig", "Ros2Backend"]
+
+KEEP = 8  # newest messages kept per topic while waiting for their pair
+DEPTH_SCALE = 0.001  # metres per unit of the depth handed on (millimetres, as a D4xx's)
+
+
+class Ros2CameraConfig(StrictModel):
+    """Which ROS 2 topics carry the camera (defaults: ``realsense2_camera`` with aligned depth)."""
+
+    color: str = Field(default="/camera/camera/color/image_raw", description="sensor_msgs/Image, rgb8 or bgr8")
+    depth: str = Field(default="/camera/camera/aligned_depth_to_color/image_raw",
+                       description="sensor_msgs/Image aligned to colour, 16UC1 (mm) or 32FC1 (m)")
+    info: str = Field(default="/camera/camera/color/camera_info", description="the colour camera's CameraInfo")
+    pair_tolerance_s: float = Field(default=0.01, ge=0, description="colour and depth stamps this close pair")
+    info_timeout_s: float = Field(default=2.0, gt=0, description="images with no CameraInfo for this long: a fault")
+    network: Network = Field(default="loopback", description="'loopback': DDS only in a loopback-only "
+                             "namespace (tests, demo); 'host': the robot's own ROS network")
+
+
+def _stamp(msg: Any) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def _pixels(msg: Any, dtype: np.dtype, channels: int, topic: str) -> np.ndarray:
+    """The image's pixels as an H x W (x channels) array of its own (rows may be padded)."""
+    if msg.is_bigendian:
+        raise CameraError(f"{topic}: big-endian images are not read")
+    per_row = msg.width * channels * dtype.itemsize
+    if msg.step < per_row or len(msg.data) < msg.step * msg.height:
+        raise CameraError(f"{topic}: {len(msg.data)} bytes do not hold {msg.height} rows of step {msg.step} "
+                          f"for {msg.width} px of {msg.encoding}")
+    rows = np.frombuffer(bytes(msg.data), np.uint8, msg.step * msg.height).reshape(msg.height, msg.step)
+    image = rows[:, :per_row].copy().view(dtype)
+    return image.reshape(msg.height, msg.width, channels) if channels > 1 else image
+
+
+class Ros2Backend:
+    """The :class:`~services.camera.capture.CameraBackend` of a ROS 2 camera (module docstring)."""
+
+    name = "ros2"
+
+    def __init__(self, config: Ros2CameraConfig) -> None:
+        self.config = config
+        self._ready = threading.Condition()
+        self._color: deque[tuple[Any, float]] = deque(maxlen=KEEP)  # (message, receipt monotonic)
+        self._depth: deque[Any] = deque(maxlen=KEEP)
+        self._info: Any = None
+        self._subs: list[Any] = []
+        self._images_since: float | None = None  # when images came with no info yet
+        self.counters: Counter[str] = Counter()
+
+    def start(self) -> None:
+        self.stop()
+        try:
+            ros = node(self.config.network)
+        except Ros2Unavailable as exc:
+            raise CameraError(str(exc)) from None
+        from rclpy.qos import qos_profile_sensor_data
+        from sensor_msgs.msg import CameraInfo, Image
+
+        cfg = self.config
+        self._subs = [ros.create_subscription(Image, cfg.color, self._on_color, qos_profile_sensor_data),
+                      ros.create_subscription(Image, cfg.depth, self._on_depth, qos_profile_sensor_data),
+                      ros.create_subscription(CameraInfo, cfg.info, self._on_info, qos_profile_sensor_data)]
+
+    def _on_color(self, msg: Any) -> None:
+        with self._ready:
+            self._color.append((msg, time.monotonic()))
+            self._ready.notify_all()
+
+    def _on_depth(self, msg: Any) -> None:
+        with self._ready:
+            self._depth.append(msg)
+            self._ready.notify_all()
+
+    def _on_info(self, msg: Any) -> None:
+        with self._ready:
+            self._info = msg
+
+    def read(self, timeout_s: float) -> CapturedFrame | None:
+        deadline = time.monotonic() + timeout_s
+        with self._ready:
+            while True:
+                pair = self._take_pair()
+                if pair is not None:
+                    break
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._ready.wait(left)
+            info = self._info
+        if info is None:
+            since = self._images_since = self._images_since or time.monotonic()
+            if time.monotonic() - since > self.config.info_timeout_s:
+                raise CameraError(f"no sensor_msgs/CameraInfo on {self.config.info} for "
+                                  f"{self.config.info_timeout_s:.1f} s while images come")
+            self.counters["waiting_for_info"] += 1
+            return None
+        self._images_since = None
+        return self._frame(*pair, info)
+
+    def _take_pair(self) -> tuple[Any, float, Any] | None:
+        """The newest colour image a depth image pairs with (older colour images are dropped,
+        those no depth can pair with any more counted); under the lock."""
+        tolerance = self.config.pair_tolerance_s
+        while self._color:
+            color, received = self._color[-1]
+            t = _stamp(color)
+            depth = min(self._depth, key=lambda d: abs(_stamp(d) - t), default=None)
+            if depth is not None and abs(_stamp(depth) - t) <= tolerance:
+                self.counters["unpaired"] += len(self._color) - 1
+                self._color.clear()
+                return color, received, depth
+            if not self._depth or max(_stamp(d) for d in self._depth) <= t + tolerance:
+                return None  # its depth may still come
+            self._color.pop()
+            self.counters["unpaired"] += 1
+        return None
+
+    def _frame(self, color: Any, received: float, depth: Any, info: Any) -> CapturedFrame:
+        cfg = self.config
+        if color.encoding == "rgb8":
+            rgb = _pixels(color, np.dtype(np.uint8), 3, cfg.color)
+        elif color.encoding == "bgr8":
+            rgb = np.ascontiguousarray(_pixels(color, np.dtype(np.uint8), 3, cfg.color)[:, :, ::-1])
+        else:
+            raise CameraError(f"{cfg.color}: colour encoding {color.encoding!r} is not read (rgb8 or bgr8)")
+        if depth.encoding == "16UC1":
+            mm = _pixels(depth, np.dtype("<u2"), 1, cfg.depth)
+        elif depth.encoding == "32FC1":
+            metres = _pixels(depth, np.dtype("<f4"), 1, cfg.depth)
+            metres = np.where(np.isfinite(metres) & (metres > 0), metres, 0.0)  # no reading: 0
+            mm = np.clip(np.rint(metres / DEPTH_SCALE), 0, np.iinfo(np.uint16).max).astype(np.uint16)
+        else:
+            raise CameraError(f"{cfg.depth}: depth encoding {depth.encoding!r} is not read (16UC1 or 32FC1)")
+        if mm.shape != rgb.shape[:2] or (info.height, info.width) != rgb.shape[:2]:
+            raise CameraError(f"sizes differ: colour {color.width}x{color.height}, depth {depth.width}x"
+                              f"{depth.height}, camera info {info.width}x{info.height} (is the depth "
+                              "aligned to colour? realsense2_camera: align_depth.enable:=true)")
+        k = info.k
+        if min(k[0], k[4]) <= 0:
+            raise CameraError(f"{cfg.info}: the camera info has no focal length (K = {list(k)}): is the "
+                              "camera calibrated, and is this the colour camera's info?")
+        return CapturedFrame(rgb=rgb, depth=np.ascontiguousarray(mm), depth_scale=DEPTH_SCALE,
+                             intrinsics=Intrinsics(fx=float(k[0]), fy=float(k[4]), cx=float(k[2]), cy=float(k[5])),
+                             device_time_s=_stamp(color), host_time_s=received)
+
+    def stop(self) -> None:
+        if self._subs:
+            ros = node(self.config.network)
+            for sub in self._subs:
+                ros.destroy_subscription(sub)
+        self._subs = []
+        with self._ready:
+            self._color.clear()
+            self._depth.clear()
+            self._info = None
