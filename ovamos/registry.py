@@ -22,6 +22,7 @@ SERVICES: dict[str, str] = {
     "sim": "services.sim.service:SimRobotService",
     "base_driver": "services.base_driver.service:BaseDriverService",
     "camera": "services.camera.service:CameraService",
+    "rosview": "services.rosview.service:RosViewService",
 }
 
 

@@ -18,11 +18,16 @@ import os
 import threading
 from typing import Any, Literal
 
+from pydantic import Field
+
 from shared.dds import check_loopback_only
 
-__all__ = ["Network", "Ros2Unavailable", "node"]
+__all__ = ["Network", "NETWORK_FIELD", "Ros2Unavailable", "node"]
 
 Network = Literal["loopback", "host"]
+NETWORK_FIELD: Any = Field(default="loopback", description="'loopback': DDS only in a loopback-only "
+                           "network namespace (tests, demo); 'host': this host's ROS network (a robot)")
+"""The ``network`` setting of every config that talks ROS 2 (see the module)."""
 log = logging.getLogger("ovamos.ros2")
 _lock = threading.Lock()
 _node: Any = None

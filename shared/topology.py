@@ -84,6 +84,8 @@ TOPOLOGY: dict[str, Node] = {
                             Port("odom", Odometry, keep=1)),
                     outputs=(Port("task_current", TaskSpec), Port("estop", EStop), Port("estop_clear", EStop)),
                     queries=(Port("map_snapshot", MapSnapshot),)),
+    "rosview": Node(inputs=(Port("map_snapshot", MapSnapshot, keep=1), Port("odom", Odometry, keep=1),
+                            Port("plan_trace", DecisionTrace))),
     "testpattern": Node(outputs=(Port("rgbd", RgbdFrame),)),
     "monitor": Node(inputs=(Port("robot_all", None),)),
 }

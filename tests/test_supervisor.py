@@ -366,7 +366,7 @@ def test_shipped_service_configs_fit_their_services() -> None:
         checked.append(path.stem)
     assert checked == ["base_driver-kobuki", "base_driver-opencr", "base_driver-ros2-tb3", "base_driver-ros2-tb4",
                        "base_driver", "camera-ros2-oakd", "camera-ros2-realsense", "camera", "gateway-laptop",
-                       "gateway", "mapping", "perception-fleet", "perception-hf", "perception-sim", "planner", "sim"]
+                       "gateway", "mapping", "perception-fleet", "perception-hf", "perception-sim", "planner", "rosview", "sim"]
 
 
 def test_a_fleet_profile_runs_per_robot_services_per_robot_and_tells_the_others_the_robots() -> None:

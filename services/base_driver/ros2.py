@@ -35,7 +35,7 @@ from pydantic import Field, field_validator
 from services.base_driver.hardware import HardwareError, WheelFeedback
 from shared.config import StrictModel
 from shared.motion import Pose
-from shared.ros2 import Network, Ros2Unavailable, node
+from shared.ros2 import NETWORK_FIELD, Network, Ros2Unavailable, node
 
 __all__ = ["Ros2BaseConfig", "Ros2Hardware"]
 
@@ -51,8 +51,7 @@ class Ros2BaseConfig(StrictModel):
     frame_id: str = Field(default="base_link", description="header.frame_id of a TwistStamped")
     estop: str | None = Field(default="estop", description="std_msgs/Bool topic whose true engages the "
                               "e-stop (relative to namespace); none: no ROS e-stop")
-    network: Network = Field(default="loopback", description="'loopback': DDS only in a loopback-only "
-                             "namespace (tests, demo); 'host': the robot's own ROS network")
+    network: Network = NETWORK_FIELD
 
     @field_validator("namespace")
     @classmethod

@@ -27,7 +27,7 @@ from pydantic import Field
 from services.camera.capture import CameraError, CapturedFrame
 from shared.config import StrictModel
 from shared.messages import Intrinsics
-from shared.ros2 import Network, Ros2Unavailable, node
+from shared.ros2 import NETWORK_FIELD, Network, Ros2Unavailable, node
 
 __all__ = ["Ros2CameraConfig", "Ros2Backend"]
 
@@ -44,8 +44,7 @@ class Ros2CameraConfig(StrictModel):
     info: str = Field(default="/camera/camera/color/camera_info", description="the colour camera's CameraInfo")
     pair_tolerance_s: float = Field(default=0.01, ge=0, description="colour and depth stamps this close pair")
     info_timeout_s: float = Field(default=2.0, gt=0, description="images with no CameraInfo for this long: a fault")
-    network: Network = Field(default="loopback", description="'loopback': DDS only in a loopback-only "
-                             "namespace (tests, demo); 'host': the robot's own ROS network")
+    network: Network = NETWORK_FIELD
 
 
 def _stamp(msg: Any) -> float:

@@ -1,0 +1,172 @@
+"""The ``rosview`` service: the search on ROS 2 topics, for RViz (``deploy/ros2/ovamos.rviz``) and
+``ros2 bag``.
+
+From the robot's map snapshots, odometry and the planner's decisions it publishes, in the
+``odom`` frame (the frame of our odometry and map) under ``prefix``:
+
+* ``<prefix>/map``: ``nav_msgs/OccupancyGrid`` of the obstacles (:func:`convert.occupancy`);
+  ``<prefix>/value/<target>``: one per value layer, the map the planner decides on for it.
+  Reliable and transient-local, so an RViz started later gets the latest at once.
+* ``<prefix>/path``: ``nav_msgs/Path`` of the robot's poses (one every ``path_step_m``, at most
+  ``path_poses``).
+* ``<prefix>/markers``: ``visualization_msgs/MarkerArray``: frontiers, candidates of the latest
+  decision, its goal, and the map's objects (confirmed ones larger), labelled.
+
+It only reads our topics and publishes ROS ones: it runs wherever rclpy and the robot's ROS graph
+are (the laptop or the robot), and nothing of the search waits for it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any
+
+import numpy as np
+from pydantic import Field
+
+from services.rosview.convert import Mark, marks, occupancy, value_cells
+from shared.bus import BusCore
+from shared.config import ServiceConfig
+from shared.messages import DecisionTrace, MapSnapshot, Odometry
+from shared.ros2 import NETWORK_FIELD, Network, Ros2Unavailable, node
+from shared.service import Service
+
+COLOURS: dict[str, tuple[float, float, float]] = {
+    "frontier": (0.2, 0.6, 1.0), "candidate": (1.0, 0.6, 0.0), "goal": (1.0, 0.0, 1.0),
+    "object": (0.9, 0.9, 0.2), "confirmed": (0.1, 0.9, 0.2)}
+"""Marker colours (RGB 0-1): close to the operator page's."""
+
+
+class RosViewConfig(ServiceConfig):
+    prefix: str = Field(default="/ovamos", description="topic prefix ('/robot1/ovamos' for a fleet robot)")
+    frame_id: str = Field(default="odom", description="the frame everything is in (our odometry's)")
+    publish_hz: float = Field(default=2.0, gt=0, description="how often what changed is published")
+    path_step_m: float = Field(default=0.05, gt=0, description="a path pose every this far")
+    path_poses: int = Field(default=5000, ge=2, description="the path keeps this many poses at most")
+    network: Network = NETWORK_FIELD
+
+
+class RosViewService(Service):
+    name = "rosview"
+    Config = RosViewConfig
+    config: RosViewConfig
+
+    def __init__(self, bus: BusCore, config: RosViewConfig) -> None:
+        super().__init__(bus, config)
+        self.tick_hz = config.publish_hz
+        self._snapshot: MapSnapshot | None = None
+        self._trace: DecisionTrace | None = None
+        self._path: deque[Odometry] = deque(maxlen=config.path_poses)
+        self._changed = {"map": False, "path": False, "markers": False}
+        self._pubs: dict[str, Any] = {}
+        self.published: dict[str, int] = {}
+
+    def start(self) -> None:
+        try:
+            self._ros = node(self.config.network)
+        except Ros2Unavailable as exc:
+            raise RuntimeError(f"rosview cannot start ROS 2: {exc}") from None
+        self.wire({"map_snapshot": self._on_snapshot, "odom": self._on_odom, "plan_trace": self._on_trace})
+
+    def _on_snapshot(self, snapshot: MapSnapshot) -> None:
+        self._snapshot = snapshot
+        self._changed["map"] = self._changed["markers"] = True
+
+    def _on_trace(self, trace: DecisionTrace) -> None:
+        self._trace = trace
+        self._changed["markers"] = True
+
+    def _on_odom(self, odom: Odometry) -> None:
+        last = self._path[-1] if self._path else None
+        if last is not None and last.odom_session != odom.odom_session:
+            self._path.clear()  # a restarted driver: a path of the new odometry frame
+        elif last is not None and math.hypot(odom.x - last.x, odom.y - last.y) < self.config.path_step_m:
+            return
+        self._path.append(odom)
+        self._changed["path"] = True
+
+    def tick(self) -> None:
+        if self._changed["map"] and self._snapshot is not None:
+            self._publish_grid("map", occupancy(self._snapshot))
+            for layer in self._snapshot.layers:
+                self._publish_grid(f"value/{layer}", value_cells(self._snapshot, layer))
+        if self._changed["path"]:
+            self._publish_path()
+        if self._changed["markers"]:
+            self._publish_markers(marks(self._snapshot, self._trace))
+        self._changed = dict.fromkeys(self._changed, False)
+
+    def _publisher(self, name: str, kind: type, latched: bool = False) -> Any:
+        pub = self._pubs.get(name)
+        if pub is None:
+            from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+            qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+            pub = self._pubs[name] = self._ros.create_publisher(kind, f"{self.config.prefix}/{name}", qos)
+        return pub
+
+    def _header(self, msg: Any) -> Any:
+        msg.header.stamp = self._ros.get_clock().now().to_msg()
+        msg.header.frame_id = self.config.frame_id
+        return msg
+
+    def _count(self, name: str) -> None:
+        self.published[name] = self.published.get(name, 0) + 1
+
+    def _publish_grid(self, name: str, cells: np.ndarray) -> None:
+        from nav_msgs.msg import OccupancyGrid
+        snap = self._snapshot
+        assert snap is not None
+        grid = self._header(OccupancyGrid())
+        grid.info.resolution = float(snap.resolution)
+        grid.info.height, grid.info.width = (int(n) for n in cells.shape)
+        grid.info.origin.position.x, grid.info.origin.position.y = float(snap.origin[0]), float(snap.origin[1])
+        grid.info.origin.orientation.w = 1.0
+        grid.data = cells.ravel().tolist()
+        self._publisher(name, OccupancyGrid, latched=True).publish(grid)
+        self._count(name)
+
+    def _publish_path(self) -> None:
+        from geometry_msgs.msg import PoseStamped
+        from nav_msgs.msg import Path
+        path = self._header(Path())
+        for odom in self._path:
+            pose = PoseStamped()
+            pose.header.frame_id = self.config.frame_id
+            pose.pose.position.x, pose.pose.position.y = odom.x, odom.y
+            pose.pose.orientation.z, pose.pose.orientation.w = math.sin(odom.yaw / 2), math.cos(odom.yaw / 2)
+            path.poses.append(pose)
+        self._publisher("path", Path).publish(path)
+        self._count("path")
+
+    def _publish_markers(self, shown: list[Mark]) -> None:
+        from visualization_msgs.msg import Marker, MarkerArray
+        array = MarkerArray()
+        clear = self._header(Marker())
+        clear.action = Marker.DELETEALL  # the marks of before go: each array is the whole picture
+        array.markers.append(clear)
+        for i, mark in enumerate(shown):
+            sphere = self._header(Marker())
+            sphere.ns, sphere.id, sphere.type, sphere.action = mark.kind, i, Marker.SPHERE, Marker.ADD
+            size = {"frontier": 0.1, "candidate": 0.15, "goal": 0.3, "object": 0.2, "confirmed": 0.35}[mark.kind]
+            sphere.scale.x = sphere.scale.y = sphere.scale.z = size
+            sphere.pose.position.x, sphere.pose.position.y = mark.x, mark.y
+            sphere.pose.orientation.w = 1.0
+            sphere.color.r, sphere.color.g, sphere.color.b = COLOURS[mark.kind]
+            sphere.color.a = 0.9
+            array.markers.append(sphere)
+            if mark.label:
+                text = self._header(Marker())
+                text.ns, text.id, text.type, text.action = f"{mark.kind}/label", i, Marker.TEXT_VIEW_FACING, Marker.ADD
+                text.text, text.scale.z = mark.label, 0.2
+                text.pose.position.x, text.pose.position.y, text.pose.position.z = mark.x, mark.y, size + 0.15
+                text.pose.orientation.w = 1.0
+                text.color.r = text.color.g = text.color.b = text.color.a = 1.0
+                array.markers.append(text)
+        self._publisher("markers", MarkerArray).publish(array)
+        self._count("markers")
+
+    def info(self) -> dict[str, Any]:
+        return {"published": dict(self.published), "path_poses": len(self._path),
+                "map_seq": None if self._snapshot is None else self._snapshot.seq}

@@ -1,0 +1,77 @@
+"""The rosview service against a mock ROS 2 viewer (tests/ros2/fake_viewer.py, real rclpy in its
+own process): the OccupancyGrid agrees with our map (size, resolution, origin, cells), each value
+layer has its grid, the path follows odometry, and markers show the goal and the found objects."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from services.rosview.service import RosViewConfig, RosViewService
+from shared import keys
+from shared.fake_bus import FakeNetwork
+from shared.messages import DecisionTrace, Goal, MapSnapshot, ObjectInstance, Odometry, TraceOption
+from tests.ros2.nodes import MockNode
+
+H, W = 40, 60
+
+
+def snapshot() -> MapSnapshot:
+    obstacle = np.zeros((H, W), bool)
+    obstacle[0, :] = True  # the wall at the map's bottom row (y = origin y)
+    explored = np.zeros((H, W), bool)
+    explored[:20, :] = True
+    values = np.zeros((1, H, W), np.float32)
+    values[0, 10, 30] = 0.8
+    return MapSnapshot(seq=3, after_action=3, stamp=1.0, resolution=0.05, origin=(-1.0, 2.0), layers=("cup",),
+                       objects=(ObjectInstance(label="cup", x=0.5, y=2.4, score=0.9, hits=3, confirmed=True),),
+                       obstacle=obstacle, explored=explored, counts=np.ones((1, H, W), np.uint16), values=values,
+                       frontiers=np.array([[0.2, 3.0]]))
+
+
+def test_rviz_gets_the_map_the_path_and_the_marks() -> None:
+    viewer = MockNode("fake_viewer.py", "--layer", "cup")
+    net = FakeNetwork()
+    service = RosViewService(net.bus("r1", "rosview"), RosViewConfig(publish_hz=10))
+    tester = net.bus("r1", "tester")
+    service.start()
+    maps, odom, traces = (tester.publisher(keys.map_snapshot("r1"), MapSnapshot),
+                          tester.publisher(keys.odom("r1"), Odometry),
+                          tester.publisher(keys.plan_trace("r1"), DecisionTrace))
+    trace = DecisionTrace(task_id="t1", step=4, stamp=1.0, map_seq=3, robot_x=0.0, robot_y=2.5, remaining=(),
+                          options=(TraceOption(kind="candidate", x=0.4, y=2.6, value=0.5),),
+                          goal=Goal(kind="object", x=0.5, y=2.4, label="cup"), reason="the cup")
+
+    def seen(topic: str) -> list[dict]:
+        return [line for line in viewer.lines() if line["topic"] == topic]
+    try:
+        deadline, k = time.monotonic() + 30, 0
+        topics = ("/ovamos/map", "/ovamos/value/cup", "/ovamos/path", "/ovamos/markers")
+        while time.monotonic() < deadline and not (all(seen(t) for t in topics) and k >= 8
+                                                   and seen("/ovamos/path")[-1]["poses"][-1] == [0.5, 2.5]):
+            k += 1
+            maps.put(snapshot())
+            odom.put(Odometry(seq=k, stamp=float(k), x=0.1 * min(k, 5), y=2.5, yaw=0.0))
+            traces.put(trace)
+            net.pump()
+            service.tick()
+            time.sleep(0.1)  # the service's publish rate
+    finally:
+        service.stop()
+        viewer.close()
+    grid = seen("/ovamos/map")[-1]
+    assert (grid["width"], grid["height"], grid["origin"]) == (W, H, [-1.0, 2.0])
+    assert grid["resolution"] == pytest.approx(0.05)  # a float32 in the message
+    assert grid["frame"] == "odom" and grid["first_row_occupied"] == W  # row 0 is y = origin: ours too
+    assert (grid["occupied"], grid["free"], grid["unknown"]) == (W, 19 * W, 20 * W)
+    value = seen("/ovamos/value/cup")[-1]
+    assert value["max"] == 100 and value["unknown"] == 20 * W
+    path = seen("/ovamos/path")[-1]["poses"]
+    assert path[0] == [0.1, 2.5] and path[-1] == [0.5, 2.5] and len(path) == 5  # one pose a step
+    marked = {(m[0], round(m[1], 2), round(m[2], 2), m[3]) for m in seen("/ovamos/markers")[-1]["marks"]}
+    assert {("goal", 0.5, 2.4, ""), ("confirmed", 0.5, 2.4, ""), ("frontier", 0.2, 3.0, ""),
+            ("candidate", 0.4, 2.6, "")} <= marked
+    assert ("goal/label", 0.5, 2.4, "cup") in marked and ("confirmed/label", 0.5, 2.4, "cup") in marked
+    assert service.info()["published"]["map"] >= 1
