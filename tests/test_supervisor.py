@@ -330,18 +330,20 @@ def test_a_service_config_that_does_not_fit_its_service_is_refused(tmp_path: Pat
 
 def test_unknown_profile_names_list_the_shipped_ones() -> None:
     assert resolve_profile("all") == PROFILE_DIR / "all.toml"
-    with pytest.raises(ProfileError, match="all, fleet, laptop, laptop-secure, robot, robot-secure"):
+    with pytest.raises(ProfileError, match="all, fleet, laptop, laptop-secure, robot, robot-ros2, robot-secure"):
         resolve_profile("everything")
 
 
 def test_shipped_profiles_are_complete_and_valid() -> None:
     """all / laptop / robot (and the secure two) parse, reference existing files, and say what the
     design asks."""
-    assert [p.stem for p in SHIPPED] == ["all", "fleet", "laptop-secure", "laptop", "robot-secure", "robot"]
+    assert [p.stem for p in SHIPPED] == ["all", "fleet", "laptop-secure", "laptop", "robot-ros2", "robot-secure",
+                                         "robot"]
     wanted = {"all": {"gateway", "perception", "mapping", "planner", "sim"},
               "laptop": {"gateway", "perception", "mapping", "planner"},
               "robot": {"base_driver", "camera"}}
-    wanted |= {"laptop-secure": wanted["laptop"], "robot-secure": wanted["robot"], "fleet": wanted["all"]}
+    wanted |= {"laptop-secure": wanted["laptop"], "robot-secure": wanted["robot"], "fleet": wanted["all"],
+               "robot-ros2": wanted["robot"] | {"rosview"}}
     for path in SHIPPED:
         profile = load_profile(path)  # also checks that every referenced file exists
         check_service_configs(profile)  # registered services: configs fit their models

@@ -2,7 +2,8 @@
 Create 3): takes velocity on ``cmd_vel`` (TwistStamped, or Twist with ``--twist``), moves an ideal
 differential base by it at 50 Hz, stops when commands stop for 0.5 s (as a Create 3 does), and
 publishes ``nav_msgs/Odometry`` on ``odom`` at 30 Hz from ``--start X Y YAW``. Every command
-received is printed as a JSON line ``{"v": .., "w": .., "t": monotonic}``; a line ``pause`` on
+received is printed as a JSON line ``{"v": .., "w": .., "t": monotonic}``, its own timeout
+stopping it as ``{"timed_out": monotonic}``; a line ``pause`` on
 stdin stops the odometry, ``resume`` starts it again, ``estop`` / ``estop-false`` publishes
 ``std_msgs/Bool`` true / false on ``estop`` (a ROS user's e-stop button). Run it only in a
 loopback-only namespace."""
@@ -52,8 +53,9 @@ def main() -> None:
 
     def physics() -> None:
         with lock:
-            if time.monotonic() - state["last_cmd"] > 0.5:
-                state["v"] = state["w"] = 0.0
+            if time.monotonic() - state["last_cmd"] > 0.5 and (state["v"] or state["w"]):
+                state["v"] = state["w"] = 0.0  # the base's own command timeout, as a Create 3's
+                print(json.dumps({"timed_out": time.monotonic()}), flush=True)
             dt = 0.02
             state["x"] += state["v"] * math.cos(state["yaw"]) * dt
             state["y"] += state["v"] * math.sin(state["yaw"]) * dt
