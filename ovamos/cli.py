@@ -654,6 +654,27 @@ def bench_camera(frames: Annotated[int, typer.Option(help="Frames per run.")] = 
     _report(result, as_json, print_table)
 
 
+@bench_app.command("ros2")
+def bench_ros2(seconds: Annotated[float, typer.Option(help="Seconds of frames per run.")] = 10.0,
+               runs: Annotated[int, typer.Option(help="Runs (the median is reported).")] = 3,
+               commands: Annotated[int, typer.Option(help="Velocity commands timed per run.")] = 50,
+               as_json: AsJson = False) -> None:
+    """ROS 2 frame path (640x480 at 30 Hz into the camera service, one core) and cmd_vel latency,
+    against mock ROS 2 peers in a loopback-only network namespace (entered by itself: root)."""
+    import subprocess
+    import sys
+
+    from shared.dds import DdsNetworkError, check_loopback_only
+    try:
+        check_loopback_only()
+    except DdsNetworkError:  # not yet inside one: run again in a loopback-only namespace
+        raise typer.Exit(subprocess.run([sys.executable, "-m", "shared.dds", "--", sys.executable, "-m",
+                                         "ovamos.cli", *sys.argv[1:]]).returncode) from None
+    from bench.ros2 import print_table, run_benchmark
+    result = run_benchmark(runs=runs, seconds=seconds, commands=commands, progress=None if as_json else err)
+    _report(result, as_json, print_table)
+
+
 @bench_app.command("record")
 def bench_record(seconds: Annotated[float, typer.Option(help="How long to record.")] = 20.0,
                  noise: Annotated[bool, typer.Option(help="Give the simulator's frames a camera's noise "

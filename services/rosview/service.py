@@ -8,7 +8,7 @@ From the robot's map snapshots, odometry and the planner's decisions it publishe
   ``<prefix>/value/<target>``: one per value layer, the map the planner decides on for it.
   Reliable and transient-local, so an RViz started later gets the latest at once.
 * ``<prefix>/path``: ``nav_msgs/Path`` of the robot's poses (one every ``path_step_m``, at most
-  ``path_poses``).
+  ``path_poses``), transient-local too: it changes only while the robot moves.
 * ``<prefix>/markers``: ``visualization_msgs/MarkerArray``: frontiers, candidates of the latest
   decision, its goal, and the map's objects (confirmed ones larger), labelled.
 
@@ -137,7 +137,7 @@ class RosViewService(Service):
             pose.pose.position.x, pose.pose.position.y = odom.x, odom.y
             pose.pose.orientation.z, pose.pose.orientation.w = math.sin(odom.yaw / 2), math.cos(odom.yaw / 2)
             path.poses.append(pose)
-        self._publisher("path", Path).publish(path)
+        self._publisher("path", Path, latched=True).publish(path)
         self._count("path")
 
     def _publish_markers(self, shown: list[Mark]) -> None:

@@ -1,4 +1,4 @@
-"""The ros2 base against a mock ROS 2 base (tests/ros2/fake_base.py, real rclpy in its own process):
+"""The ros2 base against a mock ROS 2 base (bench/ros2_peers/fake_base.py, real rclpy in its own process):
 velocity out as TwistStamped or Twist, the base's own odometry in, primitives closing the loop on
 it, the deadman's zeros on cmd_vel, stale odometry a fault naming the topic and recovered."""
 
@@ -19,7 +19,7 @@ from shared.messages import DriverMode
 from shared.motion import Action
 from tests.base_driver_helpers import command, run, wait_for_mode
 from tests.polling import wait_for
-from tests.ros2.nodes import MockNode
+from bench.ros2_peers.nodes import MockNode
 
 START = (2.0, -1.0, math.radians(45))
 

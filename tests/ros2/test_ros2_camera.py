@@ -1,4 +1,4 @@
-"""The ros2 camera backend against a mock ROS 2 camera (tests/ros2/fake_camera.py, real rclpy in
+"""The ros2 camera backend against a mock ROS 2 camera (bench/ros2_peers/fake_camera.py, real rclpy in
 its own process): frames with the camera info's intrinsics and depth in millimetres from 16UC1
 and 32FC1, colour from rgb8 and bgr8, reliable and best-effort publishers; each fault a clear
 CameraError (or, unpaired stamps, counted)."""
@@ -13,7 +13,7 @@ import pytest
 
 from services.camera.capture import CameraError, CapturedFrame
 from services.camera.ros2 import Ros2Backend, Ros2CameraConfig
-from tests.ros2.nodes import MockNode
+from bench.ros2_peers.nodes import MockNode
 
 
 def read_frame(backend: Ros2Backend, timeout_s: float = 20.0) -> CapturedFrame:

@@ -1,4 +1,4 @@
-"""The rosview service against a mock ROS 2 viewer (tests/ros2/fake_viewer.py, real rclpy in its
+"""The rosview service against a mock ROS 2 viewer (bench/ros2_peers/fake_viewer.py, real rclpy in its
 own process): the OccupancyGrid agrees with our map (size, resolution, origin, cells), each value
 layer has its grid, the path follows odometry, and markers show the goal and the found objects."""
 
@@ -13,7 +13,7 @@ from services.rosview.service import RosViewConfig, RosViewService
 from shared import keys
 from shared.fake_bus import FakeNetwork
 from shared.messages import DecisionTrace, Goal, MapSnapshot, ObjectInstance, Odometry, TraceOption
-from tests.ros2.nodes import MockNode
+from bench.ros2_peers.nodes import MockNode
 
 H, W = 40, 60
 
@@ -61,6 +61,7 @@ def test_rviz_gets_the_map_the_path_and_the_marks() -> None:
     finally:
         service.stop()
         viewer.close()
+    assert all(seen(t) for t in topics), ({t: len(seen(t)) for t in topics}, viewer.lines()[-3:])
     grid = seen("/ovamos/map")[-1]
     assert (grid["width"], grid["height"], grid["origin"]) == (W, H, [-1.0, 2.0])
     assert grid["resolution"] == pytest.approx(0.05)  # a float32 in the message

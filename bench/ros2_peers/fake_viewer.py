@@ -41,7 +41,8 @@ def main() -> None:
     for topic in ["/ovamos/map", *(f"/ovamos/value/{layer}" for layer in args.layer)]:
         node.create_subscription(OccupancyGrid, topic, on_grid(topic), latched)
     node.create_subscription(Path, "/ovamos/path", lambda m: print(json.dumps(
-        {"topic": "/ovamos/path", "poses": [[p.pose.position.x, p.pose.position.y] for p in m.poses]}), flush=True), 10)
+        {"topic": "/ovamos/path", "poses": [[p.pose.position.x, p.pose.position.y] for p in m.poses]}), flush=True),
+        latched)
     node.create_subscription(MarkerArray, "/ovamos/markers", lambda m: print(json.dumps(
         {"topic": "/ovamos/markers", "marks": [[k.ns, k.pose.position.x, k.pose.position.y, k.text]
                                               for k in m.markers if k.action == 0]}), flush=True), 10)

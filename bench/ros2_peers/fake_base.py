@@ -1,4 +1,4 @@
-"""A mock ROS 2 base for the ros2 tests (named as such: it stands in for ``turtlebot3_node`` or a
+"""A mock ROS 2 base for the ros2 tests and benchmark (named as such: it stands in for ``turtlebot3_node`` or a
 Create 3): takes velocity on ``cmd_vel`` (TwistStamped, or Twist with ``--twist``), moves an ideal
 differential base by it at 50 Hz, stops when commands stop for 0.5 s (as a Create 3 does), and
 publishes ``nav_msgs/Odometry`` on ``odom`` at 30 Hz from ``--start X Y YAW``. Every command

@@ -1,5 +1,5 @@
-"""The mock ROS 2 nodes of these tests (fake_base.py, fake_camera.py) as processes: started in this
-namespace, waited for, their JSON lines collected, told things on stdin."""
+"""The mock ROS 2 peers (fake_base.py, fake_camera.py, fake_viewer.py) as processes: started in
+this namespace, waited for, their JSON lines collected, told things on stdin."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ class MockNode:
 
     def __init__(self, script: str, *args: str) -> None:
         self.proc = subprocess.Popen([sys.executable, str(HERE / script), *args], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, text=True, cwd=HERE.parent.parent)
+                                     stdout=subprocess.PIPE, text=True, cwd=HERE.parent.parent)  # the repo: bench/ros2_peers/..
         self._lock = threading.Lock()
         self._lines: list[dict[str, Any]] = []
         self._ready = threading.Event()

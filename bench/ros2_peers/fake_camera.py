@@ -1,6 +1,6 @@
-"""A mock ROS 2 RGB-D camera for the ros2 tests (named as such: it stands in for realsense2_camera):
-colour, depth aligned to it and the colour camera's info, one stamp each, at 15 Hz on
-``/camera/camera/...``. The colour's red channel is the column, green the row; depth is 1.234 m
+"""A mock ROS 2 RGB-D camera for the ros2 tests and benchmark (named as such: it stands in for realsense2_camera):
+colour, depth aligned to it and the colour camera's info, one stamp each, at ``--hz`` (15) on
+``/camera/camera/...``, ``--width`` x ``--height`` (64 x 48). The colour's red channel is the column, green the row; depth is 1.234 m
 with the top-left 4 x 4 pixels 0 (no reading) and, in 32FC1, the next 4 NaN. Options make each
 fault a camera can have. Run it only in a loopback-only namespace."""
 
@@ -19,8 +19,7 @@ import rclpy  # noqa: E402  (after the check, by design)
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 
-W, H = 64, 48
-K = (50.0, 0.0, 31.5, 0.0, 52.0, 23.5, 0.0, 0.0, 1.0)
+FX, FY = 50.0, 52.0
 
 
 def main() -> None:
@@ -28,10 +27,15 @@ def main() -> None:
     parser.add_argument("--depth-encoding", default="16UC1", choices=["16UC1", "32FC1"])
     parser.add_argument("--color-encoding", default="rgb8", help="rgb8, bgr8, or another to be refused")
     parser.add_argument("--no-info", action="store_true")
-    parser.add_argument("--depth-width", type=int, default=W)
+    parser.add_argument("--depth-width", type=int, default=0, help="0: the colour's width")
     parser.add_argument("--depth-offset-s", type=float, default=0.0, help="depth stamped this much later")
     parser.add_argument("--best-effort", action="store_true", help="publish best effort (else reliable)")
+    parser.add_argument("--width", type=int, default=64)
+    parser.add_argument("--height", type=int, default=48)
+    parser.add_argument("--hz", type=float, default=15.0)
     args = parser.parse_args()
+    W, H = args.width, args.height
+    K = (FX, 0.0, (W - 1) / 2, 0.0, FY, (H - 1) / 2, 0.0, 0.0, 1.0)
     rclpy.init()
     node = rclpy.create_node("fake_camera")
     qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT if args.best_effort
@@ -41,7 +45,7 @@ def main() -> None:
     info_pub = node.create_publisher(CameraInfo, "/camera/camera/color/camera_info", qos)
     cols, rows = np.meshgrid(np.arange(W), np.arange(H))
     rgb = np.stack([cols, rows, np.full_like(cols, 7)], axis=-1).astype(np.uint8)
-    dw = args.depth_width
+    dw = args.depth_width or W
     metres = np.full((H, dw), 1.234, np.float32)
     metres[:4, :4] = 0.0
     if args.depth_encoding == "32FC1":
@@ -65,7 +69,7 @@ def main() -> None:
         if not args.no_info:
             info_pub.publish(info)
 
-    node.create_timer(1 / 15, publish)
+    node.create_timer(1 / args.hz, publish)
     serve(node)
 
 
