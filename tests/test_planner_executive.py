@@ -336,6 +336,10 @@ def test_a_driver_that_says_it_shuts_down_is_not_reported_unreachable(ex: Execut
     ex.on_driver(driver(active=1))
     ex.on_robot_link(False)                                   # no word this time: the link
     assert commands(ex.poll(2.0)) == [] and ex.waiting == "robot unreachable"
+    # its word arriving after the token's loss (they travel apart) still names the cause
+    ex.on_driver(driver(mode=DriverMode.OFF, active=1))
+    assert commands(ex.poll(2.5)) == [] and ex.waiting == "the robot's driver shut down"
+    assert ex.driver is None  # a late word changes the reason, not the state kept
 
 
 def test_a_driver_restart_is_a_new_odometry_session_and_no_plan_is_made_on_the_old_map(

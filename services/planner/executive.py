@@ -154,7 +154,12 @@ class Executive:
         self._event_due = self._event_due or bool(added or removed)
 
     def on_driver(self, state: DriverState) -> None:
-        """A driver state: taken only when of the driver's session (see the module)."""
+        """A driver state: taken only when of the driver's session (see the module). A driver's
+        word that it goes off can arrive after its liveliness token's loss (they travel apart):
+        it still names why the robot is unreachable."""
+        if not self.robot_reachable and state.mode is DriverMode.OFF and state.odom_session == self._odom_session:
+            self.unreachable_why = DRIVER_OFF
+            return
         before = self._odom_session
         if not self._sessions.observe("driver_state", state.odom_session, state.stamp):
             if sampled(self._sessions.stray["driver_state"]):

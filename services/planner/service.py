@@ -36,7 +36,7 @@ from services.planner.executive import DRIVER_OFF, Executive, ExecutiveConfig
 from shared import keys
 from shared.bus import BusCore
 from shared.config import ServiceConfig
-from shared.messages import (DecisionTrace, MapSnapshot, PlanCommand, ServiceStats, TaskEvent, TaskSpec,
+from shared.messages import (DecisionTrace, DriverState, MapSnapshot, PlanCommand, ServiceStats, TaskEvent, TaskSpec,
                              TaskStatus)
 from shared.service import Service
 from shared.topology import DRIVERS, TOPOLOGY
@@ -56,6 +56,9 @@ class _UnknownTargets(BaseModel):
 class PlannerServiceConfig(ServiceConfig, ExecutiveConfig):
     tick_hz: float = Field(default=20.0, gt=0, description="how often the protocol is polled")
     query_timeout_s: float = Field(default=0.5, gt=0, description="wait this long for a map on request")
+    off_grace_s: float = Field(
+        default=0.5, gt=0, description="after a driver's token goes, wait this long for its word that it "
+                                       "shut down before saying the robot is unreachable")
     perception_check_s: float = Field(
         default=2.0, gt=0, description="while the map has no values of a target, ask perception this "
                                        "often whether it can see that target at all")
@@ -78,10 +81,11 @@ class PlannerService(Service):
         self._asking_perception = False
         self._next_perception_check = 0.0  # time.monotonic()
         self._resumed: TaskSpec | None = None  # a task taken over mid-way, until its commands are booked
+        self._lost: tuple[str, float] | None = None  # a driver's token gone: (key, when to say so)
 
     def start(self) -> None:
         ex = self.executive
-        self.wire({"task_current": self._on_task, "driver_state": ex.on_driver, "camera_state": ex.on_camera,
+        self.wire({"task_current": self._on_task, "driver_state": self._on_driver_state, "camera_state": ex.on_camera,
                    "odom": ex.on_odom, "map_snapshot": ex.on_snapshot})
         for service in DRIVERS:
             self.bus.watch_liveliness(keys.alive(self.bus.robot_id, service), self._on_driver_token)
@@ -95,9 +99,22 @@ class PlannerService(Service):
                 self.log.info("robot reachable (%s alive)", ", ".join(sorted(self._drivers)))
             elif self.executive.unreachable_why == DRIVER_OFF:
                 self.log.info("the robot's driver shut down (%s gone after saying so); waiting for it", key)
-            else:
+            else:  # said once the driver's last word could have come (it travels apart from the token)
+                self._lost = (key, time.monotonic() + self.config.off_grace_s)
+
+    def _on_driver_state(self, state: DriverState) -> None:
+        self.executive.on_driver(state)
+        if self._lost is not None and self.executive.unreachable_why == DRIVER_OFF:
+            self.log.info("the robot's driver shut down (%s gone, saying so just after); waiting for it",
+                          self._lost[0])
+            self._lost = None
+
+    def _say_if_lost(self, now: float) -> None:
+        if self._lost is not None and (self._drivers or now >= self._lost[1]):
+            if not self._drivers:
                 self.log.warning("robot unreachable: %s gone (the link to the robot is down, or its "
-                                 "driver died); waiting for it", key)
+                                 "driver died); waiting for it", self._lost[0])
+            self._lost = None
 
     def _on_task(self, spec: TaskSpec) -> None:
         """A task new to this planner that already booked commands (``last_action``) is taken over
@@ -143,6 +160,7 @@ class PlannerService(Service):
             self.bus.request(self._map_key, MapSnapshot, self._on_map_reply, self.config.query_timeout_s)
         self._book_unreported()
         now = time.monotonic()
+        self._say_if_lost(now)
         for msg in self.executive.poll(now):
             self.out[_PORTS[type(msg)]].put(msg)
         if self._unseen_targets() and not self._asking_perception and now >= self._next_perception_check:
