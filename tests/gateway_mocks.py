@@ -19,7 +19,8 @@ from services.gateway.config import GatewayConfig
 from services.gateway.service import GatewayService
 from shared import keys
 from shared.bus import Bus
-from shared.messages import FoundObject, Goal, MapSnapshot, ObjectInstance, TaskEvent, TaskSpec, TaskStatus
+from shared.messages import (DriverMode, DriverState, EStop, FoundObject, Goal, MapSnapshot, ObjectInstance,
+                             Odometry, TaskEvent, TaskSpec, TaskStatus)
 from shared.procs import free_port
 from shared.service import run_service
 from shared.zconfig import build_config
@@ -112,4 +113,42 @@ class MockMapping:
         self.bus.queryable(keys.map_snapshot(robot_id), small_map)
 
     def close(self) -> None:
+        self.bus.close()
+
+
+class MockDriver:
+    """A fake base driver (mock) over real Zenoh: latches its e-stop on ``driver/estop`` and clears it
+    on ``driver/estop/clear`` as the real one does, publishing its state on every change and a few times a second."""
+
+    def __init__(self, endpoint: str, answer: bool = True) -> None:
+        self.bus = Bus.open(build_config(connect=[endpoint]), ROBOT, "mock-driver")
+        self.requests: list[EStop] = []
+        self.latched = False
+        self.answer = answer
+        self._states = self.bus.publisher(keys.driver_state(ROBOT), DriverState)
+        self._odom = self.bus.publisher(keys.odom(ROBOT), Odometry)
+        self.bus.subscribe(keys.estop(ROBOT), EStop, self._on_estop)
+        self.bus.subscribe(keys.estop_clear(ROBOT), EStop, self._on_estop)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _on_estop(self, request: EStop) -> None:
+        self.requests.append(request)
+        self.latched = request.engage
+        self._publish()
+
+    def _publish(self) -> None:
+        if self.answer:
+            self._states.put(DriverState(stamp=0.0, mode=DriverMode.ESTOP if self.latched else DriverMode.READY,
+                                         estop_latched=self.latched))
+            self._odom.put(Odometry(seq=0, stamp=0.0, x=0.5, y=0.5, yaw=1.0))
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.2):
+            self._publish()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
         self.bus.close()

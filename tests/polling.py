@@ -12,6 +12,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 
@@ -35,6 +36,15 @@ def wait_for(predicate: Callable[[], object], timeout: float = 20.0, what: str =
 def port_open(port: int) -> bool:
     with socket.socket() as s:
         return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def ovamos_unwrapped(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    """Run the CLI from the repo's root; its output with rich's line wrapping undone (one space
+    between words), so a test can look for a whole message."""
+    done = subprocess.run([sys.executable, "-m", "ovamos.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, cwd=Path(__file__).resolve().parents[1])
+    done.stdout, done.stderr = " ".join(done.stdout.split()), " ".join(done.stderr.split())
+    return done
 
 
 def status_cli(port: int, robot_id: str = "*") -> list[dict]:

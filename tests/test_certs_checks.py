@@ -24,19 +24,11 @@ from ovamos.router import log_certificates
 from shared.certs import CertInfo, check_certificate, init_ca, issue
 from shared.procs import free_port, loopback
 from shared.zconfig import TlsFiles, ZenohConfigError, build_config, check_plain_listeners, open_session
-from tests.polling import port_open, wait_for
+from tests.polling import ovamos_unwrapped as ovamos, port_open, wait_for
 
 REPO = Path(__file__).resolve().parents[1]
 SECURE_LAPTOP = REPO / "deploy" / "zenoh" / "laptop-router-secure.json5"
 SECURE_ROBOT = REPO / "deploy" / "zenoh" / "robot-router-secure.json5"
-
-
-def ovamos(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    """Run the CLI; its output with rich's line wrapping undone (one space between words)."""
-    done = subprocess.run([sys.executable, "-m", "ovamos.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, cwd=REPO)
-    done.stdout, done.stderr = " ".join(done.stdout.split()), " ".join(done.stderr.split())
-    return done
 
 
 @pytest.fixture

@@ -5,7 +5,6 @@ use, the phone layout, and the page's own endpoints (state, e-stop, map) over HT
 from __future__ import annotations
 
 import json
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -18,11 +17,11 @@ from services.gateway.page import STATIC
 from shared import keys
 from shared.bus import Bus
 from services.gateway.client import GatewayClient
-from shared.messages import DriverMode, DriverState, EStop, Goal, ObjectInstance, Odometry, TaskStatus
+from shared.messages import Goal, ObjectInstance, TaskStatus
 from shared.zconfig import build_config
 from tests.browser import (PHONE, by_id, chromium, console_errors, row, screenshot, set_viewport,
                            task_rows, text_of, wait_text)
-from tests.gateway_mocks import (ODOM_SESSION, ROBOT, MockMapping, MockPlanner, RunningGateway, gateway_config,
+from tests.gateway_mocks import (ODOM_SESSION, ROBOT, MockDriver, MockMapping, MockPlanner, RunningGateway, gateway_config,
                                  small_map)
 from tests.polling import wait_for
 
@@ -40,44 +39,6 @@ def browser(chromium_session):
     chromium_session.get("about:blank")
     chromium_session.get_log("browser")
     return chromium_session
-
-
-class MockDriver:
-    """A fake base driver (mock) over real Zenoh: latches its e-stop on ``driver/estop`` and clears it
-    on ``driver/estop/clear`` as the real one does, publishing its state on every change and a few times a second."""
-
-    def __init__(self, endpoint: str, answer: bool = True) -> None:
-        self.bus = Bus.open(build_config(connect=[endpoint]), ROBOT, "mock-driver")
-        self.requests: list[EStop] = []
-        self.latched = False
-        self.answer = answer
-        self._states = self.bus.publisher(keys.driver_state(ROBOT), DriverState)
-        self._odom = self.bus.publisher(keys.odom(ROBOT), Odometry)
-        self.bus.subscribe(keys.estop(ROBOT), EStop, self._on_estop)
-        self.bus.subscribe(keys.estop_clear(ROBOT), EStop, self._on_estop)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _on_estop(self, request: EStop) -> None:
-        self.requests.append(request)
-        self.latched = request.engage
-        self._publish()
-
-    def _publish(self) -> None:
-        if self.answer:
-            self._states.put(DriverState(stamp=0.0, mode=DriverMode.ESTOP if self.latched else DriverMode.READY,
-                                         estop_latched=self.latched))
-            self._odom.put(Odometry(seq=0, stamp=0.0, x=0.5, y=0.5, yaw=1.0))
-
-    def _run(self) -> None:
-        while not self._stop.wait(0.2):
-            self._publish()
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(5)
-        self.bus.close()
 
 
 def test_the_page_and_its_files_are_served_without_a_token_and_fetch_nothing_from_elsewhere(

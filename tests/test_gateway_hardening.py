@@ -11,7 +11,6 @@ import os
 import re
 import subprocess
 import sys
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -20,61 +19,17 @@ import pytest
 
 from services.gateway.config import TOKEN_ENV, GatewayConfig
 from services.gateway.service import GatewayService
-from shared import keys
-from shared.bus import Bus
-from shared.messages import DriverMode, DriverState, EStop
 from shared.service import ServiceConfigError, load_config
-from shared.zconfig import build_config
-from tests.gateway_mocks import ROBOT, MockPlanner, RunningGateway, gateway_config
+from tests.gateway_mocks import ROBOT, MockDriver, MockPlanner, RunningGateway, gateway_config
 from tests.polling import wait_for
 
 FORGED = {"Host": "attacker.example:8080"}  # what the rebound page's requests carry
 TOKEN = "a-token-of-24-characters"
 
 
-class RecordingDriver:
-    """A fake base driver (mock) over real Zenoh: every e-stop request it receives (engage and
-    clear), and the latch they leave, published as its driver state a few times a second."""
-
-    def __init__(self, endpoint: str) -> None:
-        self.bus = Bus.open(build_config(connect=[endpoint]), ROBOT, "mock-driver")
-        self._lock = threading.Lock()
-        self._requests: list[EStop] = []
-        self.latched = False
-        self._states = self.bus.publisher(keys.driver_state(ROBOT), DriverState)
-        self.bus.subscribe(keys.estop(ROBOT), EStop, self._on_request)
-        self.bus.subscribe(keys.estop_clear(ROBOT), EStop, self._on_request)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _on_request(self, request: EStop) -> None:
-        with self._lock:
-            self._requests.append(request)
-            self.latched = request.engage
-        self._publish()
-
-    def requests(self) -> list[EStop]:
-        with self._lock:
-            return list(self._requests)
-
-    def _publish(self) -> None:
-        self._states.put(DriverState(stamp=0.0, mode=DriverMode.ESTOP if self.latched else DriverMode.READY,
-                                     estop_latched=self.latched))
-
-    def _run(self) -> None:
-        while not self._stop.wait(0.2):
-            self._publish()
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(5)
-        self.bus.close()
-
-
 @pytest.fixture
-def driver(inproc_router: str) -> Iterator[RecordingDriver]:
-    mock = RecordingDriver(inproc_router)
+def driver(inproc_router: str) -> Iterator[MockDriver]:
+    mock = MockDriver(inproc_router)
     yield mock
     mock.close()
 
@@ -84,7 +39,7 @@ def _counter(url: str, name: str, headers: dict[str, str] | None = None) -> int:
 
 
 def test_a_forged_host_can_neither_clear_nor_engage_the_estop(gateway: RunningGateway,
-                                                              driver: RecordingDriver) -> None:
+                                                              driver: MockDriver) -> None:
     url = f"{gateway.url}/v1/robots/{ROBOT}"
     wait_for(lambda: httpx.get(url, timeout=10).json()["driver"] is not None, what="the driver's state")
     engaged = httpx.post(f"{url}/estop", json={"reason": "operator"}, timeout=10)
@@ -101,8 +56,8 @@ def test_a_forged_host_can_neither_clear_nor_engage_the_estop(gateway: RunningGa
     # a request after them reaches the driver (same publisher, in order): had the forged ones been
     # sent, they would have arrived before it
     assert httpx.post(f"{url}/estop", json={"reason": "sentinel"}, timeout=10).status_code == 200
-    wait_for(lambda: any(r.reason == "sentinel" for r in driver.requests()), what="the sentinel request")
-    assert [r for r in driver.requests() if r.reason == "attacker" or not r.engage] == []
+    wait_for(lambda: any(r.reason == "sentinel" for r in driver.requests), what="the sentinel request")
+    assert [r for r in driver.requests if r.reason == "attacker" or not r.engage] == []
     assert driver.latched and httpx.get(url, timeout=10).json()["driver"]["estop_latched"] is True
     assert _counter(gateway.url, "http_403") == before + 2  # counted like other refusals
 

@@ -8,8 +8,6 @@ from __future__ import annotations
 import datetime as dt
 import json
 import stat
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -18,16 +16,8 @@ from ovamos.profiles import PROFILE_DIR, ProfileError, load_profile, supervisor_
 from shared.acl import TraceParser
 from shared.certs import CertError, check_certificate, init_ca, issue, list_certificates
 from shared.zconfig import TlsFiles, ZenohConfigError, build_config
+from tests.polling import ovamos_unwrapped as ovamos
 
-REPO = Path(__file__).resolve().parents[1]
-
-
-def ovamos(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    """Run the CLI; its output with rich's line wrapping undone (one space between words)."""
-    done = subprocess.run([sys.executable, "-m", "ovamos.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, cwd=REPO)
-    done.stdout, done.stderr = " ".join(done.stdout.split()), " ".join(done.stderr.split())
-    return done
 
 
 @pytest.fixture
