@@ -6,6 +6,7 @@ import json
 import logging
 import math
 import os
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -423,11 +424,13 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
                                  "EPISODE+1, ...).")] = 1
          ) -> None:
     """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
-    from ovamos.demo import BASES, DEMO_EPISODE, DEMO_SEED, run_demo
+    from ovamos.demo import BASES, DEMO_EPISODE, DEMO_SEED, ROS2_BASE, run_demo
     seed = DEMO_SEED if seed is None else seed
     episode = DEMO_EPISODE if episode is None else episode
     if base not in BASES:
         raise _fail(f"--base {base!r}: one of {', '.join(BASES)}")
+    if base == ROS2_BASE:
+        _into_loopback_namespace(robots)
     try:
         code = run_demo(console, out_dir=out, seed=seed, episode=episode, targets=targets,
                         keep_running=keep_running, timeout_s=timeout, base=base,
@@ -437,6 +440,23 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
     except (TimeoutError, OSError) as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)
+
+
+def _into_loopback_namespace(robots: int) -> None:
+    """``demo --base ros2`` runs DDS, which only starts in a loopback-only network namespace: run the
+    demo again in one unless it is in one already."""
+    from shared.dds import DdsNetworkError, check_loopback_only, in_own_namespace, rerun_in_loopback_namespace
+    if robots > 1:
+        raise _fail("--base ros2 runs one robot (--robots 1)")
+    try:
+        check_loopback_only()
+    except DdsNetworkError as exc:
+        if in_own_namespace():
+            raise _fail(str(exc)) from None
+        console.print("--base ros2: DDS starts only in a network namespace with nothing but loopback; running "
+                      "the demo in one (python -m shared.dds -- ...); its router and gateway answer only "
+                      "inside it.")
+        rerun_in_loopback_namespace([sys.executable, "-m", "ovamos.cli", *sys.argv[1:]])
 
 
 KeyNames = Annotated[Optional[list[str]], typer.Option(
@@ -902,6 +922,31 @@ def sim_render(out: Annotated[Path, typer.Option(help="PNG to write: RGB | depth
     seen = sorted({scene.object(int(i)).cls for i in np.unique(frame.instance_ids) if i > 0})
     console.print(f"camera at ({x:.2f}, {y:.2f}) yaw {yaw:.2f}: sees {', '.join(seen) or 'no objects'}"
                   f" -> {out}")
+
+
+@sim_app.command("ros2")
+def sim_ros2(config: Annotated[Optional[Path], typer.Option(
+                 help="Settings (TOML or JSON; services/sim/ros2_robot.py: Ros2SimRobotConfig).")] = None,
+             episode: Annotated[Optional[str], typer.Option(
+                 help="The robot of episode SEED-INDEX: its house and start (default: the config's, else 0-0).")] = None,
+             set_: Annotated[Optional[list[str]], typer.Option(
+                 "--set", help="KEY=JSON: replace a setting, e.g. base='{\"stamped\": false}' for a "
+                               "Create 3's Twist (repeatable).")] = None,
+             log_level: LogLevel = "INFO") -> None:
+    """A simulated robot behind ROS 2 topics: cmd_vel in, odom and a RealSense's topics out, until
+    Ctrl-C. DDS stays in a loopback-only namespace: run it as `python -m shared.dds -- ovamos sim ros2`."""
+    from bench.search import SearchError, parse_episode_id
+    from services.sim.ros2_robot import Ros2SimRobotConfig, main as run_robot
+    from shared.config import ServiceConfigError, parse_overrides, read_config
+    from shared.ros2 import Ros2Unavailable
+    setup_logging(level=log_level)
+    try:
+        overrides = parse_overrides(set_ or [])
+        if episode is not None:
+            overrides["episode_seed"], overrides["episode_index"] = parse_episode_id(episode)
+        run_robot(read_config(Ros2SimRobotConfig, config, overrides))
+    except (SearchError, ServiceConfigError, Ros2Unavailable) as exc:
+        raise _fail(str(exc)) from None
 
 
 def main() -> None:

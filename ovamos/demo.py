@@ -17,6 +17,7 @@ suggests next targets that the house contains.
 from __future__ import annotations
 
 import json
+import os
 import signal
 import threading
 import time
@@ -38,6 +39,7 @@ from services.perception.config import PerceptionServiceConfig
 from services.sim.service import Motion
 from ovamos import fleet
 from ovamos.supervisor import Entry, Supervisor
+from shared.dds import in_own_namespace
 from shared.procs import free_port, loopback
 
 DEMO_SEED, DEMO_EPISODE = 0, 4
@@ -46,9 +48,16 @@ DEMO_SEED, DEMO_EPISODE = 0, 4
 FLEET_EPISODES = (4, 1, 2, 3, 6, 9)
 STARTUP_TIMEOUT_S = 90.0
 SERVICES = ("mapping", "perception", "planner", "sim", "gateway")
+#: with ``--base ros2`` the robot is a ROS 2 one (:mod:`services.sim.ros2_robot`), driven and seen
+#: through the ros2 base driver and camera
+ROS2_SERVICES = ("mapping", "perception", "planner", "base_driver", "camera", "gateway")
+ROS2_BASE = "ros2"
+BASES: tuple[str, ...] = (*get_args(Motion), ROS2_BASE)  # the simulated robot's ways to move
 
 
-BASES: tuple[str, ...] = get_args(Motion)  # the simulated robot's ways to move
+def demo_services(base: str) -> tuple[str, ...]:
+    """The services a demo on ``base`` runs (every one shows a liveliness token but the gateway)."""
+    return ROS2_SERVICES if base == ROS2_BASE else SERVICES
 #: ``publish(router, gateway)``: a context that makes the endpoints known while it lasts and
 #: yields where (the CLI's: ``OUT/endpoints.json``, removed when the demo stops)
 Publish = Callable[[str, str], AbstractContextManager[Path | None]]
@@ -94,9 +103,17 @@ def _robot_configs(folder: Path, seed: int, episode: int, *, width: int, height:
     _, scene, _ = make_episode(seed, episode)
     mapping = scene_mapping(scene)
     episode_keys = {"episode_seed": seed, "episode_index": episode}
-    return {"mapping": {"grid_cells": mapping.grid_cells, "center": list(mapping.center), "publish_hz": 5.0,
-                        "checkpoint_path": str(folder / checkpoint)},
-            "sim": {**episode_keys, "motion": base, "lock_step": True, "width": width, "height": height}}
+    robot = {"mapping": {"grid_cells": mapping.grid_cells, "center": list(mapping.center), "publish_hz": 5.0,
+                         "checkpoint_path": str(folder / checkpoint)}}
+    if base != ROS2_BASE:
+        return {**robot, "sim": {**episode_keys, "motion": base, "lock_step": True, "width": width, "height": height}}
+    from services.sim.ros2_robot import BUMP_TOPIC, INSTANCE_IDS_TOPIC
+    return {**robot, "ros2_robot": {**episode_keys, "width": width, "height": height},
+            # the base's topics and geometry are the defaults, as the simulated robot's, which
+            # also reports contact on BUMP_TOPIC
+            "base_driver": {"driver": {"hardware": "ros2", "command_timeout_s": 0.5,
+                                       "ros2": {"bump": BUMP_TOPIC}}},
+            "camera": {"backend": "ros2", "lock_step": True, "ros2": {"instance_ids": INSTANCE_IDS_TOPIC}}}
 
 
 def _write(folder: Path, configs: dict[str, dict[str, Any]]) -> dict[str, Path]:
@@ -150,11 +167,13 @@ def write_fleet_configs(folder: Path, *, seed: int, episodes: dict[str, int], ht
 
 
 def demo_entries(configs: dict[str, Path], *, robot_id: str, zenoh_port: int,
-                 record: Path | None = None) -> list[Entry]:
+                 record: Path | None = None, base: str = "kinematic") -> list[Entry]:
     """The router, a recorder writing ``record`` (if given; it starts before the services and stops
-    after them, so it holds the whole run) and the services."""
-    return [_router(zenoh_port), *_recorders([robot_id], zenoh_port, record)] + \
-        [_service(name, robot_id, configs[name], zenoh_port) for name in SERVICES]
+    after them, so it holds the whole run), the services, and on the ros2 base the ROS 2 robot."""
+    robot = [Entry("ros2_robot", ("sim", "ros2", "--config", str(configs["ros2_robot"])))] \
+        if base == ROS2_BASE else []
+    return [_router(zenoh_port), *_recorders([robot_id], zenoh_port, record), *robot] + \
+        [_service(name, robot_id, configs[name], zenoh_port) for name in demo_services(base)]
 
 
 def fleet_entries(configs: dict[str, Path], *, robots: list[str], zenoh_port: int,
@@ -208,11 +227,12 @@ def _progress(views: dict[str, TaskView | None], elapsed: float) -> Table:
     return table
 
 
-def wait_for_services(client: GatewayClient, robots: list[str], deadline: float) -> None:
+def wait_for_services(client: GatewayClient, robots: list[str], deadline: float,
+                      services: Sequence[str] = SERVICES) -> None:
     """Until every service of each robot shows its liveliness token (the gateway asks Zenoh; its
     answering is the gateway's own sign of life, so a gateway not listening yet is waited for
     too, and a fleet's runs under the fleet's id)."""
-    wanted = set(SERVICES) - {"gateway"}
+    wanted = set(services) - {"gateway"}
     while time.monotonic() < deadline:
         try:
             health = client.health()["robots"]
@@ -242,7 +262,7 @@ def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode:
     if robots == 1:
         configs = write_configs(out_dir / "config", seed=seed, episode=episode, robot_id=robot_id,
                                 http_port=http_port, base=base)
-        entries = demo_entries(configs, robot_id=robot_id, zenoh_port=zenoh_port, record=record)
+        entries = demo_entries(configs, robot_id=robot_id, zenoh_port=zenoh_port, record=record, base=base)
     else:
         configs = write_fleet_configs(out_dir / "config", seed=seed, episodes=episodes,
                                       http_port=http_port, base=base)
@@ -253,7 +273,7 @@ def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode:
     started = time.monotonic()
     with Supervisor(entries, log_dir=out_dir / "logs") as supervisor, GatewayClient(url) as client:
         deadline = started + STARTUP_TIMEOUT_S
-        wait_for_services(client, fleet_ids, deadline)
+        wait_for_services(client, fleet_ids, deadline, demo_services(base))
         with publish(router, url) if publish is not None else nullcontext() as endpoints_file:
             views = _search(console, client, tasks, started,
                             default_timeout_s(base) * robots if timeout_s is None else timeout_s)
@@ -340,8 +360,11 @@ def banner(router: str, url: str, robot_id: str, episode_id: str, suggested: Seq
                   f"  ovamos submit {suggested[0]} --robot-id {robot_id} {where}"]
     if suggested[1:]:
         lines.append(f"Other targets there: {', '.join(suggested[1:])}.")
-    lines += [f"Everything the house contains: ovamos sim scene --episode {episode_id} --objects",
-              "Ctrl-C stops everything."]
+    lines.append(f"Everything the house contains: ovamos sim scene --episode {episode_id} --objects")
+    if in_own_namespace():
+        lines.append("These addresses are in the demo's own network namespace (--base ros2): from another "
+                     f"shell, nsenter --net=/proc/{os.getpid()}/ns/net COMMAND (as root).")
+    lines.append("Ctrl-C stops everything.")
     return "\n".join(lines)
 
 

@@ -17,14 +17,17 @@ Both environment variables are set: Jazzy's Fast DDS 2.x reads ``FASTRTPS_DEFAUL
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import NoReturn
 
-__all__ = ["DdsNetworkError", "LOOPBACK_PROFILE", "PROFILE_VARS", "check_loopback_only", "loopback_env"]
+__all__ = ["DdsNetworkError", "LOOPBACK_PROFILE", "PROFILE_VARS", "check_loopback_only", "loopback_env",
+           "in_own_namespace", "rerun_in_loopback_namespace"]
 
 LOOPBACK_PROFILE = Path(__file__).resolve().parent.parent / "deploy" / "ros2" / "fastdds-loopback.xml"
 PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
@@ -89,6 +92,17 @@ def loopback_env(environ: Mapping[str, str] = os.environ, profile: Path = LOOPBA
 _INSIDE = "OVAMOS_DDS_NAMESPACE"  # set by main() once it runs in the namespace it made
 
 
+def in_own_namespace() -> bool:
+    """Whether this process runs in a namespace that ``python -m shared.dds`` made."""
+    return os.environ.get(_INSIDE) == "1"
+
+
+def rerun_in_loopback_namespace(command: Sequence[str]) -> NoReturn:
+    """Replace this process with ``python -m shared.dds -- COMMAND``: ``command`` again, in a
+    loopback-only namespace (for a command that finds itself where DDS may not start)."""
+    os.execv(sys.executable, [sys.executable, "-m", "shared.dds", "--", *command])
+
+
 def main(argv: Sequence[str]) -> int:
     """``python -m shared.dds -- COMMAND ...``: COMMAND in a new loopback-only network namespace
     (``unshare``: root, or user namespaces), with a private ``/dev/shm`` and the loopback env."""
@@ -96,14 +110,18 @@ def main(argv: Sequence[str]) -> int:
     if not command:
         print("usage: python -m shared.dds -- COMMAND [ARG ...]", file=sys.stderr)
         return 2
-    if os.environ.get(_INSIDE) != "1":
+    if not in_own_namespace():
         unshare = ["unshare", "--net", "--mount", "--propagation", "private", "--",
                    sys.executable, "-m", "shared.dds", "--", *command]
         try:
-            return subprocess.run(unshare, env={**os.environ, _INSIDE: "1"}).returncode
+            child = subprocess.Popen(unshare, env={**os.environ, _INSIDE: "1"})
         except OSError as exc:
             print(f"cannot run unshare: {exc}", file=sys.stderr)
             return 2
+        for sig in (signal.SIGTERM, signal.SIGHUP):  # the command's to handle
+            signal.signal(sig, lambda number, _frame: child.send_signal(number))
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the command itself (same group)
+        return child.wait()
     for step in (["ip", "link", "set", "lo", "up"], ["mount", "-t", "tmpfs", "ovamos-dds-shm", "/dev/shm"]):
         done = subprocess.run(step, capture_output=True, text=True)
         if done.returncode != 0:

@@ -526,16 +526,25 @@ def test_start_without_frames_is_a_fault() -> None:
     assert core.fault(11.1).startswith("no camera frames")
 
 
-def test_all_zero_depth_is_a_fault_and_not_published() -> None:
-    core = make_core(0.0, lock_step=False)
+def test_all_zero_depth_is_published_until_it_lasts_then_a_fault() -> None:
+    """A wall nearer than the camera's range shows no depth: that frame must reach the planner
+    (it turns the robot away); only depth that stays all zero is a broken stream."""
+    core = make_core(0.0, lock_step=False, depth_zero_fault_s=2.0)
     still_odometry(core, 0.0, 5.0)
     core.on_frame(shot(1.0, 1.0, depth=0))
     frames, state = core.poll(1.0)
-    assert frames == [] and state is not None and state.fault == DEPTH_ALL_ZERO
-    assert core.rejected[DEPTH_ALL_ZERO] == 1 and core.published == 0
-    core.on_frame(shot(1.1, 1.1))
-    frames, state = core.poll(1.1)
+    assert len(frames) == 1 and not frames[0].depth.any() and state is not None and state.fault == ""
+    core.on_frame(shot(2.9, 2.9, depth=0))
+    assert len(core.poll(2.9)[0]) == 1 and core.fault(2.9) == ""
+    core.on_frame(shot(3.0, 3.0, depth=0))  # all zero for 2 s
+    frames, state = core.poll(3.0)
+    assert frames == [] and state is not None and state.fault.startswith(DEPTH_ALL_ZERO + " for 2 s")
+    assert core.rejected[DEPTH_ALL_ZERO] == 1 and core.zero_depth == 3 and core.published == 2
+    core.on_frame(shot(3.1, 3.1))
+    frames, state = core.poll(3.1)
     assert len(frames) == 1 and state is not None and state.fault == ""
+    core.on_frame(shot(3.2, 3.2, depth=0))  # a new run of them: published again
+    assert len(core.poll(3.2)[0]) == 1 and core.fault(3.2) == ""
 
 
 def test_camera_error_is_reported_until_frames_return() -> None:
@@ -583,7 +592,7 @@ def test_frames_that_cannot_be_posed_for_long_are_a_fault() -> None:
 
 
 def test_state_goes_out_at_state_hz_and_on_change() -> None:
-    core = make_core(0.0, lock_step=False, state_hz=2.0)
+    core = make_core(0.0, lock_step=False, state_hz=2.0, depth_zero_fault_s=0.0)  # one frame: a fault
     still_odometry(core, 0.0, 10.0)
     states: list[tuple[float, CameraState]] = []
     for j in range(90):

@@ -122,9 +122,11 @@ class BaseController:
         self._last_command_at = -math.inf
         self._completed = _Completed()
         self._odom = WheelOdometry(self.geometry, config.initial_pose)
-        bind_estop = getattr(self.hardware, "bind_estop", None)  # a hardware with an e-stop input
-        if bind_estop is not None:
-            bind_estop(self.engage_estop)
+        # optional hooks of a hardware with inputs of its own: an e-stop, a contact report
+        for hook, handler in (("bind_estop", self.engage_estop), ("bind_bump", self.bump)):
+            bind = getattr(self.hardware, hook, None)
+            if bind is not None:
+                bind(handler)
         self.odom_session = new_odom_session()  # the integration starts here, once per process
         self._odom_seq = 0
         self._feedback: WheelFeedback | None = None

@@ -61,8 +61,10 @@ class BaseHardware(Protocol):
 
     Optional, looked up by the controller: ``estop()`` (an e-stop stronger than :meth:`halt`,
     e.g. the ODrive's Estop message), ``stale_reason(now) -> str`` (why feedback is late, in
-    the interface's words) and ``bind_estop(engage)`` (an interface with an e-stop input of its
-    own, such as a ROS topic, is given the controller's ``engage_estop(source, reason)``)."""
+    the interface's words), ``bind_estop(engage)`` (an interface with an e-stop input of its
+    own, such as a ROS topic, is given the controller's ``engage_estop(source, reason)``) and
+    ``bind_bump(bump)`` (one with a contact input that is not a bumper fault, the controller's
+    ``bump(backward)``: the move ends blocked)."""
 
     name: str
 

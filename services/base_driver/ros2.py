@@ -51,6 +51,9 @@ class Ros2BaseConfig(StrictModel):
     frame_id: str = Field(default="base_link", description="header.frame_id of a TwistStamped")
     estop: str | None = Field(default="estop", description="std_msgs/Bool topic whose true engages the "
                               "e-stop (relative to namespace); none: no ROS e-stop")
+    bump: str | None = Field(default=None, description="std_msgs/Bool topic whose true says the base ran "
+                             "into something (a bridge of a Create 3's hazard_detection; the simulated "
+                             "robot's contact): the move ends blocked, as on a bumper; none: no such input")
     network: Network = NETWORK_FIELD
 
     @field_validator("namespace")
@@ -80,11 +83,18 @@ class Ros2Hardware:
         self._make_twist: Callable[[float, float], Any] | None = None
         self._engage: Callable[[str, str], None] | None = None
         self._estop_sub: Any = None
+        self._bump: Callable[[bool], None] | None = None
+        self._bump_sub: Any = None
+        self._linear = 0.0  # the last velocity sent: a bump while reversing is one behind
 
     def bind_estop(self, engage: Callable[[str, str], None]) -> None:
         """The controller's ``engage_estop(source, reason)``, for the ROS e-stop topic (the
         controller's optional hook)."""
         self._engage = engage
+
+    def bind_bump(self, bump: Callable[[bool], None]) -> None:
+        """The controller's ``bump(backward)``, for the ``bump`` topic (an optional hook)."""
+        self._bump = bump
 
     def open(self) -> None:
         if self._pub is not None:
@@ -116,6 +126,9 @@ class Ros2Hardware:
         if cfg.estop is not None and self._estop_sub is None:  # kept across re-opens: never deaf to it
             from std_msgs.msg import Bool
             self._estop_sub = ros.create_subscription(Bool, cfg.topic(cfg.estop), self._on_estop, 10)
+        if cfg.bump is not None:
+            from std_msgs.msg import Bool
+            self._bump_sub = ros.create_subscription(Bool, cfg.topic(cfg.bump), self._on_bump, 10)
 
     def _on_estop(self, msg: Any) -> None:
         """On the executor's thread: the controller's latch is thread-safe and halts at once."""
@@ -123,6 +136,14 @@ class Ros2Hardware:
             self._counts["ros2_estop" if msg.data else "ros2_estop_false_ignored"] += 1
         if msg.data and self._engage is not None:
             self._engage("ros2", f"std_msgs/Bool true on {self.config.topic(self.config.estop or '')}")
+
+    def _on_bump(self, msg: Any) -> None:
+        """On the executor's thread: the controller queues bumps without waiting."""
+        if msg.data and self._bump is not None:
+            with self._lock:
+                self._counts["ros2_bumps"] += 1
+                backward = self._linear < 0
+            self._bump(backward)
 
     def _on_odom(self, msg: Any) -> None:
         """On the executor's thread: the newest odometry, handed over under the lock."""
@@ -145,6 +166,7 @@ class Ros2Hardware:
         self._pub.publish(self._make_twist(linear_m_s, angular_rad_s))
         with self._lock:
             self._counts["ros2_cmd"] += 1
+            self._linear = linear_m_s
 
     def halt(self) -> None:
         """A zero command, every cycle while halted (a base restarted meanwhile gets one too; a
@@ -154,6 +176,7 @@ class Ros2Hardware:
         self._pub.publish(self._make_twist(0.0, 0.0))
         with self._lock:
             self._counts["ros2_cmd"] += 1
+            self._linear = 0.0
 
     def feedback(self) -> WheelFeedback | None:
         with self._lock:
@@ -173,11 +196,11 @@ class Ros2Hardware:
             return dict(self._counts)
 
     def close(self) -> None:
-        """Drop the velocity publisher and the odometry subscription; the e-stop subscription
-        stays, so the ROS e-stop works while the controller recovers."""
+        """Drop the velocity publisher and the odometry and bump subscriptions; the e-stop
+        subscription stays, so the ROS e-stop works while the controller recovers."""
         ros, self._make_twist = None, None
-        for entity in (self._pub, self._sub):
+        for entity in (self._pub, self._sub, self._bump_sub):
             if entity is not None:
                 ros = ros or node(self.config.network)
                 (ros.destroy_publisher if entity is self._pub else ros.destroy_subscription)(entity)
-        self._pub = self._sub = None
+        self._pub = self._sub = self._bump_sub = None

@@ -34,6 +34,9 @@ class CapturedFrame:
     intrinsics: Intrinsics   # of the colour camera, in pixels
     device_time_s: float     # capture time on the device's clock (seconds; any epoch)
     host_time_s: float       # time.monotonic() on this host when the frame was received
+    #: which simulated object each pixel shows (H x W int32, -1 none): only a simulated robot's
+    #: camera has it, for the simulated perception backend (``ovamos demo --base ros2``)
+    instance_ids: np.ndarray | None = None
 
 
 class CameraBackend(Protocol):

@@ -132,6 +132,11 @@ class CameraConfig(ServiceConfig):
                                              "(by capture time); None = every frame")
     frame_timeout_s: float = Field(default=1.0, gt=0,
                                    description="no frame for this long is a fault")
+    depth_zero_fault_s: float = Field(
+        default=5.0, ge=0,
+        description="depth all zero in every frame for this long is a fault (a depth stream that is off, "
+                    "a covered lens); until then such frames are published, since a wall nearer than the "
+                    "camera's minimum range shows no depth either; 0: every such frame is a fault")
     state_hz: float = Field(default=2.0, gt=0,
                             description="camera/state rate; a fault change goes out at once")
 

@@ -19,9 +19,11 @@ Clocks (every argument says which it is on):
 
 What a frame goes through (:meth:`CameraCore.on_frame`):
 
-1. checked: the arrays' shapes and types (else fault "bad frame ..."), depth not all
-   zero (else fault "depth all zero"); a good frame clears a camera fault (recovery
-   needs no restart);
+1. checked: the arrays' shapes and types (else fault "bad frame ..."); depth all zero is
+   counted and published unless every frame has been so for ``depth_zero_fault_s`` (then
+   fault "depth all zero ..." and not published: a robot facing a wall too near for depth
+   must still get the frame that lets the planner turn it away); a good frame clears a
+   camera fault (recovery needs no restart);
 2. timed: device time -> host monotonic capture time (unknown while a clock jump
    is being confirmed: not published, counted);
 3. selected: lock-step publishes, after each completed command, the first frame
@@ -98,6 +100,9 @@ def _check(c: CapturedFrame) -> str | None:
     if rgb.shape != (*d.shape, 3) or rgb.dtype != np.uint8:
         return (f"rgb must be {d.shape[0]} x {d.shape[1]} x 3 uint8 (aligned to depth), "
                 f"got {rgb.shape} {rgb.dtype}")
+    ids = c.instance_ids
+    if ids is not None and (ids.shape != d.shape or ids.dtype.kind != "i"):
+        return f"instance_ids must be {d.shape[0]} x {d.shape[1]} integers, got {ids.shape} {ids.dtype}"
     if not (math.isfinite(c.depth_scale) and c.depth_scale > 0):
         return f"depth_scale must be a positive number, got {c.depth_scale}"
     if not (math.isfinite(c.device_time_s) and math.isfinite(c.host_time_s)):
@@ -145,6 +150,7 @@ class CameraCore:
         self._last_frame_at: float | None = None
         self._error = ""                   # the backend's last CameraError, until a good frame
         self._frame_fault = ""             # depth all zero / bad frame, until a good frame
+        self._zero_depth_since: float | None = None  # receipt of the first of the all-zero frames in a row
         self._unposed_since: float | None = None  # first of the frames skipped since one was posed
         self._unposed_reason = ""
         self._state_fault: str | None = None
@@ -156,6 +162,7 @@ class CameraCore:
         self.rate_limited = 0
         self.skipped: Counter[str] = Counter()   # selected frames not published: no pose
         self.rejected: Counter[str] = Counter()  # frames refused: depth all zero, bad arrays, untimed
+        self.zero_depth = 0                      # frames with no depth at all (published or not)
 
     # -- inputs ------------------------------------------------------------------------------
 
@@ -207,9 +214,16 @@ class CameraCore:
             self._frame_fault = f"bad frame from the backend: {bad}"
             return
         if not captured.depth.any():
-            self.rejected[DEPTH_ALL_ZERO] += 1
-            self._frame_fault = DEPTH_ALL_ZERO
-            return
+            self.zero_depth += 1
+            since = self._zero_depth_since = now if self._zero_depth_since is None else self._zero_depth_since
+            limit = self.config.depth_zero_fault_s
+            if now - since >= limit:
+                self.rejected[DEPTH_ALL_ZERO] += 1
+                self._frame_fault = (f"{DEPTH_ALL_ZERO} for {limit:g} s: is the depth stream on and the lens "
+                                     f"clear?" if limit else DEPTH_ALL_ZERO)
+                return
+        else:
+            self._zero_depth_since = None
         self._frame_fault = self._error = ""  # frames are back: recovered
         capture = self._clock.to_host(captured.device_time_s, now)
         if capture is None:  # not counted as skipped: it may not have been selected anyway
@@ -283,7 +297,7 @@ class CameraCore:
         clock = self._clock
         return {"received": self.received, "published": self.published,
                 "republished": self.republished, "rate_limited": self.rate_limited,
-                "skipped": dict(self.skipped), "rejected": dict(self.rejected),
+                "skipped": dict(self.skipped), "rejected": dict(self.rejected), "zero_depth": self.zero_depth,
                 "pending": self.pending, "odometry": len(self._odom),
                 "odometry_dropped": self._odom.dropped, "odometry_stray": self._odom.stray, "clock_resets": clock.resets,
                 "clock_offset_s": getattr(clock, "offset", None),
@@ -346,7 +360,8 @@ class CameraCore:
                           odom_session=self._odom.session, intrinsics=c.intrinsics,
                           camera_pose=camera_pose(pose, self._mount),
                           depth_scale=c.depth_scale, rgb=np.ascontiguousarray(c.rgb),
-                          depth=np.ascontiguousarray(c.depth, dtype="<u2"))
+                          depth=np.ascontiguousarray(c.depth, dtype="<u2"),
+                          instance_ids=None if c.instance_ids is None else np.ascontiguousarray(c.instance_ids, "<i4"))
         self._seq += 1
         self.published += 1
         self._latest = frame

@@ -11,11 +11,13 @@ Subscriptions are best effort (``qos_profile_sensor_data``), which matches relia
 best-effort publishers alike; rclpy's callbacks only keep the newest few messages under a lock.
 What cannot make a frame is a :class:`~services.camera.capture.CameraError` with the reason (an
 encoding this cannot read, sizes that differ, no camera info for ``info_timeout_s`` while images
-come); a colour image no depth image pairs with is dropped and counted (``unpaired``).
+come); a colour image no depth image pairs with is dropped and counted (``unpaired``). A simulated
+robot's camera also has an instance-id image (``instance_ids``), paired as depth is.
 """
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 from collections import Counter, deque
@@ -42,6 +44,9 @@ class Ros2CameraConfig(StrictModel):
     depth: str = Field(default="/camera/camera/aligned_depth_to_color/image_raw",
                        description="sensor_msgs/Image aligned to colour, 16UC1 (mm) or 32FC1 (m)")
     info: str = Field(default="/camera/camera/color/camera_info", description="the colour camera's CameraInfo")
+    instance_ids: str | None = Field(
+        default=None, description="a simulated robot's instance-id image (32SC1, stamped as the colour), "
+        "for the simulated perception backend (ovamos demo --base ros2); a real camera has none")
     pair_tolerance_s: float = Field(default=0.01, ge=0, description="colour and depth stamps this close pair")
     info_timeout_s: float = Field(default=2.0, gt=0, description="images with no CameraInfo for this long: a fault")
     network: Network = NETWORK_FIELD
@@ -73,7 +78,9 @@ class Ros2Backend:
         self.config = config
         self._ready = threading.Condition()
         self._color: deque[tuple[Any, float]] = deque(maxlen=KEEP)  # (message, receipt monotonic)
-        self._depth: deque[Any] = deque(maxlen=KEEP)
+        # the images aligned to colour, by what they hold: depth, and a simulated camera's ids
+        self._aligned: dict[str, deque[Any]] = {
+            kind: deque(maxlen=KEEP) for kind in ("depth", "instance_ids") if getattr(config, kind)}
         self._info: Any = None
         self._subs: list[Any] = []
         self._images_since: float | None = None  # when images came with no info yet
@@ -90,17 +97,18 @@ class Ros2Backend:
 
         cfg = self.config
         self._subs = [ros.create_subscription(Image, cfg.color, self._on_color, qos_profile_sensor_data),
-                      ros.create_subscription(Image, cfg.depth, self._on_depth, qos_profile_sensor_data),
                       ros.create_subscription(CameraInfo, cfg.info, self._on_info, qos_profile_sensor_data)]
+        self._subs += [ros.create_subscription(Image, getattr(cfg, kind), functools.partial(self._on_aligned, queue),
+                                               qos_profile_sensor_data) for kind, queue in self._aligned.items()]
 
     def _on_color(self, msg: Any) -> None:
         with self._ready:
             self._color.append((msg, time.monotonic()))
             self._ready.notify_all()
 
-    def _on_depth(self, msg: Any) -> None:
+    def _on_aligned(self, queue: deque[Any], msg: Any) -> None:
         with self._ready:
-            self._depth.append(msg)
+            queue.append(msg)
             self._ready.notify_all()
 
     def _on_info(self, msg: Any) -> None:
@@ -129,26 +137,29 @@ class Ros2Backend:
         self._images_since = None
         return self._frame(*pair, info)
 
-    def _take_pair(self) -> tuple[Any, float, Any] | None:
-        """The newest colour image a depth image pairs with (older colour images are dropped,
-        those no depth can pair with any more counted); under the lock."""
+    def _take_pair(self) -> tuple[Any, float, dict[str, Any]] | None:
+        """The newest colour image every aligned image pairs with (older colour images are
+        dropped, those that cannot be paired any more counted); under the lock."""
         tolerance = self.config.pair_tolerance_s
         while self._color:
             color, received = self._color[-1]
             t = _stamp(color)
-            depth = min(self._depth, key=lambda d: abs(_stamp(d) - t), default=None)
-            if depth is not None and abs(_stamp(depth) - t) <= tolerance:
+            nearest = {kind: min(queue, key=lambda m: abs(_stamp(m) - t), default=None)
+                       for kind, queue in self._aligned.items()}
+            missing = [kind for kind, m in nearest.items() if m is None or abs(_stamp(m) - t) > tolerance]
+            if not missing:
                 self.counters["unpaired"] += len(self._color) - 1
                 self._color.clear()
-                return color, received, depth
-            if not self._depth or max(_stamp(d) for d in self._depth) <= t + tolerance:
-                return None  # its depth may still come
+                return color, received, nearest
+            if any(not self._aligned[kind] or max(_stamp(m) for m in self._aligned[kind]) <= t + tolerance
+                   for kind in missing):
+                return None  # its pair may still come
             self._color.pop()
             self.counters["unpaired"] += 1
         return None
 
-    def _frame(self, color: Any, received: float, depth: Any, info: Any) -> CapturedFrame:
-        cfg = self.config
+    def _frame(self, color: Any, received: float, aligned: dict[str, Any], info: Any) -> CapturedFrame:
+        cfg, depth = self.config, aligned["depth"]
         if color.encoding == "rgb8":
             rgb = _pixels(color, np.dtype(np.uint8), 3, cfg.color)
         elif color.encoding == "bgr8":
@@ -173,7 +184,19 @@ class Ros2Backend:
                               "camera calibrated, and is this the colour camera's info?")
         return CapturedFrame(rgb=rgb, depth=np.ascontiguousarray(mm), depth_scale=DEPTH_SCALE,
                              intrinsics=Intrinsics(fx=float(k[0]), fy=float(k[4]), cx=float(k[2]), cy=float(k[5])),
-                             device_time_s=_stamp(color), host_time_s=received)
+                             device_time_s=_stamp(color), host_time_s=received,
+                             instance_ids=self._instance_ids(aligned.get("instance_ids"), rgb.shape[:2]))
+
+    def _instance_ids(self, msg: Any, shape: tuple[int, ...]) -> np.ndarray | None:
+        if msg is None:
+            return None
+        topic = self.config.instance_ids
+        if msg.encoding != "32SC1":
+            raise CameraError(f"{topic}: instance-id encoding {msg.encoding!r} is not read (32SC1)")
+        ids = _pixels(msg, np.dtype("<i4"), 1, str(topic))
+        if ids.shape != shape:
+            raise CameraError(f"sizes differ: colour {shape[1]}x{shape[0]}, instance ids {msg.width}x{msg.height}")
+        return ids
 
     def stop(self) -> None:
         if self._subs:
@@ -183,5 +206,6 @@ class Ros2Backend:
         self._subs = []
         with self._ready:
             self._color.clear()
-            self._depth.clear()
+            for queue in self._aligned.values():
+                queue.clear()
             self._info = None

@@ -25,7 +25,10 @@ def read_frame(backend: Ros2Backend, timeout_s: float = 20.0) -> CapturedFrame:
     raise AssertionError(f"no frame in {timeout_s} s: {dict(backend.counters)}")
 
 
-def camera(*args: str, **config: float) -> Iterator[Ros2Backend]:
+IDS = "/camera/camera/instance_ids"  # where fake_camera.py puts them
+
+
+def camera(*args: str, **config: float | str) -> Iterator[Ros2Backend]:
     node = MockNode("fake_camera.py", *args)
     backend = Ros2Backend(Ros2CameraConfig(**config))
     backend.start()
@@ -56,13 +59,25 @@ def test_frames_carry_the_infos_intrinsics_and_depth_in_millimetres(args: tuple[
     (("--color-encoding", "mono8"), {}, "colour encoding 'mono8' is not read"),
     (("--depth-width", "32"), {}, "sizes differ: colour 64x48, depth 32x48"),
     (("--no-info",), {"info_timeout_s": 0.5}, "no sensor_msgs/CameraInfo on /camera/camera/color/camera_info"),
-], ids=["wrong-encoding", "mismatched-sizes", "no-camera-info"])
+    (("--ids-encoding", "16UC1"), {"instance_ids": IDS}, "instance-id encoding '16UC1' is not read"),
+    (("--ids-encoding", "32SC1", "--ids-width", "32"), {"instance_ids": IDS},
+     "sizes differ: colour 64x48, instance ids 32x48"),
+], ids=["wrong-encoding", "mismatched-sizes", "no-camera-info", "ids-encoding", "ids-size"])
 def test_each_fault_is_a_camera_error_with_the_reason(args: tuple[str, ...], config: dict, message: str) -> None:
     for backend in camera(*args, **config):
         deadline = time.monotonic() + 20
         with pytest.raises(CameraError, match=message):
             while time.monotonic() < deadline:
                 backend.read(0.5)
+
+
+def test_a_simulated_cameras_instance_ids_come_with_its_frame_and_only_when_asked_for() -> None:
+    for backend in camera("--ids-encoding", "32SC1", instance_ids=IDS):
+        frame = read_frame(backend)
+        assert frame.instance_ids is not None and frame.instance_ids.dtype.kind == "i"
+        assert frame.instance_ids.shape == (48, 64) and frame.instance_ids[7].tolist() == list(range(64))
+    for backend in camera("--ids-encoding", "32SC1"):
+        assert read_frame(backend).instance_ids is None
 
 
 def test_unpaired_stamps_give_no_frame_and_are_counted() -> None:

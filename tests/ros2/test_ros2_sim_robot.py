@@ -1,0 +1,145 @@
+"""The simulated robot behind ROS 2 topics (``ovamos sim ros2``, its own process, real rclpy) as the
+ros2 base driver and camera backend see it: primitives land on its odometry, it stops by itself
+when commands stop, and its camera's frames (with the simulator's instance ids) are the
+simulator's own rendering at the robot's pose; and the whole demo search through it."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from services.base_driver.config import DriverConfig
+from services.base_driver.controller import BaseController
+from services.base_driver.ros2 import Ros2BaseConfig, Ros2Hardware
+from services.camera.ros2 import Ros2Backend
+from services.sim.episodes import make_episode
+from services.sim.render import SceneRenderer
+from services.sim.ros2_robot import CAMERA
+from shared.messages import DriverMode
+from shared.motion import Action
+from shared.procs import stop
+from tests.base_driver_helpers import command, run, wait_for_mode
+from tests.polling import wait_for
+from tests.ros2.test_ros2_camera import read_frame
+
+EPISODE = (0, 4)
+
+
+@pytest.fixture
+def sim_robot(tmp_path: Path) -> Iterator[Path]:
+    """``ovamos sim ros2`` for episode 0-4 (at 160 x 120); yields its log."""
+    log = tmp_path / "ros2_robot.log"
+    with log.open("w") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "ovamos.cli", "sim", "ros2", "--episode", "0-4",
+                                 "--set", "width=160", "--set", "height=120"], stdout=out, stderr=subprocess.STDOUT,
+                                start_new_session=True)  # its own group: stop() signals it
+    try:
+        yield log
+    finally:
+        assert stop(proc) == 0, log.read_text()  # SIGTERM: a clean stop
+
+
+def test_its_frames_are_the_simulators_rendering_at_the_start_with_instance_ids(sim_robot: Path) -> None:
+    spec, scene, _ = make_episode(*EPISODE)
+    backend = Ros2Backend(CAMERA)
+    backend.start()
+    try:
+        frame = read_frame(backend, timeout_s=60)
+    finally:
+        backend.stop()
+    with SceneRenderer(scene, 160, 120) as renderer:
+        truth = renderer.render(spec.start.x, spec.start.y, spec.start.yaw)
+    assert frame.instance_ids is not None and np.array_equal(frame.instance_ids, truth.instance_ids)
+    assert (truth.instance_ids > 0).any()  # it sees objects: the ids are worth comparing
+    assert np.array_equal(frame.rgb, truth.rgb)
+    seen = truth.depth > 0
+    assert np.array_equal(frame.depth > 0, seen)
+    assert np.abs(frame.depth[seen] * frame.depth_scale - truth.depth[seen]).max() <= 0.0005  # mm rounding
+    k = frame.intrinsics
+    assert (k.fx, k.fy, k.cx, k.cy) == pytest.approx(
+        (truth.intrinsics.fx, truth.intrinsics.fy, truth.intrinsics.cx, truth.intrinsics.cy))
+
+
+def test_primitives_land_on_its_odometry_from_the_episodes_start(sim_robot: Path) -> None:
+    spec, _, _ = make_episode(*EPISODE)
+    driver = BaseController(DriverConfig(hardware="ros2")).start()
+    try:
+        wait_for_mode(driver, DriverMode.READY, timeout=60)
+        start = driver.odometry()
+        assert (start.x, start.y, start.yaw) == pytest.approx((spec.start.x, spec.start.y, spec.start.yaw), abs=1e-6)
+        assert run(driver, command(Action.TURN_LEFT)) == "done"
+        turned = driver.odometry()
+        assert math.degrees(turned.yaw - start.yaw) == pytest.approx(30.0, abs=0.5)
+        assert run(driver, command(Action.MOVE_FORWARD)) == "done"
+        moved = driver.odometry()
+        assert math.hypot(moved.x - turned.x, moved.y - turned.y) == pytest.approx(0.25, abs=0.01)
+    finally:
+        driver.stop()
+
+
+def _turns_to_nearest_wall(x: float, y: float, yaw: float, is_free) -> tuple[int, float]:
+    """How many 30-degree left turns face the nearest obstacle, and how far it is then."""
+    def free_run(heading: float) -> float:
+        d = 0.0
+        while d < 20 and is_free(x + (d + 0.02) * math.cos(heading), y + (d + 0.02) * math.sin(heading)):
+            d += 0.02
+        return d
+    return min(((turns, free_run(yaw + math.radians(30 * turns))) for turns in range(12)), key=lambda t: t[1])
+
+
+def test_a_move_into_a_wall_ends_blocked_by_its_bump_topic(sim_robot: Path) -> None:
+    """The robot's ``bump`` Bool reaches the controller: the move ends blocked, not after the
+    primitive timeout."""
+    spec, _, truth = make_episode(*EPISODE)
+    turns, distance = _turns_to_nearest_wall(spec.start.x, spec.start.y, spec.start.yaw, truth.is_free)
+    driver = BaseController(DriverConfig(hardware="ros2", ros2=Ros2BaseConfig(bump="bump"))).start()
+    try:
+        wait_for_mode(driver, DriverMode.READY, timeout=60)
+        for _ in range(turns):
+            assert run(driver, command(Action.TURN_LEFT)) == "done"
+        outcomes = [run(driver, command(Action.MOVE_FORWARD)) for _ in range(math.ceil(distance / 0.25) + 1)]
+        assert outcomes[-1] == "blocked" and "blocked" not in outcomes[:-2], (distance, outcomes)
+        assert driver.counters["bumps"] > 0 and driver.counters["ros2_bumps"] > 0
+    finally:
+        driver.stop()
+
+
+def test_it_stops_by_itself_when_commands_stop(sim_robot: Path) -> None:
+    """A Create 3's own command timeout: one command, then none; the robot moves, then stands."""
+    hardware = Ros2Hardware(Ros2BaseConfig())
+    hardware.open()
+    try:
+        before = wait_for(hardware.feedback, timeout=60, what="odometry")
+        hardware.set_velocity(0.0, 0.5)  # turning in place: free wherever it stands
+        moving = wait_for(lambda: (f := hardware.feedback()) and f.body_vel[1] > 0.4 and f, what="turning")
+        stood = wait_for(lambda: (f := hardware.feedback()) and f.body_vel == (0.0, 0.0) and f,
+                         what="stopped by itself")
+        assert stood.pose.yaw != before.pose.yaw
+        assert moving.pose.yaw != before.pose.yaw or stood.pose.yaw != moving.pose.yaw
+    finally:
+        hardware.close()
+    assert "no cmd_vel for 0.5 s: stopping" in sim_robot.read_text()
+
+
+def test_the_demo_search_through_ros2_finds_its_target(tmp_path: Path) -> None:
+    """``ovamos demo --base ros2``: the search drives the robot through cmd_vel and sees through its
+    ROS camera (the base driver and camera services with hardware / backend ros2)."""
+    out = tmp_path / "demo"
+    done = subprocess.run([sys.executable, "-m", "ovamos.cli", "demo", "--base", "ros2", "--target", "sofa",
+                           "--timeout", "400", "--out", str(out), "--no-record"],
+                          capture_output=True, text=True, timeout=600)
+    logs = {p.name: p.read_text()[-1500:] for p in (out / "logs").glob("*.log")}
+    assert done.returncode == 0, (done.stdout[-2000:], done.stderr[-2000:], logs)
+    report = json.loads((out / "demo_report.json").read_text())
+    assert report["task"]["status"] == "done" and [f["label"] for f in report["task"]["found"]] == ["sofa"]
+    assert report["task"]["steps"] > 0 and set(report["restarts"].values()) == {0}
+    driven = (out / "logs" / "base_driver.log").read_text()
+    assert "command 1 (" in driven and "(STOP): accepted" in driven  # the ros2 driver moved it, and stopped it
