@@ -8,6 +8,11 @@ perception service), :meth:`MapState.apply` (the mapping service) and
 :class:`SearchAgent` (the planner service). A run of the distributed system in
 lock-step with the kinematic robot follows the same trajectory.
 
+On a wheeled ``base`` a primitive is the real base controller driving that base's simulated
+device in simulated time (:mod:`services.sim.wheels`): it lands where the wheels took it, the
+camera sees from the true pose and the planner decides on the base's odometry, as in
+``ovamos demo --base B``.
+
 The protocol is the paper's: targets from the episode, a STOP counts when a true
 instance of its target is within 1 m (the ground truth's geodesic check), the
 episode succeeds when every target was found within the step limit, and MSPL
@@ -34,10 +39,13 @@ from services.sim.evaluator import GroundTruth, spl
 from services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
 from services.sim.prior import ObjectPrior
 from services.sim.render import SceneRenderer
+from services.base_driver.config import DriverConfig
 from services.sim.robot import MotionConfig, SimRobot
+from services.sim.wheels import TURTLEBOTS, Motion, SerialSimRobot, WheeledSimRobot
 from services.sim.world import Scene
-from shared.messages import PerceptionResult, TaskStatus
-from shared.motion import Pose
+from shared.messages import PerceptionResult, PlanCommand, TaskStatus
+from shared.motion import Action, Pose
+from shared.simtime import SimClock
 
 MAP_MARGIN_M = 2.0
 
@@ -55,6 +63,8 @@ class EpisodeConfig(BaseModel):
     mapping: MappingConfig = Field(default_factory=MappingConfig)
     perception: SimPerceptionConfig = Field(default_factory=SimPerceptionConfig)
     motion: MotionConfig = Field(default_factory=MotionConfig)
+    base: Motion = Field(default="kinematic", description="kinematic: a primitive lands exactly; odrive, "
+                         "kobuki, opencr: the base controller on that simulated base, in simulated time")
 
 
 class EpisodeResult(BaseModel):
@@ -112,13 +122,49 @@ class EpisodeWorld:
         self.truth, self.config = truth, config
         self.perception = SimPerception(FrameLabels.of(scene), prior or ObjectPrior.load(), config.perception)
         self.state = MapState(scene_mapping(scene, config.mapping))
-        self.robot = SimRobot(start, truth.is_free, config.motion)
+        self.robot, self.wheels = _robot(start, truth, config)
         self.renderer = SceneRenderer(scene, config.width, config.height)
         self.scene = scene
         self.seq = 0  # frames taken, over all tasks: lock-step's frame seq follows the commands
+        self.blocked = 0  # primitives that ended blocked, over all tasks
+
+    def pose(self) -> Pose:
+        """Where the planner believes the robot is: its odometry (the true pose when kinematic)."""
+        if self.wheels is None:
+            return self.robot.pose
+        odom = self.wheels.driver.odometry()
+        return Pose(x=odom.x, y=odom.y, yaw=odom.yaw)
+
+    def execute(self, action: Action) -> bool:
+        """Run one primitive; False when a move was blocked (counted in :attr:`blocked`)."""
+        if self.wheels is None:
+            done = self.robot.apply(action)
+        else:
+            command = PlanCommand(action_id=self.seq + 1, stamp=float(self.seq), action=action)
+            done = self.wheels.run_command(command) != "blocked"
+        self.blocked += not done
+        return done
 
     def close(self) -> None:
+        if self.wheels is not None:
+            self.wheels.stop()
         self.renderer.close()
+
+
+def _robot(start: Pose, truth: GroundTruth, config: EpisodeConfig) -> tuple[SimRobot, SerialSimRobot | WheeledSimRobot | None]:
+    """The true robot and, on a wheeled base, what moves it (started, enabled, in simulated time)."""
+    if config.base == "kinematic":
+        return SimRobot(start, truth.is_free, config.motion), None
+    motion = config.motion
+    if config.base in TURTLEBOTS:  # the base fixes its wheels (as the sim service does)
+        fixed = DriverConfig().model_copy(update={"hardware": config.base}).fixed_wheels()
+        assert fixed is not None
+        motion = motion.model_copy(update={"wheel_radius_m": fixed[0], "track_width_m": fixed[1]})
+    robot, clock = SimRobot(start, truth.is_free, motion), SimClock()
+    wheels = SerialSimRobot(robot, config.base, clock=clock) if config.base in TURTLEBOTS \
+        else WheeledSimRobot(robot, clock=clock)
+    wheels.start().wait_ready()
+    return robot, wheels
 
 
 def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: EpisodeConfig,
@@ -144,11 +190,11 @@ def run_task(world: EpisodeWorld, spec: EpisodeSpec,
     stops: list[StopRecord] = []
     trajectory = [(robot.pose.x, robot.pose.y, robot.pose.yaw)]
     funnel = FunnelRecorder(world.scene, spec.targets)
-    distance0, blocked0 = robot.distance, robot.blocked  # a later task's path and bumps are its own
+    distance0, blocked0 = robot.distance, world.blocked  # a later task's path and bumps are its own
     while task.state is TaskStatus.SEARCHING:
-        pose, seq = robot.pose, world.seq
+        pose, true, seq = world.pose(), robot.pose, world.seq
         # lock-step as in the services: frame seq follows command seq (seq commands done)
-        frame = world.renderer.render(pose.x, pose.y, pose.yaw, seq=seq, stamp=float(seq), after_action=seq)
+        frame = world.renderer.render(true.x, true.y, true.yaw, seq=seq, stamp=float(seq), after_action=seq)
         # Every frame for the remaining targets, the first view too: the services map it
         # before the task reaches perception, which then re-scores it for the task's targets,
         # and the map adds those values (MapState.apply: a frame counts once), to the same map.
@@ -164,10 +210,10 @@ def run_task(world: EpisodeWorld, spec: EpisodeSpec,
         if step.action is None:
             break
         before = robot.distance
-        blocked = not robot.apply(step.action)
+        blocked = not world.execute(step.action)
         if step.reason is Reason.FOUND and step.goal is not None and step.goal.label is not None:
-            outcome = truth.stop(step.goal.label, pose.x, pose.y)
-            stops.append(StopRecord(step=task.steps + 1, label=step.goal.label, x=pose.x, y=pose.y,
+            outcome = truth.stop(step.goal.label, true.x, true.y)  # where the robot really is
+            stops.append(StopRecord(step=task.steps + 1, label=step.goal.label, x=true.x, y=true.y,
                                     success=outcome.success, distance_m=outcome.distance))
         agent.executed(step, robot.distance - before, blocked, pose)
         trajectory.append((robot.pose.x, robot.pose.y, robot.pose.yaw))
@@ -181,7 +227,7 @@ def run_task(world: EpisodeWorld, spec: EpisodeSpec,
         episode_id=spec.episode_id, policy=config.name or config.policy.value, scene_seed=spec.scene_seed,
         targets=spec.targets, success=success, spl=spl(success, shortest, robot.distance - distance0),
         found=found, steps=task.steps, path_m=round(robot.distance - distance0, 4), shortest_m=round(shortest, 4),
-        state=task.state.value, reason=task.reason, decisions=agent.decisions, blocked=robot.blocked - blocked0,
+        state=task.state.value, reason=task.reason, decisions=agent.decisions, blocked=world.blocked - blocked0,
         stops=stops, funnel=funnel.result(stops), trajectory=[tuple(round(v, 4) for v in p) for p in trajectory],
         seconds=round(time.perf_counter() - started, 3))
 

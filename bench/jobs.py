@@ -6,7 +6,7 @@ over worker processes. Workers are started with "spawn": a fresh interpreter per
 no MuJoCo/EGL context or thread state from the parent. Results stream back as they finish.
 
 An episode's outcome depends only on (seed, index, policy, step limit, perception preset, home
-tier): the runner is deterministic.
+tier, base): the runner is deterministic (a wheeled base runs in simulated time).
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ class Job:
     max_steps: int | None = None
     perception: str = "ideal"
     homes: str = "default"
+    base: str = "kinematic"
 
     @property
     def name(self) -> str:
@@ -72,7 +73,7 @@ def run_job(job: Job) -> EpisodeResult:
     spec, scene, truth = load_episode(job.seed, job.index, job.homes)
     if job.max_steps is not None:
         spec = spec.model_copy(update={"max_steps": job.max_steps})
-    config = EpisodeConfig(perception=perception_preset(job.perception))
+    config = EpisodeConfig(perception=perception_preset(job.perception), base=job.base)
     return run_episode(spec, scene, truth, episode_config(job.policy, config), load_prior())
 
 
@@ -85,10 +86,10 @@ def _work(job: Job) -> dict[str, Any]:
 
 
 def jobs_for(episodes: int, seed: int, policies: Sequence[str], max_steps: int | None = None,
-             perception: str = "ideal", homes: str = "default") -> list[Job]:
+             perception: str = "ideal", homes: str = "default", base: str = "kinematic") -> list[Job]:
     """Episode-major order: a worker tends to get the policies of one episode in a row (its scene
     is cached), and a run cut short has covered every policy about equally."""
-    return [Job(p, seed, i, max_steps, perception, homes) for i in range(episodes) for p in policies]
+    return [Job(p, seed, i, max_steps, perception, homes, base) for i in range(episodes) for p in policies]
 
 
 def iter_results(jobs: Sequence[Job], workers: int) -> Iterator[EpisodeResult]:

@@ -26,7 +26,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 from pydantic import ValidationError
 from rich.console import Console
@@ -43,13 +43,17 @@ from bench.tables import print_table
 from services.mapping.render import write_png
 from services.sim.generate import home_tier
 from services.sim.perception_presets import perception_preset
+from services.sim.wheels import Motion
 
 TIMING_FIELDS = {"seconds"}  # wall clock: kept out of the comparable JSONL
 
 EPISODES_FILE, TIMINGS_FILE, SUMMARY_FILE, CHART_FILE, RUN_FILE = (
     "episodes.jsonl", "timings.jsonl", "summary.json", "chart.png", "run.json")
 #: What an episode's outcome depends on besides the code, policy and index: a resumed run must match.
-RUN_SETTINGS = ("seed", "perception", "homes", "max_steps")
+RUN_SETTINGS = ("seed", "perception", "homes", "max_steps", "base")
+#: the value of a setting a run.json from before it existed held
+SETTING_DEFAULTS = {"base": "kinematic"}
+BASES: tuple[str, ...] = get_args(Motion)  # the robots an episode can run on
 #: the code version of an episode whose timing line does not name one
 UNRECORDED = "unrecorded"
 
@@ -68,8 +72,10 @@ def parse_policies(text: str | Sequence[str]) -> tuple[str, ...]:
     return tuple(p for p in POLICY_ORDER if p in names)
 
 
-def check_settings(perception: str, homes: str) -> None:
-    """A perception preset and a home tier that exist (else a :class:`SearchError` naming them)."""
+def check_settings(perception: str, homes: str, base: str = "kinematic") -> None:
+    """A perception preset, a home tier and a base that exist (else a :class:`SearchError` naming them)."""
+    if base not in BASES:
+        raise SearchError(f"unknown base {base!r}: one of {', '.join(BASES)}")
     try:
         perception_preset(perception)
         home_tier(homes)
@@ -107,6 +113,7 @@ class SearchRun:
     seconds: float
     perception: str = "ideal"
     homes: str = "default"
+    base: str = "kinematic"
     resumed: int = 0  # results read back from the folder, not run (and not timed) by this run
     code: dict[str, int] = field(default_factory=dict)  # episodes per code version that ran them
 
@@ -148,9 +155,11 @@ def _progress(console: Console | None, total: int) -> Iterator[Callable[[Episode
 
 def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_POLICIES, workers: int = 2,
                max_steps: int | None = None, progress: Console | None = None, perception: str = "ideal",
-               homes: str = "default", out: Path | None = None, resume: bool = False) -> SearchRun:
+               homes: str = "default", out: Path | None = None, resume: bool = False,
+               base: str = "kinematic") -> SearchRun:
     """Run every (policy, episode) pair with the simulated perception ``perception`` (a preset
-    name) in homes of tier ``homes``; ``max_steps`` overrides the paper's 500 (quick runs and
+    name) in homes of tier ``homes`` on the robot ``base`` (kinematic, or a wheeled base's
+    controller and simulated device in simulated time); ``max_steps`` overrides the paper's 500 (quick runs and
     tests only: the tables need the paper's limit).
 
     With ``out`` each result is appended to its ``episodes.jsonl`` as it finishes; with ``resume``
@@ -161,11 +170,11 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     if resume and out is None:
         raise SearchError("--resume needs --out DIR: the folder of the run to go on with")
     policies = parse_policies(policies)
-    check_settings(perception, homes)
-    settings = {"seed": seed, "perception": perception, "homes": homes, "max_steps": max_steps}
+    check_settings(perception, homes, base)
+    settings = {"seed": seed, "perception": perception, "homes": homes, "max_steps": max_steps, "base": base}
     kept = held_results(out, settings) if resume and out is not None else []
     done = {(r.policy, _episode_index(r)) for r in kept}  # run.json vouched for their seed
-    jobs = [j for j in jobs_for(episodes, seed, policies, max_steps, perception, homes)
+    jobs = [j for j in jobs_for(episodes, seed, policies, max_steps, perception, homes, base)
             if (j.policy, j.index) not in done]
     code = code_version()
     kept_code = _kept_code(out, kept) if out is not None and kept else Counter[str]()
@@ -185,7 +194,7 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     codes = kept_code + Counter({code: len(results) - len(kept)})  # (a count of 0 is dropped)
     return SearchRun(seed, max([episodes, *(_episode_index(r) + 1 for r in kept)]),
                      parse_policies([*policies, *(r.policy for r in kept)]), workers, max_steps,
-                     sort_results(results), time.perf_counter() - started, perception, homes, len(kept),
+                     sort_results(results), time.perf_counter() - started, perception, homes, base, len(kept),
                      dict(codes))
 
 
@@ -201,7 +210,8 @@ def held_results(out: Path, settings: dict[str, Any]) -> list[EpisodeResult]:
     except (OSError, ValueError) as exc:
         raise SearchError(f"cannot resume {out}: its {RUN_FILE} does not say which settings its episodes were "
                           f"run with ({exc})") from None
-    differ = [f"{k} {held.get(k)!r} there, {settings[k]!r} here" for k in RUN_SETTINGS if held.get(k) != settings[k]]
+    held = {k: held.get(k, SETTING_DEFAULTS.get(k)) for k in RUN_SETTINGS}
+    differ = [f"{k} {held[k]!r} there, {settings[k]!r} here" for k in RUN_SETTINGS if held[k] != settings[k]]
     if differ:
         raise SearchError(f"cannot resume {out}: its episodes were run with other settings ({'; '.join(differ)})")
     return read_results(episodes, torn_tail=True)
@@ -255,7 +265,7 @@ def summary(run: SearchRun) -> dict[str, Any]:
             "episodes_per_min": round(60 * (len(run.results) - run.resumed) / max(run.seconds, 1e-9), 2),
             "resumed": run.resumed, "code": run.code,
             "seed": run.seed, "episodes": run.episodes, "workers": run.workers,
-            "max_steps": run.max_steps, "perception": run.perception, "homes": run.homes}
+            "max_steps": run.max_steps, "perception": run.perception, "homes": run.homes, "base": run.base}
 
 
 # -- files ----------------------------------------------------------------------------------------
@@ -302,18 +312,18 @@ def find_result(results: Iterable[EpisodeResult], episode_id: str, policy: str) 
 
 
 def replay(episode_id: str, out: Path, policy: str = "ovamos", source: Path | None = None,
-           max_steps: int | None = None, perception: str = "ideal", homes: str = "default"
-           ) -> tuple[Path, EpisodeResult]:
+           max_steps: int | None = None, perception: str = "ideal", homes: str = "default",
+           base: str = "kinematic") -> tuple[Path, EpisodeResult]:
     """Draw one episode: re-run it (deterministic), or read it from ``source`` (a JSONL this
     module wrote). The scene is always regenerated from the id; a file whose scene seed differs
     was made by another generator and is refused rather than drawn on the wrong house."""
     seed, index = parse_episode_id(episode_id)
     (policy,) = parse_policies(policy)
-    check_settings(perception, homes)
+    check_settings(perception, homes, base)
     init_worker()
     spec, scene, _ = load_episode(seed, index, homes)
     if source is None:
-        result = run_job(Job(policy, seed, index, max_steps, perception, homes))
+        result = run_job(Job(policy, seed, index, max_steps, perception, homes, base))
     else:
         result = find_result(read_results(source), spec.episode_id, policy)
         if result.scene_seed != spec.scene_seed:
@@ -328,7 +338,7 @@ def replay(episode_id: str, out: Path, policy: str = "ovamos", source: Path | No
 def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT_POLICIES), workers: int = 2,
          as_json: bool = False, out: Path | None = None, max_steps: int | None = None,
          replay_id: str | None = None, policy: str = "ovamos", source: Path | None = None,
-         perception: str = "ideal", homes: str = "default", resume: bool = False,
+         perception: str = "ideal", homes: str = "default", resume: bool = False, base: str = "kinematic",
          console: Console | None = None, err: Console | None = None) -> int:
     """``ovamos bench search``: the benchmark, or with ``replay_id`` one episode's picture.
     Raises :class:`SearchError` for bad arguments; returns the exit code."""
@@ -337,7 +347,7 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
     if replay_id is not None:
         if out is None:
             raise SearchError("--replay needs --out DIR for the picture")
-        path, result = replay(replay_id, out, policy, source, max_steps, perception, homes)
+        path, result = replay(replay_id, out, policy, source, max_steps, perception, homes, base)
         if as_json:
             print(json.dumps({"png": str(path), **result.model_dump(mode="json", exclude={"trajectory"})}))
         else:
@@ -346,7 +356,7 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
                           f"{list(result.targets)}, {result.steps} steps -> {path}")
         return 0
     run = run_search(episodes, seed, parse_policies(policies), workers, max_steps, progress=err,
-                     perception=perception, homes=homes, out=out, resume=resume)
+                     perception=perception, homes=homes, out=out, resume=resume, base=base)
     result = summary(run)
     if out is not None:
         written = write_outputs(out, run, result)

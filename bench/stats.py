@@ -43,8 +43,8 @@ def miss_reasons(results: Sequence[EpisodeResult]) -> dict[str, dict[str, int]]:
 
 def paired_differences(results: Sequence[EpisodeResult], reference: str = "ovamos",
                        resamples: int = 2000, seed: int = 0) -> dict[str, dict[str, Any]]:
-    """Each policy against ``reference`` on the episodes both ran: the mean difference in SR (%)
-    and MSPL with a 95 % bootstrap interval over episodes.
+    """Each policy against ``reference`` on the episodes both ran: the mean difference
+    (reference minus policy) in SR (%), MSPL and steps with a 95 % bootstrap interval over episodes.
 
     Why: with 120 episodes one episode is 0.8 points of SR, and policies share episodes, so an
     ordering is only worth reporting when the paired interval excludes zero. The resampling is
@@ -56,16 +56,25 @@ def paired_differences(results: Sequence[EpisodeResult], reference: str = "ovamo
     ref = by_policy.get(reference, {})
     out: dict[str, dict[str, Any]] = {}
     for policy in sorted(by_policy, key=policy_rank):
-        shared = sorted(set(ref) & set(by_policy[policy]))
-        if policy == reference or not shared:
-            continue
-        diff = np.array([[ref[e].success - by_policy[policy][e].success,
-                          ref[e].spl - by_policy[policy][e].spl] for e in shared], dtype=float)
-        resampled = np.random.default_rng(seed).integers(0, len(shared), (resamples, len(shared)))
-        means = diff[resampled].mean(axis=1)
-        lo, hi = np.percentile(means, [2.5, 97.5], axis=0)
-        mean = diff.mean(axis=0)
-        out[policy] = {"episodes": len(shared),
-                       "sr_diff": round(100 * mean[0], 1), "sr_ci": [round(100 * lo[0], 1), round(100 * hi[0], 1)],
-                       "mspl_diff": round(mean[1], 3), "mspl_ci": [round(lo[1], 3), round(hi[1], 3)]}
+        if policy != reference and (pair := paired(ref, by_policy[policy], resamples, seed)) is not None:
+            out[policy] = pair
     return out
+
+
+def paired(a: dict[str, EpisodeResult], b: dict[str, EpisodeResult], resamples: int = 2000,
+           seed: int = 0) -> dict[str, Any] | None:
+    """``a`` minus ``b`` on the episodes (by id) both hold: SR (%), MSPL and steps, each with a
+    95 % bootstrap interval; None if none is shared."""
+    shared = sorted(set(a) & set(b))
+    if not shared:
+        return None
+    diff = np.array([[a[e].success - b[e].success, a[e].spl - b[e].spl, a[e].steps - b[e].steps]
+                     for e in shared], dtype=float)
+    resampled = np.random.default_rng(seed).integers(0, len(shared), (resamples, len(shared)))
+    means = diff[resampled].mean(axis=1)
+    lo, hi = np.percentile(means, [2.5, 97.5], axis=0)
+    mean = diff.mean(axis=0)
+    return {"episodes": len(shared),
+            "sr_diff": round(100 * mean[0], 1), "sr_ci": [round(100 * lo[0], 1), round(100 * hi[0], 1)],
+            "mspl_diff": round(mean[1], 3), "mspl_ci": [round(lo[1], 3), round(hi[1], 3)],
+            "steps_diff": round(mean[2], 1), "steps_ci": [round(lo[2], 1), round(hi[2], 1)]}

@@ -421,7 +421,9 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
              min=1, max=16, help="Robots searching at once, each in its own home, through one perception "
                                  "service and one gateway (from the default episode: the episodes in "
                                  "ovamos.demo.FLEET_EPISODES, which the method solves; else EPISODE, "
-                                 "EPISODE+1, ...).")] = 1
+                                 "EPISODE+1, ...).")] = 1,
+         max_steps: Annotated[Optional[int], typer.Option(
+             min=1, help="Each task's step limit (default: the paper's 500).")] = None
          ) -> None:
     """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
     from ovamos.demo import BASES, DEMO_EPISODE, DEMO_SEED, ROS2_BASE, run_demo
@@ -434,7 +436,7 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
     try:
         code = run_demo(console, out_dir=out, seed=seed, episode=episode, targets=targets,
                         keep_running=keep_running, timeout_s=timeout, base=base,
-                        record=out / "run.mcap" if record else None, robots=robots,
+                        record=out / "run.mcap" if record else None, robots=robots, max_steps=max_steps,
                         publish=lambda router, gateway: Deployment(router, gateway, os.getpid()).published(
                             out / ENDPOINTS_FILE))
     except (TimeoutError, OSError) as exc:
@@ -773,6 +775,21 @@ def bench_homes(count: Annotated[int, typer.Option(help="Homes to generate (seed
     _report(result, as_json, print_table)
 
 
+@bench_app.command("compare")
+def bench_compare(a: Annotated[Path, typer.Argument(help="Run A: an ovamos bench search --out folder.")],
+                  b: Annotated[Path, typer.Argument(help="Run B, compared with A on the episodes both hold.")],
+                  as_json: AsJson = False) -> None:
+    """Two search runs on their shared episodes: SR, MSPL, steps, B minus A with 95% intervals
+    (e.g. --base kinematic against --base kobuki on one seed)."""
+    from bench.compare import compare_runs, print_comparison
+    from bench.search import SearchError
+    try:
+        result = compare_runs(a, b)
+    except SearchError as exc:
+        raise _fail(str(exc)) from None
+    _report(result, as_json, print_comparison)
+
+
 @bench_app.command("search")
 def bench_search(
         episodes: Annotated[int, typer.Option(help="Episodes per policy (the paper: 120).")] = 120,
@@ -796,6 +813,9 @@ def bench_search(
         resume: Annotated[bool, typer.Option(help="Keep the episodes --out already holds (a run cut short, "
                                                   "or one to add policies or episodes to) and run the rest.")
                           ] = False,
+        base: Annotated[str, typer.Option(help="The robot: kinematic (each primitive lands exactly) or "
+                                               "odrive, kobuki, opencr (the base controller on that simulated "
+                                               "base, in simulated time).")] = "kinematic",
         as_json: AsJson = False) -> None:
     """Search benchmark: SR and MSPL per policy (the paper's Tables I and II), or one episode's picture."""
     from bench.search import SearchError
@@ -803,7 +823,7 @@ def bench_search(
     try:
         code = search_main(episodes=episodes, seed=seed, policies=policies, workers=workers, as_json=as_json,
                            out=out, max_steps=max_steps, replay_id=replay, policy=policy, source=source,
-                           perception=perception, homes=homes, resume=resume, console=console, err=err)
+                           perception=perception, homes=homes, resume=resume, base=base, console=console, err=err)
     except SearchError as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)

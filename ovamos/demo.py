@@ -36,7 +36,7 @@ from services.gateway.models import TaskView
 from services.sim.episodes import make_episode
 from services.sim.prior import ObjectPrior
 from services.perception.config import PerceptionServiceConfig
-from services.sim.service import Motion
+from services.sim.wheels import Motion
 from ovamos import fleet
 from ovamos.supervisor import Entry, Supervisor
 from shared.dds import in_own_namespace
@@ -248,8 +248,9 @@ def wait_for_services(client: GatewayClient, robots: list[str], deadline: float,
 def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode: int = DEMO_EPISODE,
              targets: list[str] | None = None, robot_id: str = "sim", keep_running: bool = False,
              timeout_s: float | None = None, base: str = "kinematic", record: Path | None = None,
-             robots: int = 1, publish: Publish | None = None) -> int:
-    """Run the demo; ``record``: the MCAP file to record the run to (None: no recording).
+             robots: int = 1, publish: Publish | None = None, max_steps: int | None = None) -> int:
+    """Run the demo; ``record``: the MCAP file to record the run to (None: no recording);
+    ``max_steps``: each task's step limit (None: the gateway's default, the paper's 500).
 
     ``robots`` > 1: a fleet (:func:`write_fleet_configs`), robot i searching episode
     ``episode + i`` (its own home) for that episode's targets (or ``targets``), all at once.
@@ -276,7 +277,7 @@ def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode:
         wait_for_services(client, fleet_ids, deadline, demo_services(base))
         with publish(router, url) if publish is not None else nullcontext() as endpoints_file:
             views = _search(console, client, tasks, started,
-                            default_timeout_s(base) * robots if timeout_s is None else timeout_s)
+                            default_timeout_s(base) * robots if timeout_s is None else timeout_s, max_steps)
             outcome = _write_results(console, client, views, out_dir, seed, episodes,
                                      time.monotonic() - started, supervisor)
             if keep_running:
@@ -299,10 +300,10 @@ def _print(console: Console, lines: list[str]) -> None:
 
 
 def _search(console: Console, client: GatewayClient, tasks: dict[str, list[str]], started: float,
-            timeout_s: float) -> dict[str, TaskView]:
+            timeout_s: float, max_steps: int | None = None) -> dict[str, TaskView]:
     """Submit each robot's task at once and follow them until all are over (or the time is up:
     those still running are cancelled)."""
-    ids = {robot: client.submit(targets, robot_id=robot).id for robot, targets in tasks.items()}
+    ids = {robot: client.submit(targets, robot_id=robot, max_steps=max_steps).id for robot, targets in tasks.items()}
     views = {robot: client.get(task_id) for robot, task_id in ids.items()}
     with Live(_progress(dict(views), 0.0), console=console, refresh_per_second=4) as live:
         deadline = time.monotonic() + timeout_s

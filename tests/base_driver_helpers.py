@@ -144,3 +144,15 @@ class FakeOdometryBase(FakeHardware):
         return WheelFeedback(stamp=self.stamp, left_pos_rad=0.0, right_pos_rad=0.0, pose=self.pose,
                              body_vel=(self.v, self.w) if self.report_velocity else None,
                              bumpers=self.bumpers)
+
+
+def turns_to_nearest_wall(pose: Pose, is_free: Callable[[float, float], bool]) -> tuple[int, float]:
+    """How many 30-degree left turns from ``pose`` face the nearest obstacle, and how far it is then
+    (by 2 cm steps, up to 20 m)."""
+    def free_run(heading: float) -> float:
+        d = 0.0
+        while d < 20 and is_free(pose.x + (d + 0.02) * math.cos(heading), pose.y + (d + 0.02) * math.sin(heading)):
+            d += 0.02
+        return d
+    return min(((turns, free_run(pose.yaw + math.radians(30 * turns))) for turns in range(12)), key=lambda t: t[1])
+

@@ -124,7 +124,8 @@ def test_paired_differences_compare_the_same_episodes_with_a_seeded_interval() -
     paired = paired_differences(ovamos + always + half)
     assert list(paired) == ["random", "finder"]
     assert paired["random"] == {"episodes": 6, "sr_diff": 100.0, "sr_ci": [100.0, 100.0],
-                                "mspl_diff": 0.6, "mspl_ci": [0.6, 0.6]}
+                                "mspl_diff": 0.6, "mspl_ci": [0.6, 0.6],
+                                "steps_diff": 0.0, "steps_ci": [0.0, 0.0]}
     finder = paired["finder"]
     assert finder["episodes"] == 6 and finder["sr_diff"] == 50.0
     assert 0.0 <= finder["sr_ci"][0] < 50.0 < finder["sr_ci"][1] <= 100.0

@@ -28,6 +28,8 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Callable
+from typing import Any
 
 import serial
 from pydantic import Field
@@ -63,9 +65,14 @@ class KobukiHardware:
 
     name = "kobuki"
 
-    def __init__(self, config: KobukiConfig | None = None) -> None:
+    def __init__(self, config: KobukiConfig | None = None, *, clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep, open_port: Callable[[], Any] | None = None) -> None:
+        """``open_port`` (a pyserial-like port in place of ``config.port``) makes the interface
+        *polled*: no reader thread, :meth:`feedback` reads what has arrived; with ``clock`` and
+        ``sleep`` that is how it runs in simulated time (:mod:`shared.simtime`)."""
         self.config = config or KobukiConfig()
-        self._serial: serial.Serial | None = None
+        self._clock, self._sleep, self._open_port = clock, sleep, open_port
+        self._serial: Any = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._lock = threading.Lock()
@@ -90,18 +97,7 @@ class KobukiHardware:
         """
         self.close()
         port = self.config.port
-        if not os.path.exists(port):
-            raise HardwareError(f"serial port {port} not found: is the Kobuki plugged in "
-                                f"and are you in the dialout group?")
-        try:
-            ser = serial.Serial(port, self.config.baudrate, bytesize=serial.EIGHTBITS,
-                                parity=serial.PARITY_NONE, stopbits=serial.STOPBITS_ONE,
-                                timeout=self.config.read_timeout_s, write_timeout=self.config.write_timeout_s)
-        except PermissionError as exc:
-            raise HardwareError(f"serial port {port}: permission denied: add yourself to the dialout "
-                                f"group (sudo usermod -aG dialout $USER, then log in again)") from exc
-        except (serial.SerialException, OSError) as exc:
-            raise HardwareError(f"serial port {port} cannot be opened: {exc}") from exc
+        ser = self._open_port() if self._open_port is not None else self._open_serial(port)
         ser.reset_input_buffer()
         with self._lock:
             self._serial = ser
@@ -114,21 +110,38 @@ class KobukiHardware:
             self._last_ts = None
             self._vel = (None, None)
         self._stop.clear()
-        self._thread = threading.Thread(target=self._read_loop, name="kobuki-reader", daemon=True)
-        self._thread.start()
-        deadline = time.monotonic() + self.config.first_feedback_timeout_s
-        while time.monotonic() < deadline:
+        if self._open_port is None:
+            self._thread = threading.Thread(target=self._read_loop, name="kobuki-reader", daemon=True)
+            self._thread.start()
+        deadline = self._clock() + self.config.first_feedback_timeout_s
+        while self._clock() < deadline:
+            if self._open_port is not None:
+                self._read_arrived()
             with self._lock:
                 if self._feedback is not None:
                     return
                 error = self._error
             if error is not None:
                 break
-            time.sleep(0.005)
+            self._sleep(0.005)
         self.close()
         raise HardwareError(f"no Basic Sensor Data from the Kobuki on {port} within "
                             f"{self.config.first_feedback_timeout_s:g} s"
                             + (f" ({error})" if error else ": is the base switched on, and is this its port?"))
+
+    def _open_serial(self, port: str) -> serial.Serial:
+        if not os.path.exists(port):
+            raise HardwareError(f"serial port {port} not found: is the Kobuki plugged in "
+                                f"and are you in the dialout group?")
+        try:
+            return serial.Serial(port, self.config.baudrate, bytesize=serial.EIGHTBITS,
+                                 parity=serial.PARITY_NONE, stopbits=serial.STOPBITS_ONE,
+                                 timeout=self.config.read_timeout_s, write_timeout=self.config.write_timeout_s)
+        except PermissionError as exc:
+            raise HardwareError(f"serial port {port}: permission denied: add yourself to the dialout "
+                                f"group (sudo usermod -aG dialout $USER, then log in again)") from exc
+        except (serial.SerialException, OSError) as exc:
+            raise HardwareError(f"serial port {port} cannot be opened: {exc}") from exc
 
     def set_velocity(self, linear_m_s: float, angular_rad_s: float) -> None:
         """Send one Base Control packet for this body velocity (kobuki_driver's arc rules)."""
@@ -144,6 +157,8 @@ class KobukiHardware:
 
     def feedback(self) -> WheelFeedback | None:
         """The newest feedback (never raises; after a lost port it is the last one, ageing)."""
+        if self._open_port is not None:
+            self._read_arrived()
         with self._lock:
             return self._feedback
 
@@ -223,11 +238,20 @@ class KobukiHardware:
                     self._lost("the device node is gone")
                     return
                 continue
-            stamp = time.monotonic()
-            with self._lock:
-                payloads = self._decoder.feed(data)
-            for payload in payloads:
-                self._handle(payload, stamp)
+            self._take(data)
+
+    def _read_arrived(self) -> None:
+        """Polled: decode what the port holds now."""
+        ser = self._serial
+        if ser is not None and ser.in_waiting:
+            self._take(ser.read(ser.in_waiting))
+
+    def _take(self, data: bytes) -> None:
+        stamp = self._clock()
+        with self._lock:
+            payloads = self._decoder.feed(data)
+        for payload in payloads:
+            self._handle(payload, stamp)
 
     def _handle(self, payload: bytes, stamp: float) -> None:
         try:

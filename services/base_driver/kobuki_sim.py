@@ -34,6 +34,7 @@ from services.base_driver.kobuki_protocol import (
     BASE_CONTROL_ID, BUMPER_BITS, CLIFF_BITS, OVERCURRENT_BITS, TICK_TO_RAD, WHEEL_BASE_M, WHEEL_DROP_BITS,
     WHEEL_RADIUS_M, BasicSensorData, PacketDecoder, ProtocolError, bits_from_names, decode_base_control,
     encode_packet, encode_sub_payload, speed_radius_to_wheels, split_sub_payloads)
+from shared.simtime import MemoryLine
 
 __all__ = ["SimKobuki", "Physics"]
 
@@ -51,15 +52,16 @@ class SimKobuki:
     def __init__(self, *, period_s: float = 0.02, wheel_radius_m: float = WHEEL_RADIUS_M,
                  wheel_base_m: float = WHEEL_BASE_M, start_ticks: tuple[int, int] = (0, 0),
                  start_timestamp_ms: int = 0, battery_v: float = 16.5,
-                 physics: Physics | None = None) -> None:
+                 physics: Physics | None = None, clock: Callable[[], float] = time.monotonic) -> None:
         self.period_s = period_s
+        self._clock = clock
         self.wheel_radius_m = wheel_radius_m
         self.wheel_base_m = wheel_base_m
         self.physics = physics
         self._start_ticks = start_ticks
         self._timestamp_ms = start_timestamp_ms & 0xFFFF
         self._clock_ms = float(start_timestamp_ms)  # the firmware's millisecond clock, before the wrap
-        self._last_step = time.monotonic()
+        self._last_step = clock()
         self._battery_dv = int(round(battery_v * 10))
         self._lock = threading.Lock()
         self._decoder = PacketDecoder()
@@ -76,6 +78,7 @@ class SimKobuki:
         self._master: int | None = None
         self._slave: int | None = None
         self.port = ""
+        self._line: MemoryLine | None = None  # in simulated time, the line in place of the pty
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -92,6 +95,13 @@ class SimKobuki:
         self._thread = threading.Thread(target=self._run, name="sim-kobuki", daemon=True)
         self._thread.start()
         return self
+
+    def memory_line(self) -> MemoryLine:
+        """The serial line for simulated time, in place of :meth:`start`'s pty: the benchmark runs
+        :meth:`firmware_tick` every ``period_s`` itself."""
+        self._line = MemoryLine(self._receive, name="simtime:kobuki")
+        self.port = self._line.name
+        return self._line
 
     def close(self) -> None:
         """Stop and close both ends (idempotent)."""
@@ -209,14 +219,19 @@ class SimKobuki:
     def _feedback_packet(bsd: BasicSensorData) -> bytes:
         return encode_packet(bsd.encode() + encode_sub_payload(_DOCK_IR_ID, b"\x00\x00\x00"))
 
+    def firmware_tick(self) -> None:
+        """One period of the firmware: the wheels up to now, then Basic Sensor Data."""
+        self._advance(self._clock())
+        self._send_feedback()
+
     def _run(self) -> None:
-        next_tick = time.monotonic() + self.period_s
-        self._last_step = time.monotonic()
+        next_tick = self._clock() + self.period_s
+        self._last_step = self._clock()
         while not self._stop.is_set():
             master = self._master
             if master is None:
                 return
-            timeout = max(0.0, next_tick - time.monotonic())
+            timeout = max(0.0, next_tick - self._clock())
             try:
                 ready, _, _ = select.select([master], [], [], timeout)
                 if ready:
@@ -224,14 +239,13 @@ class SimKobuki:
             except OSError:
                 # EIO: no process has the slave open right now (the host closed it). Not fatal.
                 time.sleep(min(timeout, self.period_s) or 0.001)
-            now = time.monotonic()
+            now = self._clock()
             if now < next_tick:
                 continue
-            self._advance(now)
+            self.firmware_tick()
             next_tick += self.period_s
             if next_tick < now:  # starved of CPU: do not burst to catch up
                 next_tick = now + self.period_s
-            self._send_feedback()
 
     def _receive(self, data: bytes) -> None:
         with self._lock:
@@ -246,7 +260,7 @@ class SimKobuki:
                     continue  # sound, LEDs, gains, ...: not simulated
                 speed, radius = decode_base_control(sub)
                 wheels = speed_radius_to_wheels(speed, radius, self.wheel_base_m)
-                self._advance(time.monotonic())  # the old speeds up to now, the new ones from now
+                self._advance(self._clock())  # the old speeds up to now, the new ones from now
                 with self._lock:
                     self.last_command = (speed, radius)
                     self.commands_received += 1
@@ -285,6 +299,9 @@ class SimKobuki:
             self.packets_sent += 1
 
     def _write(self, data: bytes) -> None:
+        if self._line is not None:
+            self._line.put(data)
+            return
         master = self._master
         if master is None:
             return

@@ -105,8 +105,10 @@ class ODriveCanHardware:
     name = "odrive_can"
 
     def __init__(self, config: DriverConfig, bus_factory: BusFactory | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
-        self.config, self.clock = config, clock
+                 clock: Callable[[], float] = time.monotonic, polled: bool = False) -> None:
+        """``polled``: no reader thread; :meth:`feedback` takes the frames that have arrived
+        (with ``clock``, how it runs in simulated time: :mod:`shared.simtime`)."""
+        self.config, self.clock, self.polled = config, clock, polled
         od = config.odrive
         self._factory = bus_factory or (lambda: can.Bus(**od.can.bus_kwargs()))
         self.protocol = CanSimple([od.left.node_id, od.right.node_id])
@@ -160,6 +162,8 @@ class ODriveCanHardware:
         self._disarm("estop")
 
     def feedback(self) -> WheelFeedback | None:
+        if self.polled:
+            self._take_arrived()
         requests = []
         with self._lock:
             left, right = self.axes
@@ -221,8 +225,22 @@ class ODriveCanHardware:
             for axis in self.axes:  # only what is heard on this bus counts
                 axis.heartbeat_at = axis.encoder_at = None
                 axis.error_requested = 0
-            self._notifier = can.Notifier(bus, [listener], timeout=0.1)
-            listener.notifier = self._notifier
+            if not self.polled:
+                self._notifier = can.Notifier(bus, [listener], timeout=0.1)
+                listener.notifier = self._notifier
+
+    def _take_arrived(self) -> None:
+        """Polled: handle the frames waiting on the bus."""
+        bus, generation = self._bus, self._generation
+        while bus is not None:
+            try:
+                msg = bus.recv(timeout=0)
+            except (can.CanError, OSError) as exc:
+                self._on_bus_error(f"CAN receive failed: {exc}", generation)
+                return
+            if msg is None:
+                return
+            self._on_frame(msg, generation)
 
     def _detach(self) -> tuple[can.Notifier | None, can.BusABC | None]:
         """Forget the bus (late frames from it are ignored); the caller closes what this returns

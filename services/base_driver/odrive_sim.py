@@ -191,6 +191,7 @@ class SimODrives:
         self._bus = VirtualBus(channel=self.channel)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"odrive-sim:{self.channel}", daemon=True)
+        self._reset_schedule()
 
     # -- life cycle -----------------------------------------------------------------------------
     def start(self) -> SimODrives:
@@ -237,31 +238,42 @@ class SimODrives:
 
     # -- the simulation thread --------------------------------------------------------------------
     def _run(self) -> None:
-        c = self.config
-        last = self.clock()
-        due_enc = {n: last for n in self.axes}
-        due_hb = {n: last for n in self.axes}
+        self._reset_schedule()
         while not self._stop.is_set():
-            wait = max(0.0, min(*due_enc.values(), *due_hb.values()) - self.clock())
+            wait = max(0.0, min(*self._due_enc.values(), *self._due_hb.values()) - self.clock())
             msg = self._bus.recv(timeout=min(wait, 0.005))
-            while msg is not None:
+            if msg is not None:
                 self._receive(msg)
-                msg = self._bus.recv(timeout=0)
-            now = self.clock()
-            with self.lock:
-                self._step(now, now - last)
-                last = now
-                out: list[can.Message] = []
-                for n, axis in self.axes.items():
-                    if now >= due_enc[n]:
-                        out.append(self.protocol.encode(n, Cmd.GET_ENCODER_ESTIMATES, **axis.estimates()))
-                        due_enc[n] = max(due_enc[n] + c.encoder_period_s, now)
-                    if now >= due_hb[n]:
-                        if axis.heartbeats:
-                            out.append(self.protocol.encode(n, Cmd.HEARTBEAT, **axis.heartbeat()))
-                        due_hb[n] = max(due_hb[n] + c.heartbeat_period_s, now)
-            for frame in out:
-                self._bus.send(frame)
+            self.tick()
+
+    def _reset_schedule(self) -> None:
+        now = self._last = self.clock()
+        self._due_enc = {n: now for n in self.axes}
+        self._due_hb = {n: now for n in self.axes}
+
+    def tick(self) -> None:
+        """Answer what has arrived, move the axes up to now, send the estimates and heartbeats
+        that are due (the thread's loop; in simulated time the benchmark calls it)."""
+        c = self.config
+        msg = self._bus.recv(timeout=0)
+        while msg is not None:
+            self._receive(msg)
+            msg = self._bus.recv(timeout=0)
+        now = self.clock()
+        with self.lock:
+            self._step(now, now - self._last)
+            self._last = now
+            out: list[can.Message] = []
+            for n, axis in self.axes.items():
+                if now >= self._due_enc[n]:
+                    out.append(self.protocol.encode(n, Cmd.GET_ENCODER_ESTIMATES, **axis.estimates()))
+                    self._due_enc[n] = max(self._due_enc[n] + c.encoder_period_s, now)
+                if now >= self._due_hb[n]:
+                    if axis.heartbeats:
+                        out.append(self.protocol.encode(n, Cmd.HEARTBEAT, **axis.heartbeat()))
+                    self._due_hb[n] = max(self._due_hb[n] + c.heartbeat_period_s, now)
+        for frame in out:
+            self._bus.send(frame)
 
     def _step(self, now: float, dt: float) -> None:
         if dt <= 0:

@@ -38,7 +38,8 @@ import errno
 import os
 import termios
 import time
-from typing import Literal
+from collections.abc import Callable
+from typing import Any, Literal
 
 import serial
 from pydantic import Field
@@ -86,8 +87,12 @@ class OpenCRHardware:
 
     name = "opencr"
 
-    def __init__(self, config: OpenCRConfig | None = None) -> None:
+    def __init__(self, config: OpenCRConfig | None = None, *, clock: Callable[[], float] = time.monotonic,
+                 port_handler: Callable[[str], Any] | None = None) -> None:
+        """``port_handler`` (a ``dynamixel_sdk.PortHandler`` class on another port than
+        ``config.port``) and ``clock`` run it in simulated time (:mod:`shared.simtime`)."""
         self.config = config or OpenCRConfig()
+        self._clock, self._port_handler = clock, port_handler
         self.model = T.MODELS[self.config.model]
         self._port = None            # dynamixel_sdk.PortHandler
         self._ph = None              # dynamixel_sdk.PacketHandler(2.0)
@@ -109,10 +114,10 @@ class OpenCRHardware:
 
         self.close()
         cfg = self.config
-        if not os.path.exists(cfg.port):
+        if self._port_handler is None and not os.path.exists(cfg.port):
             raise HardwareError(f"serial port {cfg.port} not found: is the OpenCR plugged in and are "
                                 f"you in the dialout group?")
-        port = dxl.PortHandler(cfg.port)
+        port = (self._port_handler or dxl.PortHandler)(cfg.port)
         try:
             if not port.setBaudRate(cfg.baudrate):
                 raise HardwareError(f"baud rate {cfg.baudrate} is not one the Dynamixel SDK supports")
@@ -216,7 +221,7 @@ class OpenCRHardware:
         self._counts["writes"] += 1
 
     def _heartbeat(self, force: bool = False) -> None:
-        now = time.monotonic()
+        now = self._clock()
         if not force and now - self._last_hb < self.config.heartbeat_period_s:
             return
         self._hb_count = self._hb_count % 255 + 1      # 1..255: never the firmware's initial 0
@@ -253,7 +258,7 @@ class OpenCRHardware:
 
     def feedback(self) -> WheelFeedback | None:
         """Poll the board (at most every ``poll_period_s``); the newest good feedback, or None."""
-        now = time.monotonic()
+        now = self._clock()
         if self._port is None or now - self._last_poll < self.config.poll_period_s:
             return self._feedback
         self._last_poll = now
@@ -262,7 +267,7 @@ class OpenCRHardware:
             data = self._read(T.FEEDBACK_ADDR, T.FEEDBACK_LEN)
         except HardwareError:
             return self._feedback           # stale: the stamp says how old
-        self._feedback = self._decode(data, time.monotonic())
+        self._feedback = self._decode(data, self._clock())
         return self._feedback
 
     def _decode(self, data: list[int], stamp: float) -> WheelFeedback:

@@ -37,6 +37,7 @@ from pathlib import Path
 
 from services.base_driver import opencr_table as T
 from services.base_driver.dynamixel2 import Decoder, Err, Inst, Packet, status_packet
+from shared.simtime import MemoryLine
 
 log = logging.getLogger("ovamos.opencr_sim")
 
@@ -53,13 +54,15 @@ class SimOpenCR:
 
     def __init__(self, model: str = "burger", *, device_id: int = T.DEVICE_ID,
                  link: str | Path | None = None, physics: Physics | None = None,
-                 step_s: float = 0.005, model_number: int = T.MODEL_NUMBER) -> None:
+                 step_s: float = 0.005, model_number: int = T.MODEL_NUMBER,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.model = T.MODELS[model]
         self.model_number = model_number   # another value: a different Dynamixel device on the port
         self.device_id = device_id
         self.link = Path(link) if link is not None else None
         self.physics = physics
         self.step_s = step_s
+        self._clock = clock
         self.table = bytearray(T.TABLE_SIZE)
         self._lock = threading.RLock()
         # wheel state (rad, and goal velocity in motor units)
@@ -90,6 +93,7 @@ class SimOpenCR:
         self._master: int | None = None
         self._slave: int | None = None
         self.port = ""
+        self._line: MemoryLine | None = None  # in simulated time, the line in place of the pty
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._init_table()
@@ -109,7 +113,7 @@ class SimOpenCR:
         self._put(T.ADDR_BAUDRATE, 3, 1)
         self._put(T.ADDR_BATTERY_VOLTAGE, 1200, 4)          # 12.00 V
         self.torque = self.motors_connected                 # begin(): set_torque(true) when connected
-        self._sync_table(time.monotonic())
+        self._sync_table(self._clock())
 
     def _sync_table(self, now: float) -> None:
         """Copy the simulated hardware into the table (the firmware's update_*_to_table)."""
@@ -219,9 +223,31 @@ class SimOpenCR:
         if self._corrupt > 0:
             self._corrupt -= 1
             frame = frame[:-1] + bytes([frame[-1] ^ 0x5A])
-        assert self._master is not None
-        os.write(self._master, frame)
+        if self._line is not None:
+            self._line.put(frame)
+        else:
+            assert self._master is not None
+            os.write(self._master, frame)
         self.replies += 1
+
+    def _serve(self, data: bytes, now: float) -> None:
+        """Answer the instruction packets in ``data`` (raises OSError when the reply cannot go)."""
+        for pkt in self.decoder.feed(data):
+            answer = self._handle(pkt, now)
+            if answer is None:
+                continue
+            if self.silent or self.drop_answers > 0:
+                self.drop_answers -= 0 if self.silent else 1
+                self.unanswered += 1
+                continue
+            self._reply(answer)
+
+    def memory_line(self) -> MemoryLine:
+        """The serial line for simulated time, in place of :meth:`start`'s pty: packets are
+        answered as they are written; the benchmark runs :meth:`step` every ``step_s`` itself."""
+        self._line = MemoryLine(lambda data: self._serve(data, self._clock()), name="simtime:opencr")
+        self.port = self._line.name
+        return self._line
 
     # ---- the thread ------------------------------------------------------------------------
     def _open_pty(self) -> None:
@@ -259,7 +285,7 @@ class SimOpenCR:
         return self
 
     def _run(self) -> None:
-        last = time.monotonic()
+        last = self._clock()
         last_rx = last
         master = self._master
         while not self._stop.is_set() and master is not None:
@@ -267,7 +293,7 @@ class SimOpenCR:
                 ready, _, _ = select.select([master], [], [], self.step_s)
             except (OSError, ValueError):
                 break
-            now = time.monotonic()
+            now = self._clock()
             if now - last >= self.step_s:
                 self.step(now - last, now)
                 last = now
@@ -281,18 +307,10 @@ class SimOpenCR:
                 time.sleep(self.step_s)
                 continue
             last_rx = now
-            for pkt in self.decoder.feed(data):
-                answer = self._handle(pkt, now)
-                if answer is None:
-                    continue
-                if self.silent or self.drop_answers > 0:
-                    self.drop_answers -= 0 if self.silent else 1
-                    self.unanswered += 1
-                    continue
-                try:
-                    self._reply(answer)
-                except OSError:
-                    break
+            try:
+                self._serve(data, now)
+            except OSError:
+                break
 
     def stop(self) -> None:
         """Stop the thread and remove the pty (idempotent)."""
@@ -360,3 +378,20 @@ def body_from_wheels(model: str, dl_rad: float, dr_rad: float) -> tuple[float, f
 
 
 __all__ = ["SimOpenCR", "Physics", "body_from_wheels", "FIRMWARE_VERSION"]
+
+
+def line_port_handler(line: MemoryLine) -> Callable[[str], object]:
+    """A ``dynamixel_sdk.PortHandler`` class whose port is ``line`` (for ``OpenCRHardware``'s
+    ``port_handler``): the SDK's own packet code runs, on bytes that never leave the process."""
+    import dynamixel_sdk as dxl
+
+    class LinePortHandler(dxl.PortHandler):  # type: ignore[misc]
+        def setupPort(self, cflag_baud: int) -> bool:  # noqa: N802  (the SDK's name)
+            line.is_open = True
+            self.ser, self.is_open = line, True
+            line.reset_input_buffer()
+            self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
+            return True
+
+    return LinePortHandler
+

@@ -46,14 +46,12 @@ from services.base_driver.service import Base, BaseDriverService, PublishingConf
 from services.sim.kinematic import KinematicBase
 from services.sim.render import SceneRenderer
 from services.sim.robot import MotionConfig, SimRobot
-from services.sim.wheels import TURTLEBOTS, SerialSimRobot, WheeledSimRobot
+from services.sim.wheels import TURTLEBOTS, Motion, SerialSimRobot, WheeledSimRobot
 from shared.bus import BusCore
 from shared.messages import RgbdFrame
 from shared.motion import Pose
 
 
-Motion = Literal["kinematic", "odrive", "kobuki", "opencr"]
-"""How the simulated robot moves (see the module docstring)."""
 
 
 class SimServiceConfig(PublishingConfig):

@@ -8,23 +8,40 @@ byte). The simulated device's wheel motion drives :meth:`SimRobot.drive`, so the
 true pose follows what the motors did, and the driver's odometry comes from the
 encoders, as on the robot. A blocked move stalls the wheels and trips the
 driver's bumper input.
+
+Given a :class:`~shared.simtime.SimClock`, the same parts run in simulated time (the search
+benchmark's ``--base``): no thread of their own, the serial bases on a
+:class:`~shared.simtime.MemoryLine` in place of the pty, the clock running the device's loop at
+its period and the controller's tick at ``control_hz``, and :meth:`_WheelDriven.run_command`
+running the clock until a command completes.
 """
 
 from __future__ import annotations
 
 import math
 import threading
+import time
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from contextlib import ExitStack
+from typing import Literal
 
 from services.base_driver.config import CanConfig, DriverConfig
 from services.base_driver.controller import BaseDriver
+from services.base_driver.kobuki import KobukiHardware
 from services.base_driver.kobuki_sim import SimKobuki
 from services.base_driver.odrive_can import ODriveCanHardware
 from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
-from services.base_driver.opencr_sim import SimOpenCR
+from services.base_driver.opencr import OpenCRHardware
+from services.base_driver.opencr_sim import SimOpenCR, line_port_handler
 from services.sim.robot import SimRobot
+from shared.messages import DriverMode, PlanCommand
 from shared.motion import Pose
+from shared.simtime import SimClock
+
+Motion = Literal["kinematic", "odrive", "kobuki", "opencr"]
+"""How the simulated robot moves (the sim service's docstring)."""
+ODRIVE_LOOP_S = 0.005  # the simulated ODrives' loop in simulated time (their thread's longest wait)
 
 
 class _WheelDriven(ABC):
@@ -32,9 +49,36 @@ class _WheelDriven(ABC):
 
     driver: BaseDriver
 
-    def __init__(self, robot: SimRobot) -> None:
+    def __init__(self, robot: SimRobot, clock: SimClock | None = None) -> None:
         self.robot = robot
+        self.clock = clock  # simulated time, or None: real time with threads
         self._lock = threading.Lock()
+
+    @property
+    def _now(self) -> Callable[[], float]:
+        return self.clock if self.clock is not None else time.monotonic
+
+    def _schedule_controller(self) -> None:
+        assert self.clock is not None
+        self.clock.every(1.0 / self.driver.config.control_hz, self.driver.tick)
+
+    def wait_ready(self) -> float:
+        """Simulated time: run until the base is enabled; the simulated seconds it took."""
+        assert self.clock is not None, "only in simulated time"
+        c = self.driver.config
+        return self.clock.run_until(lambda: self.driver.state().mode is DriverMode.READY,
+                                    c.enable_timeout_s + c.recover_every_s, 1.0 / c.control_hz, "base ready")
+
+    def run_command(self, command: PlanCommand) -> str:
+        """Simulated time: submit ``command`` and run until the controller completes it; its outcome
+        (``rejected`` when it was not accepted)."""
+        assert self.clock is not None, "only in simulated time"
+        if self.driver.submit(command) != "accepted":
+            return "rejected"
+        c = self.driver.config
+        self.clock.run_until(lambda: self.driver.state().last_completed >= command.action_id,
+                             c.primitive_timeout_s + 1.0, 1.0 / c.control_hz, f"command {command.action_id}")
+        return str(self.driver.state().last_outcome)
 
     @property
     def pose(self) -> Pose:
@@ -71,23 +115,29 @@ class WheeledSimRobot(_WheelDriven):
     from the robot's :class:`~services.sim.robot.MotionConfig` so both agree."""
 
     def __init__(self, robot: SimRobot, driver: DriverConfig | None = None,
-                 axes: SimAxisConfig | None = None) -> None:
-        super().__init__(robot)
+                 axes: SimAxisConfig | None = None, clock: SimClock | None = None) -> None:
+        super().__init__(robot, clock)
         base = driver or DriverConfig()
         od = base.odrive
         self._directions = {od.left.node_id: od.left.direction, od.right.node_id: od.right.direction}
         self._left, self._right = od.left.node_id, od.right.node_id
-        self.odrives = SimODrives(self._directions, config=axes, physics=self._physics)
+        self.odrives = SimODrives(self._directions, config=axes, physics=self._physics, clock=self._now)
         m = robot.config
         self.config = base.model_copy(update={
             "odrive": od.model_copy(update={"can": CanConfig(interface="virtual", channel=self.odrives.channel)}),
             "wheel_radius_m": m.wheel_radius_m, "track_width_m": m.track_width_m,
             "forward_m": m.forward_m, "turn_deg": m.turn_deg, "initial_pose": robot.pose})
-        self.driver = BaseDriver(self.config, ODriveCanHardware(self.config, self.odrives.open_driver_bus))
+        hardware = ODriveCanHardware(self.config, self.odrives.open_driver_bus, clock=self._now,
+                                     polled=clock is not None)
+        self.driver = BaseDriver(self.config, hardware, clock=self._now)
 
     def start(self) -> WheeledSimRobot:
-        self.odrives.start()
-        self.driver.start()
+        if self.clock is None:
+            self.odrives.start()
+            self.driver.start()
+            return self
+        self.clock.every(ODRIVE_LOOP_S, self.odrives.tick)
+        self._schedule_controller()
         return self
 
     def stop(self) -> None:
@@ -110,33 +160,51 @@ class SerialSimRobot(_WheelDriven):
     real controller through its real serial client. ``robot``'s geometry must be the base's
     (``DriverConfig.fixed_wheels``): the sim service sets it."""
 
-    def __init__(self, robot: SimRobot, hardware: str, driver: DriverConfig | None = None) -> None:
-        super().__init__(robot)
+    def __init__(self, robot: SimRobot, hardware: str, driver: DriverConfig | None = None,
+                 clock: SimClock | None = None) -> None:
+        super().__init__(robot, clock)
         self.hardware = hardware
         m = robot.config
         base = driver or DriverConfig()
         if hardware == "kobuki":
             self.device: SimKobuki | SimOpenCR = SimKobuki(wheel_radius_m=m.wheel_radius_m,
                                                            wheel_base_m=m.track_width_m,
-                                                           physics=self._metres)
+                                                           physics=self._metres, clock=self._now)
         else:
-            self.device = SimOpenCR(base.opencr.model, physics=self._radians)
+            self.device = SimOpenCR(base.opencr.model, physics=self._radians, clock=self._now)
         self._base = base
         self._device_open = ExitStack()
         self.driver = None  # type: ignore[assignment]  # built in start(): the port exists then
         self.config: DriverConfig | None = None
 
     def start(self) -> SerialSimRobot:
-        self._device_open.enter_context(self.device)  # started now, stopped by stop()
+        if self.clock is None:
+            self._device_open.enter_context(self.device)  # started now, stopped by stop()
+            port = self.device.port if isinstance(self.device, SimKobuki) else self.device.path
+        else:
+            line = self.device.memory_line()
+            port = line.name
         m, base = self.robot.config, self._base
-        port = self.device.port if isinstance(self.device, SimKobuki) else self.device.path
         section = {"kobuki": base.kobuki, "opencr": base.opencr}[self.hardware].model_copy(update={"port": port})
         # validated (model_copy is not): the wheels must be the hardware's
         self.config = DriverConfig.model_validate({
             **base.model_dump(), "hardware": self.hardware, self.hardware: section.model_dump(),
             "wheel_radius_m": m.wheel_radius_m, "track_width_m": m.track_width_m,
             "forward_m": m.forward_m, "turn_deg": m.turn_deg, "initial_pose": self.robot.pose.model_dump()})
-        self.driver = BaseDriver(self.config).start()
+        if self.clock is None:
+            self.driver = BaseDriver(self.config).start()
+            return self
+        clock = self.clock
+        if isinstance(self.device, SimKobuki):
+            hardware: KobukiHardware | OpenCRHardware = KobukiHardware(
+                self.config.kobuki, clock=clock, sleep=clock.sleep, open_port=lambda: line)
+            clock.every(self.device.period_s, self.device.firmware_tick)
+        else:
+            hardware = OpenCRHardware(self.config.opencr, clock=clock, port_handler=line_port_handler(line))
+            device = self.device
+            clock.every(device.step_s, lambda: device.step(device.step_s, clock()))
+        self.driver = BaseDriver(self.config, hardware, clock=clock)
+        self._schedule_controller()
         return self
 
     def stop(self) -> None:

@@ -26,7 +26,7 @@ from services.sim.ros2_robot import CAMERA
 from shared.messages import DriverMode
 from shared.motion import Action
 from shared.procs import stop
-from tests.base_driver_helpers import command, run, wait_for_mode
+from tests.base_driver_helpers import command, run, turns_to_nearest_wall, wait_for_mode
 from tests.polling import wait_for
 from tests.ros2.test_ros2_camera import read_frame
 
@@ -85,21 +85,11 @@ def test_primitives_land_on_its_odometry_from_the_episodes_start(sim_robot: Path
         driver.stop()
 
 
-def _turns_to_nearest_wall(x: float, y: float, yaw: float, is_free) -> tuple[int, float]:
-    """How many 30-degree left turns face the nearest obstacle, and how far it is then."""
-    def free_run(heading: float) -> float:
-        d = 0.0
-        while d < 20 and is_free(x + (d + 0.02) * math.cos(heading), y + (d + 0.02) * math.sin(heading)):
-            d += 0.02
-        return d
-    return min(((turns, free_run(yaw + math.radians(30 * turns))) for turns in range(12)), key=lambda t: t[1])
-
-
 def test_a_move_into_a_wall_ends_blocked_by_its_bump_topic(sim_robot: Path) -> None:
     """The robot's ``bump`` Bool reaches the controller: the move ends blocked, not after the
     primitive timeout."""
     spec, _, truth = make_episode(*EPISODE)
-    turns, distance = _turns_to_nearest_wall(spec.start.x, spec.start.y, spec.start.yaw, truth.is_free)
+    turns, distance = turns_to_nearest_wall(spec.start, truth.is_free)
     driver = BaseController(DriverConfig(hardware="ros2", ros2=Ros2BaseConfig(bump="bump"))).start()
     try:
         wait_for_mode(driver, DriverMode.READY, timeout=60)

@@ -1,0 +1,80 @@
+"""Two benchmark runs side by side on the episodes both hold: ``ovamos bench compare A B``.
+
+For a question one run cannot answer: does the method lose on wheeled bases (``--base kinematic``
+against ``--base kobuki``, same seed), did a change help (the run before against the run after).
+Per policy: each run's SR, MSPL and mean steps on the shared episodes, and B minus A with 95 %
+bootstrap intervals (:func:`bench.stats.paired`, steps too), and B's mean steps over A's.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from bench.episode import EpisodeResult
+from bench.policies import LABELS, policy_rank
+from bench.search import EPISODES_FILE, RUN_FILE, SETTING_DEFAULTS, SearchError, read_results
+from bench.stats import paired
+
+__all__ = ["compare_runs", "print_comparison"]
+
+
+def _run(folder: Path) -> tuple[dict[str, Any], dict[str, dict[str, EpisodeResult]]]:
+    """A run's settings and its results by policy, then episode id."""
+    episodes = folder / EPISODES_FILE
+    if not episodes.exists():
+        raise SearchError(f"{folder}: no {EPISODES_FILE} (the --out folder of an ovamos bench search run?)")
+    settings = json.loads((folder / RUN_FILE).read_text()) if (folder / RUN_FILE).exists() else {}
+    by_policy: dict[str, dict[str, EpisodeResult]] = {}
+    for r in read_results(episodes, torn_tail=True):
+        by_policy.setdefault(r.policy, {})[r.episode_id] = r
+    return {**SETTING_DEFAULTS, **settings}, by_policy
+
+
+def _means(results: dict[str, EpisodeResult], shared: list[str]) -> dict[str, float]:
+    n = len(shared)
+    return {"sr": round(100 * sum(results[e].success for e in shared) / n, 1),
+            "mspl": round(sum(results[e].spl for e in shared) / n, 3),
+            "steps": round(sum(results[e].steps for e in shared) / n, 1)}
+
+
+def compare_runs(a: Path, b: Path) -> dict[str, Any]:
+    """The ``--json`` object: each run's folder and settings, and per shared policy the scores of
+    both on their shared episodes and ``b_minus_a``."""
+    (settings_a, runs_a), (settings_b, runs_b) = _run(a), _run(b)
+    policies: dict[str, Any] = {}
+    for policy in sorted(set(runs_a) & set(runs_b), key=policy_rank):
+        # paired() gives first minus second: B minus A
+        diff = paired(runs_b[policy], runs_a[policy])
+        if diff is None:
+            continue
+        shared = sorted(set(runs_a[policy]) & set(runs_b[policy]))
+        means_a, means_b = _means(runs_a[policy], shared), _means(runs_b[policy], shared)
+        policies[policy] = {"a": means_a, "b": means_b, "b_minus_a": diff,
+                            "steps_ratio": round(means_b["steps"] / max(means_a["steps"], 1e-9), 3)}
+    if not policies:
+        raise SearchError(f"{a} and {b} share no (policy, episode): same seed and policies?")
+    return {"a": {"folder": str(a), **settings_a}, "b": {"folder": str(b), **settings_b}, "policies": policies}
+
+
+def _label(run: dict[str, Any]) -> str:
+    return f"{run.get('base')} base, {run.get('perception')} perception, seed {run.get('seed')}"
+
+
+def print_comparison(console: Console, result: dict[str, Any]) -> None:
+    a, b = result["a"], result["b"]
+    table = Table("method", "episodes", "SR A", "SR B", "B - A (95% CI)", "MSPL A", "MSPL B", "B - A (95% CI)",
+                  "steps A", "steps B", "B / A",
+                  title=f"A: {_label(a)} ({a['folder']})\nB: {_label(b)} ({b['folder']})")
+    for policy, p in result["policies"].items():
+        d = p["b_minus_a"]
+        table.add_row(LABELS.get(policy, policy), str(d["episodes"]), f"{p['a']['sr']:.1f}%", f"{p['b']['sr']:.1f}%",
+                      f"{d['sr_diff']:+.1f} [{d['sr_ci'][0]:+.1f}, {d['sr_ci'][1]:+.1f}]",
+                      f"{p['a']['mspl']:.3f}", f"{p['b']['mspl']:.3f}",
+                      f"{d['mspl_diff']:+.3f} [{d['mspl_ci'][0]:+.3f}, {d['mspl_ci'][1]:+.3f}]",
+                      f"{p['a']['steps']:.0f}", f"{p['b']['steps']:.0f}", f"{p['steps_ratio']:.2f}x")
+    console.print(table)

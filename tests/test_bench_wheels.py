@@ -1,0 +1,111 @@
+"""The search benchmark on simulated wheels (``ovamos bench search --base B``): the real base
+controller and each base's simulated device in simulated time. An episode gives the same result
+twice; primitives land as they do in real time (threads, a pty or a virtual CAN bus); and the
+first steps of an episode are those of a real-time ``ovamos demo --base kobuki``."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bench.episode import EpisodeConfig, run_episode
+from bench.jobs import load_episode, load_prior
+from services.base_driver.config import DriverConfig
+from services.planner.agent import Step
+from services.sim.robot import MotionConfig, SimRobot
+from services.sim.wheels import TURTLEBOTS, SerialSimRobot, WheeledSimRobot
+from shared.messages import DriverMode, PlanCommand
+from shared.motion import Action
+from shared.simtime import SimClock
+from tests.base_driver_helpers import turns_to_nearest_wall
+from tests.polling import wait_for
+
+WHEELED = ("kobuki", "opencr", "odrive")
+EPISODE = (0, 4)  # the demo's
+
+
+def _result(base: str, steps: int, on_step=None) -> dict:  # type: ignore[no-untyped-def]
+    spec, scene, truth = load_episode(*EPISODE)
+    spec = spec.model_copy(update={"max_steps": steps})
+    result = run_episode(spec, scene, truth, EpisodeConfig(base=base), load_prior(), on_step)
+    return result.model_dump(exclude={"seconds"})
+
+
+@pytest.mark.parametrize("base", WHEELED)
+def test_a_wheeled_episode_in_simulated_time_gives_the_same_result_twice(base: str) -> None:
+    first, second = _result(base, 40), _result(base, 40)
+    assert first == second
+    kinematic = _result("kinematic", 40)
+    assert first["steps"] == 40 and first["path_m"] > 1.0
+    # it ran on the wheels: poses are where they landed, not the grid of exact primitives
+    assert first["trajectory"] != kinematic["trajectory"]
+
+
+def _wheels(base: str, clock: SimClock | None) -> SerialSimRobot | WheeledSimRobot:
+    spec, _, truth = load_episode(*EPISODE)
+    motion = MotionConfig()
+    if base in TURTLEBOTS:
+        fixed = DriverConfig().model_copy(update={"hardware": base}).fixed_wheels()
+        assert fixed is not None
+        motion = MotionConfig(wheel_radius_m=fixed[0], track_width_m=fixed[1])
+    robot = SimRobot(spec.start, truth.is_free, motion)
+    wheels = SerialSimRobot(robot, base, clock=clock) if base in TURTLEBOTS else WheeledSimRobot(robot, clock=clock)
+    return wheels.start()
+
+
+@pytest.mark.parametrize("base", WHEELED)
+def test_primitives_in_simulated_time_land_where_they_land_in_real_time(base: str) -> None:
+    """The same walk on the real-time parts (threads; a pty or a virtual CAN bus) and in simulated
+    time: the same outcomes, each pose within the controller's tolerances of the other's."""
+    spec, _, truth = load_episode(*EPISODE)
+    turns, distance = turns_to_nearest_wall(spec.start, truth.is_free)  # a walk that ends against a wall
+    script = [Action.TURN_RIGHT, Action.TURN_LEFT, *(Action.TURN_LEFT,) * turns,
+              *(Action.MOVE_FORWARD,) * (math.ceil(distance / 0.25) + 1)]
+    simulated = _wheels(base, SimClock())
+    real = _wheels(base, None)
+    try:
+        simulated.wait_ready()
+        wait_for(lambda: real.driver.state().mode is DriverMode.READY, timeout=10, what="real-time base ready")
+        for n, action in enumerate(script, 1):
+            command = PlanCommand(action_id=n, stamp=0.0, action=action)
+            outcome = simulated.run_command(command)
+            assert real.driver.submit(command) == "accepted"
+            wait_for(lambda: real.driver.state().last_completed >= n, timeout=15, what=f"command {n}")
+            assert (n, real.driver.state().last_outcome) == (n, outcome)
+            a, b = simulated.pose, real.pose
+            assert math.hypot(a.x - b.x, a.y - b.y) < 0.01, (n, action, a, b)
+            assert abs(math.remainder(a.yaw - b.yaw, 2 * math.pi)) < math.radians(1.0), (n, action, a, b)
+        assert outcome == "blocked"  # the walk ends against the wall, both ways
+    finally:
+        simulated.stop()
+        real.stop()
+
+
+def test_an_episodes_first_steps_are_those_of_a_real_time_demo_on_the_kobuki(tmp_path: Path) -> None:
+    """What is compared: the actions the planner sent, in order, and where the task ended; not
+    when (a real-time primitive lands a little differently each time, within tolerance)."""
+    steps = 25
+    actions: list[str] = []
+
+    def take(_: int, step: Step) -> None:
+        assert step.action is not None
+        actions.append(step.action.name)
+    bench = _result("kobuki", steps, take)
+    out = tmp_path / "demo"
+    done = subprocess.run([sys.executable, "-m", "ovamos.cli", "demo", "--base", "kobuki", "--max-steps", str(steps),
+                           "--out", str(out), "--no-record", "--timeout", "300"], capture_output=True, text=True,
+                          timeout=420)
+    log = (out / "logs" / "sim.log").read_text()
+    demo = re.findall(r"command \d+ \((\w+)\): accepted", log)
+    assert demo == actions, (done.stdout[-1500:], log[-1500:])
+    report = json.loads((out / "demo_report.json").read_text())["task"]
+    assert report["steps"] == bench["steps"] == steps
+    end = report["position"]
+    x, y, _ = bench["trajectory"][-1]
+    assert math.hypot(end["x"] - x, end["y"] - y) < 0.05
