@@ -1,0 +1,50 @@
+"""``ovamos bench compare A B``: two runs on their shared episodes, B minus A."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from bench.compare import compare_runs
+from bench.episode import EpisodeResult
+from bench.search import EPISODES_FILE, RUN_FILE, SearchError, jsonl_line
+from tests.polling import ovamos_unwrapped
+from tests.test_bench_search import fake
+
+
+def _run(folder: Path, results: list[EpisodeResult], **settings: object) -> Path:
+    folder.mkdir()
+    (folder / RUN_FILE).write_text(json.dumps({"seed": 0, "perception": "ideal", "homes": "default",
+                                               "max_steps": None, **settings}))
+    (folder / EPISODES_FILE).write_text("".join(jsonl_line(r) for r in results))
+    return folder
+
+
+def test_b_minus_a_on_the_shared_episodes_with_steps(tmp_path: Path) -> None:
+    a = _run(tmp_path / "a", [fake("ovamos", i, i < 2, 0.5 if i < 2 else 0.0) for i in range(4)])  # no base: kinematic
+    b_results = [fake("ovamos", i, True, 0.5) for i in range(3)] + [fake("finder", 0, True, 0.5)]
+    for r in b_results:
+        r.steps = 15
+    b = _run(tmp_path / "b", b_results, base="kobuki")
+    result = compare_runs(a, b)
+    assert result["a"]["base"] == "kinematic" and result["b"]["base"] == "kobuki"
+    assert list(result["policies"]) == ["ovamos"]  # finder ran in B only
+    p = result["policies"]["ovamos"]
+    assert p["a"] == {"sr": pytest.approx(66.7), "mspl": pytest.approx(0.333), "steps": 10.0}  # episodes 0-2
+    assert p["b"] == {"sr": 100.0, "mspl": 0.5, "steps": 15.0} and p["steps_ratio"] == 1.5
+    d = p["b_minus_a"]
+    assert d["episodes"] == 3 and d["sr_diff"] == pytest.approx(33.3) and d["steps_diff"] == 5.0
+    assert d["sr_ci"][0] <= d["sr_diff"] <= d["sr_ci"][1]
+
+
+def test_runs_with_nothing_in_common_or_no_results_are_refused(tmp_path: Path) -> None:
+    a = _run(tmp_path / "a", [fake("ovamos", 0, True, 0.5)])
+    b = _run(tmp_path / "b", [fake("finder", 0, True, 0.5)])
+    with pytest.raises(SearchError, match="share no"):
+        compare_runs(a, b)
+    with pytest.raises(SearchError, match="no episodes.jsonl"):
+        compare_runs(a, tmp_path)
+    done = ovamos_unwrapped("bench", "compare", str(a), str(tmp_path / "missing"))
+    assert done.returncode == 2 and "no episodes.jsonl" in done.stderr + done.stdout
