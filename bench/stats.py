@@ -14,8 +14,8 @@ from bench.policies import policy_rank
 
 
 def policy_scores(results: Sequence[EpisodeResult]) -> dict[str, dict[str, float | int]]:
-    """Per policy (paper order): SR in %, MSPL, episodes, and the % of all targets found (a
-    finer signal than SR when few episodes succeed)."""
+    """Per policy (paper order): SR in %, MSPL, episodes, the % of all targets found (a
+    finer signal than SR when few episodes succeed), wrong STOPs and the mean steps an episode."""
     scores: dict[str, dict[str, float | int]] = {}
     for policy in sorted({r.policy for r in results}, key=policy_rank):
         mine = [r for r in results if r.policy == policy]
@@ -24,7 +24,8 @@ def policy_scores(results: Sequence[EpisodeResult]) -> dict[str, dict[str, float
                           "mspl": round(statistics.fmean(r.spl for r in mine), 3),
                           "episodes": len(mine),
                           "targets_found": round(100 * found / sum(len(r.targets) for r in mine), 1),
-                          "wrong_stops": sum(not stop.success for r in mine for stop in r.stops)}
+                          "wrong_stops": sum(not stop.success for r in mine for stop in r.stops),
+                          "steps": round(statistics.fmean(r.steps for r in mine), 1)}
     return scores
 
 

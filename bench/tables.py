@@ -29,7 +29,7 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
         present = [p for p in rows if p in scores]
         if not present or (rows is TABLE_PLUS and "ovamos-plus" not in scores):
             continue
-        table = Table("method", "episodes", "SR", "MSPL", "targets found", "wrong STOPs", "paper SR",
+        table = Table("method", "episodes", "SR", "MSPL", "targets found", "wrong STOPs", "steps", "paper SR",
                       "paper MSPL", title=f"{title} (seed {result['seed']}{limit})")
         for policy in present:
             s = scores[policy]
@@ -37,7 +37,8 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
                 else ("", "")
             label = "OVAMOS (full)" if rows is TABLE_II and policy == "ovamos" else LABELS[policy]
             table.add_row(label, str(s["episodes"]), f"{s['sr']:.1f}%", f"{s['mspl']:.3f}",
-                          f"{s['targets_found']:.1f}%", str(s.get("wrong_stops", "")), paper_sr, paper_mspl)
+                          f"{s['targets_found']:.1f}%", str(s.get("wrong_stops", "")), f"{s.get('steps', 0):.0f}",
+                          paper_sr, paper_mspl)
         console.print(table)
     for key, name in (("vs_ovamos", "OVAMOS"), ("vs_plus", "OVAMOS-plus")):
         if result.get(key):

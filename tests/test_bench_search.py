@@ -113,7 +113,7 @@ def test_scores_are_success_rate_in_percent_and_mean_spl() -> None:
     scores = policy_scores(results)
     assert list(scores) == ["random", "ovamos"]
     assert scores["ovamos"] == {"sr": 50.0, "mspl": 0.25, "episodes": 2, "targets_found": 66.7,
-                                "wrong_stops": 2}
+                                "wrong_stops": 2, "steps": 10.0}
     assert scores["random"]["sr"] == 0.0 and scores["random"]["targets_found"] == 0.0
 
 
