@@ -73,13 +73,15 @@ class FakeHardware:
         self.wheel_drops: tuple[str, ...] = ()
         self.cliffs: tuple[str, ...] = ()
         self.silent = False                     # feedback stops updating
+        self.stalled = False                    # the wheels do not turn, whatever is commanded
         self.broken: str | None = None          # set_velocity and open raise this
 
     def _advance(self) -> None:
         now = self.clock()
         dt, self.last = now - self.last, now
-        self.left += (self.v - self.w * self.track / 2) / self.radius * dt
-        self.right += (self.v + self.w * self.track / 2) / self.radius * dt
+        if not self.stalled:
+            self.left += (self.v - self.w * self.track / 2) / self.radius * dt
+            self.right += (self.v + self.w * self.track / 2) / self.radius * dt
         if not self.silent:
             self.stamp = now
 

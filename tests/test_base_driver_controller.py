@@ -119,6 +119,25 @@ def test_a_collision_report_during_a_forward_move_backs_off_to_the_start_then_bl
     assert rig.d.counters["bumps"] == 1
 
 
+def test_a_forward_move_whose_wheels_stall_ends_blocked_without_a_bumper() -> None:
+    """A TurtleBot 3 against a wall: no bumper, the wheels stop turning. The move ends blocked
+    within stall_s instead of pushing until primitive_timeout_s; a free move is never judged so."""
+    rig = Rig()
+    rig.run(0.1)
+    free = command(Action.MOVE_FORWARD)
+    rig.d.submit(free)
+    rig.until(lambda: rig.d.state().last_completed == free.action_id)
+    assert rig.d.state().last_outcome == "done" and rig.d.counters["stalls"] == 0
+    rig.hw.stalled = True
+    stuck = command(Action.MOVE_FORWARD)
+    rig.d.submit(stuck)
+    started = rig.t
+    rig.until(lambda: rig.d.state().last_completed == stuck.action_id, limit_s=5.0)
+    assert rig.d.state().last_outcome == "blocked" and rig.d.counters["stalls"] >= 1
+    assert rig.t - started < 3.0 < rig.config.primitive_timeout_s
+    assert rig.mode is DriverMode.READY  # not a fault: the next command may turn away
+
+
 def test_a_bumper_while_turning_aborts_the_turn(rig: Rig) -> None:
     cmd = command(Action.TURN_LEFT)
     rig.d.submit(cmd)

@@ -111,6 +111,11 @@ class DriverConfig(StrictModel):
                     "simulator's contact check) drives straight back to where it started before "
                     "it completes as blocked: the planner treats a blocked step as not made, and "
                     "a robot left touching the obstacle cannot plan its way out")
+    stall_s: float | None = Field(
+        default=1.0, gt=0,
+        description="a move driven at 0.05 m/s or more for this long whose odometry advanced less than "
+                    "a quarter of the way commanded is stopped as a bump (a base with no bumper, e.g. a "
+                    "TurtleBot 3, pushing against a wall: its wheels stall); None: off")
 
     def fixed_wheels(self) -> tuple[float, float, str] | None:
         """(wheel radius, track width, what) of a base whose wheels its hardware fixes (a Kobuki, a

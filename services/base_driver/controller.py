@@ -29,6 +29,8 @@ Safety, in order of precedence:
   faults the device reports, a bumper press or a wheel drop: the wheels are
   halted, the active command is aborted (a MOVE_FORWARD stopped by a bumper
   completes as ``blocked``), the reason is in ``driver/state``; recovery as above;
+* stalls: a move driven at walking pace whose odometry does not follow (``stall_s``) is
+  stopped as a bump: a base with no bumper against a wall;
 * cliffs: no forward motion while a cliff sensor sees a drop (a MOVE_FORWARD
   completes as ``blocked``, turns and reversing stay allowed);
 * limits: body speed and acceleration are clamped, and a wheel never exceeds
@@ -56,11 +58,13 @@ from services.base_driver.hardware import BaseHardware, HardwareError, WheelFeed
 from services.base_driver.kinematics import Geometry, WheelOdometry, toward
 from services.base_driver.primitives import PrimitiveTracker
 from shared.messages import DriverMode, DriverState, Odometry, Outcome, PlanCommand, new_odom_session
-from shared.motion import Action, ActionIds, wrap_angle
+from shared.motion import Action, ActionIds, Pose, wrap_angle
 
 log = logging.getLogger("ovamos.base_driver")
 
 _TWO_PI = 2 * math.pi
+STALL_SPEED_M_S = 0.05  # slower (the approach to a goal) is not judged for a stall
+STALL_FRACTION = 0.25   # of the commanded travel: less progress than this is a stall
 
 
 def make_hardware(config: DriverConfig, clock: Callable[[], float] = time.monotonic) -> BaseHardware:
@@ -87,6 +91,7 @@ class _Active:
     started: float | None = None         # when execution began (the base was ready)
     tracker: PrimitiveTracker | None = None
     outcome: Outcome = "done"            # how it completes when the tracker reaches its goal
+    stall: tuple[float, Pose, float] | None = None  # the stall window: since when, from where, travel commanded
 
 
 @dataclass
@@ -448,6 +453,33 @@ class BaseController:
         left, right = self.geometry.wheels_rev_s(self._v, self._w)
         scale = max(1.0, abs(left) / c.max_wheel_rev_s, abs(right) / c.max_wheel_rev_s)
         self._send(self._v / scale, self._w / scale, now)
+        self._check_stall(now, dt)
+
+    def _check_stall(self, now: float, dt: float) -> None:
+        """A move whose wheels are driven but whose odometry does not follow is blocked (``stall_s``):
+        reported as a bump, so a forward move backs off as from a contact."""
+        active, limit = self._active, self.config.stall_s
+        moving = abs(self._v) >= STALL_SPEED_M_S
+        if limit is None or active is None or active.tracker is None or not moving:
+            if active is not None:
+                active.stall = None
+            return
+        pose = self._odom.pose
+        if active.stall is None:
+            active.stall = (now, pose, 0.0)
+            return
+        since, start, travel = active.stall
+        travel += abs(self._v) * dt
+        active.stall = (since, start, travel)
+        if now - since < limit:
+            return
+        active.stall = None  # the next window starts here
+        moved = math.hypot(pose.x - start.x, pose.y - start.y)
+        if moved < STALL_FRACTION * travel:
+            self._counters["stalls"] += 1
+            log.warning("command %d: moved %.3f m of %.3f m commanded in %.1f s: stalled, stopped as blocked",
+                        active.command.action_id, moved, travel, now - since)
+            self.bump(backward=self._v < 0)
 
     def _target(self, now: float) -> tuple[float, float]:
         """The body velocity the active command wants now (zero when there is none)."""
