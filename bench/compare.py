@@ -18,7 +18,7 @@ from rich.table import Table
 from bench.episode import EpisodeResult
 from bench.policies import LABELS, policy_rank
 from bench.search import EPISODES_FILE, RUN_FILE, SETTING_DEFAULTS, SearchError, read_results
-from bench.stats import paired
+from bench.stats import paired, results_by_policy
 
 __all__ = ["compare_runs", "print_comparison"]
 
@@ -29,10 +29,7 @@ def _run(folder: Path) -> tuple[dict[str, Any], dict[str, dict[str, EpisodeResul
     if not episodes.exists():
         raise SearchError(f"{folder}: no {EPISODES_FILE} (the --out folder of an ovamos bench search run?)")
     settings = json.loads((folder / RUN_FILE).read_text()) if (folder / RUN_FILE).exists() else {}
-    by_policy: dict[str, dict[str, EpisodeResult]] = {}
-    for r in read_results(episodes, torn_tail=True):
-        by_policy.setdefault(r.policy, {})[r.episode_id] = r
-    return {**SETTING_DEFAULTS, **settings}, by_policy
+    return {**SETTING_DEFAULTS, **settings}, results_by_policy(read_results(episodes, torn_tail=True))
 
 
 def _means(results: dict[str, EpisodeResult], shared: list[str]) -> dict[str, float]:

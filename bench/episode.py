@@ -41,7 +41,7 @@ from services.sim.prior import ObjectPrior
 from services.sim.render import SceneRenderer
 from services.base_driver.config import DriverConfig
 from services.sim.robot import MotionConfig, SimRobot
-from services.sim.wheels import TURTLEBOTS, Motion, SerialSimRobot, WheeledSimRobot
+from services.sim.wheels import Motion, SerialSimRobot, WheeledSimRobot, base_motion, wheeled
 from services.sim.world import Scene
 from shared.messages import PerceptionResult, PlanCommand, TaskStatus
 from shared.motion import Action, Pose
@@ -153,17 +153,11 @@ class EpisodeWorld:
 
 def _robot(start: Pose, truth: GroundTruth, config: EpisodeConfig) -> tuple[SimRobot, SerialSimRobot | WheeledSimRobot | None]:
     """The true robot and, on a wheeled base, what moves it (started, enabled, in simulated time)."""
+    robot = SimRobot(start, truth.is_free, base_motion(config.motion, config.base, DriverConfig()))
     if config.base == "kinematic":
-        return SimRobot(start, truth.is_free, config.motion), None
-    motion = config.motion
-    if config.base in TURTLEBOTS:  # the base fixes its wheels (as the sim service does)
-        fixed = DriverConfig().model_copy(update={"hardware": config.base}).fixed_wheels()
-        assert fixed is not None
-        motion = motion.model_copy(update={"wheel_radius_m": fixed[0], "track_width_m": fixed[1]})
-    robot, clock = SimRobot(start, truth.is_free, motion), SimClock()
-    wheels = SerialSimRobot(robot, config.base, clock=clock) if config.base in TURTLEBOTS \
-        else WheeledSimRobot(robot, clock=clock)
-    wheels.start().wait_ready()
+        return robot, None
+    wheels = wheeled(robot, config.base, clock=SimClock()).start()
+    wheels.wait_ready()
     return robot, wheels
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import statistics
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -51,15 +51,21 @@ def paired_differences(results: Sequence[EpisodeResult], reference: str = "ovamo
     ordering is only worth reporting when the paired interval excludes zero. The resampling is
     seeded afresh for each pair: the same two policies' results give the same interval whatever
     other policies the run had (a table merged from runs with other policies agrees with one run)."""
-    by_policy: dict[str, dict[str, EpisodeResult]] = {}
-    for r in results:
-        by_policy.setdefault(r.policy, {})[r.episode_id] = r
+    by_policy = results_by_policy(results)
     ref = by_policy.get(reference, {})
     out: dict[str, dict[str, Any]] = {}
     for policy in sorted(by_policy, key=policy_rank):
         if policy != reference and (pair := paired(ref, by_policy[policy], resamples, seed)) is not None:
             out[policy] = pair
     return out
+
+
+def results_by_policy(results: Iterable[EpisodeResult]) -> dict[str, dict[str, EpisodeResult]]:
+    """Results by policy, then episode id (what :func:`paired` takes)."""
+    by_policy: dict[str, dict[str, EpisodeResult]] = {}
+    for r in results:
+        by_policy.setdefault(r.policy, {})[r.episode_id] = r
+    return by_policy
 
 
 def paired(a: dict[str, EpisodeResult], b: dict[str, EpisodeResult], resamples: int = 2000,

@@ -19,7 +19,7 @@ from bench.jobs import load_episode, load_prior
 from services.base_driver.config import DriverConfig
 from services.planner.agent import Step
 from services.sim.robot import MotionConfig, SimRobot
-from services.sim.wheels import TURTLEBOTS, SerialSimRobot, WheeledSimRobot
+from services.sim.wheels import SerialSimRobot, WheeledSimRobot, base_motion, wheeled
 from shared.messages import DriverMode, PlanCommand
 from shared.motion import Action
 from shared.simtime import SimClock
@@ -49,14 +49,8 @@ def test_a_wheeled_episode_in_simulated_time_gives_the_same_result_twice(base: s
 
 def _wheels(base: str, clock: SimClock | None) -> SerialSimRobot | WheeledSimRobot:
     spec, _, truth = load_episode(*EPISODE)
-    motion = MotionConfig()
-    if base in TURTLEBOTS:
-        fixed = DriverConfig().model_copy(update={"hardware": base}).fixed_wheels()
-        assert fixed is not None
-        motion = MotionConfig(wheel_radius_m=fixed[0], track_width_m=fixed[1])
-    robot = SimRobot(spec.start, truth.is_free, motion)
-    wheels = SerialSimRobot(robot, base, clock=clock) if base in TURTLEBOTS else WheeledSimRobot(robot, clock=clock)
-    return wheels.start()
+    robot = SimRobot(spec.start, truth.is_free, base_motion(MotionConfig(), base, DriverConfig()))
+    return wheeled(robot, base, clock=clock).start()
 
 
 @pytest.mark.parametrize("base", WHEELED)

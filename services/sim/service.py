@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from pydantic import Field, model_validator
 
@@ -46,7 +46,7 @@ from services.base_driver.service import Base, BaseDriverService, PublishingConf
 from services.sim.kinematic import KinematicBase
 from services.sim.render import SceneRenderer
 from services.sim.robot import MotionConfig, SimRobot
-from services.sim.wheels import TURTLEBOTS, Motion, SerialSimRobot, WheeledSimRobot
+from services.sim.wheels import Motion, SerialSimRobot, WheeledSimRobot, base_motion, wheeled
 from shared.bus import BusCore
 from shared.messages import RgbdFrame
 from shared.motion import Pose
@@ -103,20 +103,11 @@ class SimRobotService(BaseDriverService):
             start = c.start or spec.start
         assert start is not None
         self.renderer = SceneRenderer(scene, c.width, c.height)
-        motion = c.robot
-        if c.motion in TURTLEBOTS:
-            fixed = c.driver.model_copy(update={"hardware": c.motion}).fixed_wheels()
-            assert fixed is not None
-            radius, track, _ = fixed
-            motion = motion.model_copy(update={"wheel_radius_m": radius, "track_width_m": track})
-        robot = SimRobot(start, truth.is_free, motion)
+        robot = SimRobot(start, truth.is_free, base_motion(c.robot, c.motion, c.driver))
         if c.motion == "kinematic":
             self._kinematic = KinematicBase(robot)
             return self._kinematic
-        if c.motion in TURTLEBOTS:
-            self._wheels = SerialSimRobot(robot, c.motion, c.driver).start()
-        else:
-            self._wheels = WheeledSimRobot(robot, c.driver, c.odrive).start()
+        self._wheels = wheeled(robot, c.motion, c.driver, c.odrive).start()
         return self._wheels.driver
 
     def start(self) -> None:

@@ -34,7 +34,7 @@ from services.base_driver.odrive_can import ODriveCanHardware
 from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
 from services.base_driver.opencr import OpenCRHardware
 from services.base_driver.opencr_sim import SimOpenCR, line_port_handler
-from services.sim.robot import SimRobot
+from services.sim.robot import MotionConfig, SimRobot
 from shared.messages import DriverMode, PlanCommand
 from shared.motion import Pose
 from shared.simtime import SimClock
@@ -218,3 +218,23 @@ class SerialSimRobot(_WheelDriven):
 
     def _radians(self, dt: float, left_rad: float, right_rad: float) -> bool:
         return self._move(left_rad / dt, right_rad / dt, dt)
+
+
+def base_motion(motion: MotionConfig, base: str, driver: DriverConfig) -> MotionConfig:
+    """``motion`` with the wheels a TurtleBot ``base`` fixes (a Kobuki's, the configured TurtleBot 3
+    model's), so the simulated robot and the driver agree; as it is for any other base."""
+    if base not in TURTLEBOTS:
+        return motion
+    fixed = driver.model_copy(update={"hardware": base}).fixed_wheels()
+    assert fixed is not None
+    radius, track, _ = fixed
+    return motion.model_copy(update={"wheel_radius_m": radius, "track_width_m": track})
+
+
+def wheeled(robot: SimRobot, base: str, driver: DriverConfig | None = None, axes: SimAxisConfig | None = None,
+            clock: SimClock | None = None) -> SerialSimRobot | WheeledSimRobot:
+    """What moves ``robot`` on the wheeled ``base`` (not started; ``axes``: the ODrives' only)."""
+    if base in TURTLEBOTS:
+        return SerialSimRobot(robot, base, driver, clock)
+    return WheeledSimRobot(robot, driver, axes, clock)
+
