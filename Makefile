@@ -38,7 +38,7 @@ syslibs:
 # (shared/dds.py), which `unshare` makes for root; elsewhere they are skipped, saying so.
 test: $(VENV)/.installed syslibs
 	$(PY) -m pytest -q
-	@if unshare --net --mount true 2>/dev/null; then $(PY) -m shared.dds -- $(PY) -m pytest -q tests/ros2; \
+	@if unshare --net --mount true 2>/dev/null; then $(PY) -m ovamos.shared.dds -- $(PY) -m pytest -q tests/ros2; \
 	else echo "tests/ros2 skipped: unshare --net --mount needs root (they load DDS)"; fi
 
 demo: $(VENV)/.installed

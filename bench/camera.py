@@ -9,7 +9,7 @@ of it on one core, the SDK's and Zenoh's threads included):
 - ``sync``: the SDK's syncer pairs depth with colour and hands the frameset over;
 - ``align``: depth filters (off, the default), ``rs.align`` to colour and the
   numpy copies, i.e. the rest of :meth:`RealSenseBackend.read`;
-- ``encode``: the :class:`~shared.messages.RgbdFrame` (uint16 depth + depth scale,
+- ``encode``: the :class:`~ovamos.shared.messages.RgbdFrame` (uint16 depth + depth scale,
   identity pose) built and serialised;
 - ``publish``: the payload put on a Zenoh session, through a router in this
   process, to a second session's bus that decodes it and acks; the time until
@@ -31,14 +31,14 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from services.camera.capture import CapturedFrame
-from services.camera.realsense import RealSenseBackend, RealSenseConfig
-from services.camera.software_device import SoftwareCamera
-from shared import keys
-from shared.bus import Bus
-from shared.messages import JsonMessage, RgbdFrame
-from shared.procs import free_port, loopback
-from shared.zconfig import build_config, open_session
+from ovamos.services.camera.capture import CapturedFrame
+from ovamos.services.camera.realsense import RealSenseBackend, RealSenseConfig
+from ovamos.services.camera.software_device import SoftwareCamera
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import JsonMessage, RgbdFrame
+from ovamos.shared.procs import free_port, loopback
+from ovamos.shared.zconfig import build_config, open_session
 
 ROBOT = "bench"
 FRAME_KEY, ACK_KEY = keys.rgbd(ROBOT), keys.bench(ROBOT, "camera-ack")
@@ -57,10 +57,10 @@ def rendered_frames(width: int, height: int, count: int = DISTINCT_FRAMES,
                     depth_scale: float = 0.001) -> tuple[list[tuple[np.ndarray, np.ndarray]], Any]:
     """``count`` simulator frames of a generated home as (rgb uint8, depth z16), and the
     renderer's intrinsics."""
-    from bench.sim import camera_poses
-    from services.sim.evaluator import GroundTruth
-    from services.sim.generate import generate_scene
-    from services.sim.render import SceneRenderer
+    from ovamos.bench.sim import camera_poses
+    from ovamos.services.sim.evaluator import GroundTruth
+    from ovamos.services.sim.generate import generate_scene
+    from ovamos.services.sim.render import SceneRenderer
 
     scene = generate_scene(SCENE_SEED)
     out = []

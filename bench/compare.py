@@ -3,7 +3,7 @@
 For a question one run cannot answer: does the method lose on wheeled bases (``--base kinematic``
 against ``--base kobuki``, same seed), did a change help (the run before against the run after).
 Per policy: each run's SR, MSPL and mean steps on the shared episodes, and B minus A with 95 %
-bootstrap intervals (:func:`bench.stats.paired`, steps too), and B's mean steps over A's.
+bootstrap intervals (:func:`ovamos.bench.stats.paired`, steps too), and B's mean steps over A's.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from bench.episode import EpisodeResult
-from bench.policies import LABELS, policy_rank
-from bench.search import EPISODES_FILE, RUN_FILE, SETTING_DEFAULTS, SearchError, read_results
-from bench.stats import paired, results_by_policy
+from ovamos.bench.episode import EpisodeResult
+from ovamos.bench.policies import LABELS, policy_rank
+from ovamos.bench.search import EPISODES_FILE, RUN_FILE, SETTING_DEFAULTS, SearchError, read_results
+from ovamos.bench.stats import paired, results_by_policy
 
 __all__ = ["compare_runs", "print_comparison"]
 

@@ -10,10 +10,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from bench.episode import EpisodeResult
-from bench.policies import LABELS, PAPER, POLICY_ORDER
-from services.sim.draw import MARGIN_M, draw_scene
-from services.sim.world import Scene
+from ovamos.bench.episode import EpisodeResult
+from ovamos.bench.policies import LABELS, PAPER, POLICY_ORDER
+from ovamos.services.sim.draw import MARGIN_M, draw_scene
+from ovamos.services.sim.world import Scene
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 INK = (30, 30, 30)

@@ -9,7 +9,7 @@ perception service), :meth:`MapState.apply` (the mapping service) and
 lock-step with the kinematic robot follows the same trajectory.
 
 On a wheeled ``base`` a primitive is the real base controller driving that base's simulated
-device in simulated time (:mod:`services.sim.wheels`): it lands where the wheels took it, the
+device in simulated time (:mod:`ovamos.services.sim.wheels`): it lands where the wheels took it, the
 camera sees from the true pose and the planner decides on the base's odometry, as in
 ``ovamos demo --base B``.
 
@@ -27,25 +27,25 @@ from collections.abc import Callable
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from bench.funnel import FunnelRecorder, StopRecord, TargetFunnel
-from bench.policies import base_policy
-from services.mapping.config import MappingConfig
-from services.mapping.state import MapState
-from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
-from services.planner.decide import Policy
-from services.planner.task import SearchTask
-from services.sim.episodes import EpisodeSpec
-from services.sim.evaluator import GroundTruth, spl
-from services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
-from services.sim.prior import ObjectPrior
-from services.sim.render import SceneRenderer
-from services.base_driver.config import DriverConfig
-from services.sim.robot import MotionConfig, SimRobot
-from services.sim.wheels import Motion, SerialSimRobot, WheeledSimRobot, base_motion, wheeled
-from services.sim.world import Scene
-from shared.messages import PerceptionResult, PlanCommand, TaskStatus
-from shared.motion import Action, Pose
-from shared.simtime import SimClock
+from ovamos.bench.funnel import FunnelRecorder, StopRecord, TargetFunnel
+from ovamos.bench.policies import base_policy
+from ovamos.services.base_driver.config import DriverConfig
+from ovamos.services.mapping.config import MappingConfig
+from ovamos.services.mapping.state import MapState
+from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
+from ovamos.services.planner.decide import Policy
+from ovamos.services.planner.task import SearchTask
+from ovamos.services.sim.episodes import EpisodeSpec
+from ovamos.services.sim.evaluator import GroundTruth, spl
+from ovamos.services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
+from ovamos.services.sim.prior import ObjectPrior
+from ovamos.services.sim.render import SceneRenderer
+from ovamos.services.sim.robot import MotionConfig, SimRobot
+from ovamos.services.sim.wheels import Motion, SerialSimRobot, WheeledSimRobot, base_motion, wheeled
+from ovamos.services.sim.world import Scene
+from ovamos.shared.messages import PerceptionResult, PlanCommand, TaskStatus
+from ovamos.shared.motion import Action, Pose
+from ovamos.shared.simtime import SimClock
 
 MAP_MARGIN_M = 2.0
 
@@ -101,7 +101,7 @@ def scene_mapping(scene: Scene, base: MappingConfig | None = None) -> MappingCon
 
 def episode_config(policy: Policy | str, base: EpisodeConfig | None = None) -> EpisodeConfig:
     """``base`` with the policy set where the agent reads it; a benchmark ablation's name
-    (:data:`bench.policies.PLUS_ABLATIONS`) sets its planner policy and switches."""
+    (:data:`ovamos.bench.policies.PLUS_ABLATIONS`) sets its planner policy and switches."""
     base = base or EpisodeConfig()
     name = policy.value if isinstance(policy, Policy) else policy
     planner, changes = base_policy(name)

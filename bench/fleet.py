@@ -32,21 +32,20 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from bench.sim import camera_poses
-from ovamos.demo import FLEET_EPISODES, FLEET_ID, fleet_entries, fleet_robots, wait_for_services, \
-    write_fleet_configs
+from ovamos.bench.sim import camera_poses
+from ovamos.demo import FLEET_EPISODES, FLEET_ID, fleet_entries, fleet_robots, wait_for_services, write_fleet_configs
+from ovamos.services.gateway.client import GatewayClient
+from ovamos.services.perception.backend import Job, PerceptionBackend
+from ovamos.services.perception.sim_backend import SimBackend
+from ovamos.services.sim.episodes import make_episode
+from ovamos.services.sim.evaluator import GroundTruth
+from ovamos.services.sim.prior import ObjectPrior
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import PlanCommand, RgbdFrame
+from ovamos.shared.procs import free_port, loopback
+from ovamos.shared.zconfig import build_config
 from ovamos.supervisor import Supervisor
-from services.gateway.client import GatewayClient
-from services.perception.backend import Job, PerceptionBackend
-from services.perception.sim_backend import SimBackend
-from services.sim.episodes import make_episode
-from services.sim.evaluator import GroundTruth
-from services.sim.prior import ObjectPrior
-from shared import keys
-from shared.bus import Bus
-from shared.messages import PlanCommand, RgbdFrame
-from shared.procs import free_port, loopback
-from shared.zconfig import build_config
 
 SEED = 0
 WIDTH, HEIGHT = 640, 480
@@ -65,7 +64,7 @@ def _homes(count: int) -> dict[str, Any]:
 
 
 def _frames(homes: dict[str, Any], per_robot: int) -> dict[str, list[RgbdFrame]]:
-    from services.sim.render import SceneRenderer
+    from ovamos.services.sim.render import SceneRenderer
     frames = {}
     for robot, (scene, _) in homes.items():
         with SceneRenderer(scene, WIDTH, HEIGHT) as renderer:
@@ -117,10 +116,10 @@ def _bench_hf(counts: Sequence[int], homes: dict[str, Any], frames: dict[str, li
               progress: Console | None) -> dict[int, dict[str, float]]:
     import torch
 
-    from bench.random_models import loaded
-    from services.perception.config import HfBackendConfig
-    from services.perception.hf.backend import HfBackend
-    from services.perception.hf.loading import Placement
+    from ovamos.bench.random_models import loaded
+    from ovamos.services.perception.config import HfBackendConfig
+    from ovamos.services.perception.hf.backend import HfBackend
+    from ovamos.services.perception.hf.loading import Placement
     placement = Placement.resolve("cpu", False)
     backend = HfBackend(*loaded("full", placement), placement, HfBackendConfig())
     backend.process(_rounds(frames, homes, 1)[0][:1], detect)  # warm-up: allocations, kernels, caches

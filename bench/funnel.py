@@ -17,10 +17,10 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 from pydantic import BaseModel
 
-from services.sim.occupancy import distance_to_box
-from services.sim.world import Scene
-from shared.detections import Detection
-from shared.messages import Miss, ObjectInstance, RgbdFrame
+from ovamos.services.sim.occupancy import distance_to_box
+from ovamos.services.sim.world import Scene
+from ovamos.shared.detections import Detection
+from ovamos.shared.messages import Miss, ObjectInstance, RgbdFrame
 
 #: A confirmed map object this close (horizontal, m) to a true instance's footprint is that
 #: instance: about the object map's merge distance, well under the gap between two pieces of

@@ -19,12 +19,12 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from typing import Any
 
-from bench.episode import EpisodeConfig, EpisodeResult, episode_config, run_episode
-from services.sim.episodes import make_episode
-from services.sim.evaluator import GroundTruth
-from services.sim.perception_presets import perception_preset
-from services.sim.prior import ObjectPrior
-from services.sim.world import Scene
+from ovamos.bench.episode import EpisodeConfig, EpisodeResult, episode_config, run_episode
+from ovamos.services.sim.episodes import make_episode
+from ovamos.services.sim.evaluator import GroundTruth
+from ovamos.services.sim.perception_presets import perception_preset
+from ovamos.services.sim.prior import ObjectPrior
+from ovamos.services.sim.world import Scene
 
 
 class EpisodeFailed(RuntimeError):

@@ -15,16 +15,16 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from bench.sim import SCENE_SEED, camera_poses
-from services.mapping.state import MapState
-from services.sim.evaluator import GroundTruth
-from services.sim.generate import generate_scene
+from ovamos.bench.sim import SCENE_SEED, camera_poses
+from ovamos.services.mapping.state import MapState
+from ovamos.services.sim.evaluator import GroundTruth
+from ovamos.services.sim.generate import generate_scene
 
 LAYER_COUNTS = (1, 3, 10)
 
 
 def _frames(count: int) -> list[Any]:
-    from services.sim.render import SceneRenderer
+    from ovamos.services.sim.render import SceneRenderer
     scene = generate_scene(SCENE_SEED)
     with SceneRenderer(scene, 640, 480) as renderer:
         return [renderer.render(x, y, yaw, seq=i)

@@ -26,19 +26,19 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from bench.sim import SCENE_SEED, camera_poses
-from services.perception.backend import PerceptionBackend
-from services.perception.sim_backend import SimBackend
-from services.sim.evaluator import GroundTruth
-from services.sim.generate import generate_scene
-from shared.messages import RgbdFrame
+from ovamos.bench.sim import SCENE_SEED, camera_poses
+from ovamos.services.perception.backend import PerceptionBackend
+from ovamos.services.perception.sim_backend import SimBackend
+from ovamos.services.sim.evaluator import GroundTruth
+from ovamos.services.sim.generate import generate_scene
+from ovamos.shared.messages import RgbdFrame
 
 WIDTH, HEIGHT = 640, 480
 TARGETS_COUNT = 3
 
 
 def _render(count: int) -> tuple[Any, list[RgbdFrame]]:
-    from services.sim.render import SceneRenderer
+    from ovamos.services.sim.render import SceneRenderer
     scene = generate_scene(SCENE_SEED)
     with SceneRenderer(scene, WIDTH, HEIGHT) as renderer:
         return scene, [renderer.render(x, y, yaw, seq=i)
@@ -86,10 +86,10 @@ def _bench_hf(frames: list[RgbdFrame], targets: list[str], runs: int,
               progress: Console | None) -> dict[str, Any]:
     import torch
 
-    from services.perception.config import HfBackendConfig
-    from services.perception.hf.backend import HfBackend
-    from services.perception.hf.loading import Placement
-    from bench.random_models import loaded
+    from ovamos.bench.random_models import loaded
+    from ovamos.services.perception.config import HfBackendConfig
+    from ovamos.services.perception.hf.backend import HfBackend
+    from ovamos.services.perception.hf.loading import Placement
 
     out: dict[str, Any] = {}
     for device, fp16 in _hf_devices():
@@ -141,7 +141,7 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m bench.perception`` (what ``ovamos bench perception`` runs)."""
+    """``python -m ovamos.bench.perception`` (what ``ovamos bench perception`` runs)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1, help="hf frames per run (~90 s each on 2 CPU cores)")
     parser.add_argument("--runs", type=int, default=3, help="runs (the median is reported)")

@@ -21,10 +21,10 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from services.planner.decide import ActionDistances, DecisionConfig, Policy, decide
-from services.planner.pomdp import SearchPOMDP, root_particles
-from services.planner.pouct import POUCT
-from shared.messages import MapSnapshot
+from ovamos.services.planner.decide import ActionDistances, DecisionConfig, Policy, decide
+from ovamos.services.planner.pomdp import SearchPOMDP, root_particles
+from ovamos.services.planner.pouct import POUCT
+from ovamos.shared.messages import MapSnapshot
 
 CANDIDATE_COUNTS = (5, 10, 20)
 GRID = 1000
@@ -54,8 +54,8 @@ def instance(k: int, seed: int) -> tuple[MapSnapshot, tuple[float, float]]:
 
 def _search_pomdp(k: int, config: DecisionConfig) -> tuple[SearchPOMDP, list[tuple[int, int]]]:
     snap, robot = instance(k, seed=0)
-    from services.planner.candidates import find_candidates
-    from shared.grid import GridGeometry
+    from ovamos.services.planner.candidates import find_candidates
+    from ovamos.shared.grid import GridGeometry
     grid = GridGeometry(RES, snap.origin[0], snap.origin[1], GRID, GRID)
     cands = find_candidates(snap.values[0], grid, config.candidates)
     points = np.vstack([np.array([robot]), cands.points, snap.frontiers[:1]])

@@ -1,4 +1,4 @@
-"""Simulations per second: our POUCT (services.planner.pouct) against pomdp_py's POUCT.
+"""Simulations per second: our POUCT (ovamos.services.planner.pouct) against pomdp_py's POUCT.
 
 All planners solve the same POMDP, pomdp_py's own Tiger example
 (``pomdp_py.problems.tiger``): listening costs 1 and is right 85% of the time, opening a door
@@ -18,7 +18,7 @@ because the two planners define ``max_depth`` slightly differently: ours caps a 
 ``max_depth`` steps, pomdp_py's takes one more step when its tree is that deep.
 
 pomdp_py is optional (``pip install pomdp-py``) and imported only here; without it only our
-row is measured. Run: ``python -m bench.pouct_compare``.
+row is measured. Run: ``python -m ovamos.bench.pouct_compare``.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from services.planner.pouct import POUCT
+from ovamos.services.planner.pouct import POUCT
 
 MAX_DEPTH = 5
 DISCOUNT = 0.95

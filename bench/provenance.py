@@ -11,7 +11,7 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
-from shared import __version__
+from ovamos import __version__
 
 #: the checkout this package was imported from, when it is one
 REPO = Path(__file__).resolve().parent.parent

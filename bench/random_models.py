@@ -1,6 +1,6 @@
 """Random-weight models of the real architectures, for tests and benchmarks (no download).
 
-Not part of the service: the perception benchmark (:mod:`bench.perception`) and the hf
+Not part of the service: the perception benchmark (:mod:`ovamos.bench.perception`) and the hf
 tests use them.
 
 ``tiny`` models come from small configs (seconds to build and run) and exercise
@@ -22,8 +22,8 @@ import string
 from pathlib import Path
 from typing import Any, Literal
 
-from services.perception.config import HfBackendConfig
-from services.perception.hf.loading import Loaded, Placement, torch_and_transformers
+from ovamos.services.perception.config import HfBackendConfig
+from ovamos.services.perception.hf.loading import Loaded, Placement, torch_and_transformers
 
 Size = Literal["tiny", "full"]
 ItmKind = Literal["blip", "blip-2"]
@@ -119,7 +119,7 @@ def build(role: Literal["itm", "detector", "segmenter"], size: Size, *, itm: Itm
 def loaded(size: Size, placement: Placement, *, itm: ItmKind = "blip", seed: int = 0
            ) -> tuple[Loaded, Loaded, Loaded]:
     """The three roles in memory, placed as
-    :func:`services.perception.hf.loading.load_model` places real ones."""
+    :func:`ovamos.services.perception.hf.loading.load_model` places real ones."""
     out = []
     for role, kind in (("itm", itm), ("detector", "grounding-dino"), ("segmenter", "sam")):
         model, processor = build(role, size, itm=itm, seed=seed)  # type: ignore[arg-type]

@@ -26,20 +26,20 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from bench.sim import SCENE_SEED, camera_poses
+from ovamos.bench.sim import SCENE_SEED, camera_poses
 from ovamos.record.channels import select
 from ovamos.record.live import record
 from ovamos.record.recorder import RecorderConfig
-from services.mapping.config import MappingConfig
-from services.mapping.state import MapState
-from services.sim.evaluator import GroundTruth
-from services.sim.generate import generate_scene
-from services.sim.render import SceneRenderer
-from shared import keys
-from shared.bus import Bus
-from shared.messages import MapSnapshot, RgbdFrame
-from shared.procs import free_port, loopback
-from shared.zconfig import build_config, open_session
+from ovamos.services.mapping.config import MappingConfig
+from ovamos.services.mapping.state import MapState
+from ovamos.services.sim.evaluator import GroundTruth
+from ovamos.services.sim.generate import generate_scene
+from ovamos.services.sim.render import SceneRenderer
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import MapSnapshot, RgbdFrame
+from ovamos.shared.procs import free_port, loopback
+from ovamos.shared.zconfig import build_config, open_session
 
 FRAME_HZ, MAP_HZ = 30.0, 2.0
 DISTINCT_FRAMES = 20

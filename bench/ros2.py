@@ -26,8 +26,8 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from bench.ros2_peers.nodes import MockNode
-from shared.dds import check_loopback_only
+from ovamos.bench.ros2_peers.nodes import MockNode
+from ovamos.shared.dds import check_loopback_only
 
 ODOM_HZ = 50.0
 WARMUP_S = 1.0
@@ -35,12 +35,12 @@ WARMUP_S = 1.0
 
 def _frames(width: int, height: int, hz: float, seconds: float) -> dict[str, float]:
     """One run of the frame path (see the module)."""
-    from services.camera.config import CameraConfig
-    from services.camera.ros2 import Ros2Backend, Ros2CameraConfig
-    from services.camera.service import CameraService
-    from shared import keys
-    from shared.fake_bus import FakeNetwork
-    from shared.messages import Odometry, RgbdFrame
+    from ovamos.services.camera.config import CameraConfig
+    from ovamos.services.camera.ros2 import Ros2Backend, Ros2CameraConfig
+    from ovamos.services.camera.service import CameraService
+    from ovamos.shared import keys
+    from ovamos.shared.fake_bus import FakeNetwork
+    from ovamos.shared.messages import Odometry, RgbdFrame
 
     camera = MockNode("fake_camera.py", "--width", str(width), "--height", str(height), "--hz", str(hz))
     backend = Ros2Backend(Ros2CameraConfig())
@@ -84,9 +84,9 @@ def _frames(width: int, height: int, hz: float, seconds: float) -> dict[str, flo
 
 def _commands(count: int) -> dict[str, float]:
     """One run of the command latency (see the module)."""
-    from services.base_driver.config import DriverConfig
-    from services.base_driver.controller import BaseController
-    from shared.messages import DriverMode, PlanCommand
+    from ovamos.services.base_driver.config import DriverConfig
+    from ovamos.services.base_driver.controller import BaseController
+    from ovamos.shared.messages import DriverMode, PlanCommand
 
     base = MockNode("fake_base.py", "--twist")
     driver = BaseController(DriverConfig(hardware="ros2", ros2={"stamped": False})).start()  # type: ignore[arg-type]

@@ -1,8 +1,8 @@
 """Search benchmark: the paper's Tables I and II (SR and MSPL per policy) on simulated homes.
 
 The entry point of ``ovamos bench search``: runs every (policy, episode) pair over worker
-processes (:mod:`bench.jobs`), scores them (:mod:`bench.stats`), prints the tables
-(:mod:`bench.tables`) and writes the files and pictures (:mod:`bench.draw`). Results stream back
+processes (:mod:`ovamos.bench.jobs`), scores them (:mod:`ovamos.bench.stats`), prints the tables
+(:mod:`ovamos.bench.tables`) and writes the files and pictures (:mod:`ovamos.bench.draw`). Results stream back
 as they finish and drive the progress bar.
 
 The runner is deterministic, so the per-episode JSONL is sorted by (policy, episode) and written
@@ -30,20 +30,19 @@ from typing import Any, get_args
 
 from pydantic import ValidationError
 from rich.console import Console
-from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                           TimeRemainingColumn)
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from bench.draw import draw_chart, draw_replay
-from bench.episode import EpisodeResult
-from bench.jobs import Job, init_worker, iter_results, jobs_for, load_episode, run_job
-from bench.policies import DEFAULT_POLICIES, POLICY_ORDER
-from bench.provenance import code_version
-from bench.stats import miss_reasons, paired_differences, policy_scores
-from bench.tables import print_table
-from services.mapping.render import write_png
-from services.sim.generate import home_tier
-from services.sim.perception_presets import perception_preset
-from services.sim.wheels import Motion
+from ovamos.bench.draw import draw_chart, draw_replay
+from ovamos.bench.episode import EpisodeResult
+from ovamos.bench.jobs import Job, init_worker, iter_results, jobs_for, load_episode, run_job
+from ovamos.bench.policies import DEFAULT_POLICIES, POLICY_ORDER
+from ovamos.bench.provenance import code_version
+from ovamos.bench.stats import miss_reasons, paired_differences, policy_scores
+from ovamos.bench.tables import print_table
+from ovamos.services.mapping.render import write_png
+from ovamos.services.sim.generate import home_tier
+from ovamos.services.sim.perception_presets import perception_preset
+from ovamos.services.sim.wheels import Motion
 
 TIMING_FIELDS = {"seconds"}  # wall clock: kept out of the comparable JSONL
 

@@ -1,8 +1,8 @@
 """Simulator benchmark: rendered RGB-D frames per second.
 
-Times the whole :meth:`services.sim.render.SceneRenderer.render` call (camera
+Times the whole :meth:`ovamos.services.sim.render.SceneRenderer.render` call (camera
 placement, the lit and segmentation passes, read-back, metric depth and
-instance ids, the :class:`~shared.messages.RgbdFrame`) at 640x480 and 320x240,
+instance ids, the :class:`~ovamos.shared.messages.RgbdFrame`) at 640x480 and 320x240,
 in a procedurally generated home (fixed seed), from seeded random robot poses
 in its free space: what the search benchmark renders.
 """
@@ -18,8 +18,8 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from services.sim.evaluator import GroundTruth
-from services.sim.generate import generate_scene
+from ovamos.services.sim.evaluator import GroundTruth
+from ovamos.services.sim.generate import generate_scene
 
 RESOLUTIONS = ((640, 480), (320, 240))
 WARMUP = 3
@@ -48,13 +48,13 @@ def _gl_renderer() -> str:
         from OpenGL import GL
 
         return GL.glGetString(GL.GL_RENDERER).decode()
-    except Exception:  # noqa: BLE001 - informative only
+    except Exception:
         return "unknown"
 
 
 def run_benchmark(frames: int = 50, runs: int = 3, progress: Console | None = None
                   ) -> dict[str, Any]:
-    from services.sim.render import SceneRenderer
+    from ovamos.services.sim.render import SceneRenderer
 
     if frames < 1 or runs < 1:
         raise ValueError("frames and runs must be at least 1")

@@ -23,14 +23,14 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from bench.episode import EpisodeConfig, run_episode
+from ovamos.bench.episode import EpisodeConfig, run_episode
 from ovamos.demo import DEMO_EPISODE, DEMO_SEED, SERVICES, demo_entries, wait_for_services, write_configs
+from ovamos.services.gateway.client import GatewayClient
+from ovamos.services.gateway.models import TaskView
+from ovamos.services.sim.episodes import make_episode
+from ovamos.services.sim.prior import ObjectPrior
+from ovamos.shared.procs import free_port
 from ovamos.supervisor import Supervisor
-from services.gateway.client import GatewayClient
-from services.gateway.models import TaskView
-from services.sim.episodes import make_episode
-from services.sim.prior import ObjectPrior
-from shared.procs import free_port
 
 ROBOT = "sim"
 ABSENT_STEPS = 60

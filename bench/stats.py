@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from bench.episode import EpisodeResult
-from shared.messages import Miss
-from bench.policies import policy_rank
+from ovamos.bench.episode import EpisodeResult
+from ovamos.bench.policies import policy_rank
+from ovamos.shared.messages import Miss
 
 
 def policy_scores(results: Sequence[EpisodeResult]) -> dict[str, dict[str, float | int]]:

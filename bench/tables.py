@@ -8,8 +8,8 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from shared.messages import Miss
-from bench.policies import LABELS, PAPER
+from ovamos.bench.policies import LABELS, PAPER
+from ovamos.shared.messages import Miss
 
 TABLE_I = ("random", "vlfm", "finder", "ovamos")
 TABLE_II = ("ovamos-greedy", "ovamos-nodecay", "ovamos")

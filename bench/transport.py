@@ -10,7 +10,7 @@ Each comes in three transports (:data:`VARIANTS`), all in the same run through t
 router (shared memory on, as shipped): shared memory off in both clients (the
 network path, as between two hosts); on, with the frame in a buffer of the
 sender's own shared-memory provider (``+shm``: raw Zenoh's ``ShmProvider``, the
-bus's :mod:`shared.shm`); and, for raw, on with a plain put of bytes
+bus's :mod:`ovamos.shared.shm`); and, for raw, on with a plain put of bytes
 (``+zpool``: Zenoh's own pool for payloads over 3 KB, what a session does by default).
 Round trips alternate between the variants so drift on the machine hits all alike, and start
 ``gap_ms`` apart as frames from a camera would: sent back-to-back, a round trip
@@ -26,23 +26,31 @@ import os
 import statistics
 import threading
 import time
-from dataclasses import dataclass
-from contextlib import contextmanager
-from typing import Any, TypeVar
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import zenoh
 from rich.console import Console
 from rich.table import Table
 
-from services.diag.testpattern import pattern_frame
-from shared import keys
-from shared.bus import Bus
-from shared.messages import JsonMessage, RgbdFrame
-from shared.procs import (deferred_signals, free_port, loopback, run_dying_with_parent, signals_unwind,
-                          start_cli, stop, stop_spawned)
-from shared.shm import ShmPool
-from shared.zconfig import build_config, open_session
+from ovamos.services.diag.testpattern import pattern_frame
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import JsonMessage, RgbdFrame
+from ovamos.shared.procs import (
+    deferred_signals,
+    free_port,
+    loopback,
+    run_dying_with_parent,
+    signals_unwind,
+    start_cli,
+    stop,
+    stop_spawned,
+)
+from ovamos.shared.shm import ShmPool
+from ovamos.shared.zconfig import build_config, open_session
 
 WARMUP = 20
 #: a frame not acknowledged within this is lost (a full queue dropped it): counted, not in the medians
@@ -170,7 +178,7 @@ class _Pinger(AckedSender):
             self.send = lambda: pub.put(wrap(payload))  # type: ignore[method-assign]
             self.close: Callable[[], None] = self._session.close
         else:
-            # As a service runs (shared.service): the measuring thread is the node's event loop and
+            # As a service runs (ovamos.shared.service): the measuring thread is the node's event loop and
             # takes the ack from the inbox itself, one thread hand-off as raw's callback -> waiter.
             bus = Bus.open(cfg, variant.robot, "bench-client", dispatch="caller")
             pub = bus.publisher(frame_key, RgbdFrame)
@@ -225,7 +233,7 @@ def print_lost(console: Console, lost: dict[str, int]) -> None:
 def echo_processes(echo: Callable[[Variant, str, Any], None], variants: Sequence[Variant]) -> Iterator[str]:
     """A router on a free loopback port and a spawned ``echo(variant, endpoint, stop_event)``
     process per variant; yields the router's endpoint, and stops the echoes and the router on
-    exit (close the senders first), SIGTERM and SIGINT included (:func:`~shared.procs.signals_unwind`;
+    exit (close the senders first), SIGTERM and SIGINT included (:func:`~ovamos.shared.procs.signals_unwind`;
     each child also dies with this process if it is killed outright)."""
     endpoint = loopback(free_port())
     ctx = mp.get_context("spawn")

@@ -34,13 +34,22 @@ import zenoh
 from rich.console import Console
 from rich.table import Table
 
-from bench.transport import (LOST_AFTER_S, RATIOS, VARIANTS, WARMUP, Variant, echo_processes,
-                             interleave, loop_waiter, wait_ready)
-from services.diag.testpattern import pattern_frame
-from shared import keys
-from shared.bus import Bus
-from shared.messages import JsonMessage, RgbdFrame
-from shared.zconfig import open_session
+from ovamos.bench.transport import (
+    LOST_AFTER_S,
+    RATIOS,
+    VARIANTS,
+    WARMUP,
+    Variant,
+    echo_processes,
+    interleave,
+    loop_waiter,
+    wait_ready,
+)
+from ovamos.services.diag.testpattern import pattern_frame
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import JsonMessage, RgbdFrame
+from ovamos.shared.zconfig import open_session
 
 __all__ = ["STAGES", "StageBus", "run_stages", "print_stages"]
 
@@ -141,7 +150,7 @@ class _StageSender:
             self._wait: Callable[[float], bool] = self._acked.wait
             self.close: Callable[[], None] = session.close
         else:
-            # The measuring thread is the sender's event loop, as in bench.transport.
+            # The measuring thread is the sender's event loop, as in ovamos.bench.transport.
             bus = StageBus.open(cfg, variant.robot, "bench-client", dispatch="caller")
             frame_pub = bus.publisher(frame_key, RgbdFrame)
 
@@ -175,7 +184,7 @@ class _StageSender:
 
 def run_stages(frames: int = 200, gap_ms: float = 5.0, ready_timeout_s: float = 30.0) -> dict[str, Any]:
     """Median microseconds of each stage per path, over ``frames`` round trips per path
-    (:func:`~bench.transport.interleave`: after its warm-up, the paths alternating, ``gap_ms``
+    (:func:`~ovamos.bench.transport.interleave`: after its warm-up, the paths alternating, ``gap_ms``
     apart; over 10 % lost fails); and frames lost."""
     frame = pattern_frame(0, time.time())
     lost = {v.name: 0 for v in _PATHS}

@@ -8,7 +8,7 @@ interleaved so drift hits all alike:
 * ``tcp``: the routers linked over plain TCP (the ``laptop`` / ``robot`` profiles);
 * ``tls``: the same link over TLS with mutual authentication (certificates from ``ovamos certs``);
 * ``tls+acl``: the secure profiles' routers as shipped (``*-router-secure.json5``): mTLS and
-  access control, whose refusals the router reads from Zenoh's trace (:mod:`shared.acl`).
+  access control, whose refusals the router reads from Zenoh's trace (:mod:`ovamos.shared.acl`).
 
 Shared memory is off in the clients: between two hosts there is none, so the frame's bytes
 cross the link. The frame is the 640x480 RGB-D test pattern on ``sensors/rgbd`` (the robot's
@@ -29,18 +29,25 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from bench.transport import AckedSender, measure, print_lost
-from services.diag.testpattern import pattern_frame
-from shared import keys
-from shared.certs import init_ca, issue
-from shared.procs import (deferred_signals, free_port, run_dying_with_parent, signals_unwind, start_cli,
-                          stop, stop_spawned)
-from shared.zconfig import build_config, open_session
+from ovamos.bench.transport import AckedSender, measure, print_lost
+from ovamos.services.diag.testpattern import pattern_frame
+from ovamos.shared import keys
+from ovamos.shared.certs import init_ca, issue
+from ovamos.shared.deploy import DEPLOY_DIR
+from ovamos.shared.procs import (
+    deferred_signals,
+    free_port,
+    run_dying_with_parent,
+    signals_unwind,
+    start_cli,
+    stop,
+    stop_spawned,
+)
+from ovamos.shared.zconfig import build_config, open_session
 
 ROBOT = "bench"
 FRAME, ACK = keys.rgbd(ROBOT), keys.task_events(ROBOT)
 VARIANTS = ("tcp", "tls", "tls+acl")
-REPO = Path(__file__).resolve().parents[1]
 
 
 def _client_config(endpoint: str) -> Any:
@@ -89,8 +96,8 @@ class _Link(AckedSender):
             lap_args += ["--certs", str(certs), "--cert", "laptop", "--robot-id", ROBOT]
             rob_args += ["--certs", str(certs), "--cert", "robot", "--robot-id", ROBOT]
         if variant == "tls+acl":
-            lap_args += ["--config", str(REPO / "deploy" / "zenoh" / "laptop-router-secure.json5")]
-            rob_args += ["--config", str(REPO / "deploy" / "zenoh" / "robot-router-secure.json5")]
+            lap_args += ["--config", str(DEPLOY_DIR / "zenoh" / "laptop-router-secure.json5")]
+            rob_args += ["--config", str(DEPLOY_DIR / "zenoh" / "robot-router-secure.json5")]
         for args in (lap_args, rob_args):
             with deferred_signals():  # a signal waits until the router's handle is kept
                 self.routers.append(start_cli(args))

@@ -7,3 +7,5 @@ profiles, the service registry and the demo. Nothing here is a service; it start
 - :mod:`ovamos.profiles`: deployment profiles (``deploy/profiles/*.toml``) and ``ovamos up``'s supervisor.
 - :mod:`ovamos.demo`: ``ovamos demo``, the whole system on one machine driven through its HTTP API.
 """
+
+__version__ = "0.1.0"

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import logging
 import math
 import os
 import sys
@@ -20,14 +19,14 @@ import zenoh
 from rich.console import Console
 from rich.table import Table
 
-from bench.policies import DEFAULT_POLICIES, POLICY_ORDER
-from shared import __version__
-from shared.atomic import write_atomic
-from shared.log import setup_logging
-from shared.zconfig import DEFAULT_ENDPOINT, Mode, ZenohConfigError, build_config, open_session
+from ovamos import __version__
+from ovamos.bench.policies import DEFAULT_POLICIES, POLICY_ORDER
+from ovamos.shared.atomic import write_atomic
+from ovamos.shared.log import setup_logging
+from ovamos.shared.zconfig import DEFAULT_ENDPOINT, Mode, ZenohConfigError, build_config, open_session
 
 if TYPE_CHECKING:
-    from services.sim.world import Scene
+    from ovamos.services.sim.world import Scene
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="OVAMOS multi-object search over Zenoh.")
@@ -165,7 +164,7 @@ CertName = Annotated[Optional[str], typer.Option(
 
 
 def _tls(certs: Path | None, cert: str | None):
-    from shared.zconfig import TlsFiles
+    from ovamos.shared.zconfig import TlsFiles
     if (certs is None) != (cert is None):
         raise _fail("--certs and --cert go together: the folder and this host's certificate name")
     return None if certs is None or cert is None else TlsFiles.from_folder(certs, cert)
@@ -188,7 +187,7 @@ def router(config: Annotated[Optional[Path], typer.Option(help="Zenoh router con
     ``0``) with a ``denied`` count per key.
     """
     from ovamos.router import run_router
-    from shared.service import install_signal_handlers
+    from ovamos.shared.service import install_signal_handlers
     setup_logging(json_lines=log_json, level=log_level)
     try:
         cfg = build_config("router", file=config, listen=listen or (), connect=connect or (),
@@ -204,7 +203,7 @@ def router(config: Annotated[Optional[Path], typer.Option(help="Zenoh router con
 def certs_init(folder: Annotated[Path, typer.Argument(help="Folder for ca.pem and ca.key (made if missing).")],
                days: Annotated[int, typer.Option(help="Validity of the CA.")] = 3650) -> None:
     """Create the certificate authority that signs the laptop's, the robot's and the tools' certificates."""
-    from shared.certs import CertError, init_ca
+    from ovamos.shared.certs import CertError, init_ca
     try:
         path = init_ca(folder, days=days)
     except CertError as exc:
@@ -225,7 +224,7 @@ def certs_issue(folder: Annotated[Path, typer.Argument(help="The CA's folder (fr
                 force: Annotated[bool, typer.Option(help="Replace an existing NAME.pem / NAME.key.")] = False
                 ) -> None:
     """Make NAME.key (mode 0600) and NAME.pem, signed by the CA, with CN = NAME."""
-    from shared.certs import CertError, check_certificate, issue
+    from ovamos.shared.certs import CertError, check_certificate, issue
     try:
         cert, key = issue(folder, name, hosts=host or (), days=days, force=force)
         info = check_certificate(cert)
@@ -237,7 +236,7 @@ def certs_issue(folder: Annotated[Path, typer.Argument(help="The CA's folder (fr
 @certs_app.command("show")
 def certs_show(folder: Annotated[Path, typer.Argument(help="A certificate folder.")]) -> None:
     """Each certificate in the folder: its CN, hosts and expiry (exit 1 when one is not valid now)."""
-    from shared.certs import CertError, list_certificates
+    from ovamos.shared.certs import CertError, list_certificates
     found = list_certificates(folder)
     if not found:
         raise _fail(f"no certificates (*.pem) in {folder}")
@@ -258,9 +257,9 @@ def run(service: Annotated[str, typer.Argument(help="Service to run.")],
         log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Run one service until SIGINT / SIGTERM."""
     from ovamos.registry import UnknownServiceError, service_class
-    from shared.config import parse_overrides
-    from shared.keys import KeyExprError
-    from shared.service import ServiceConfigError, load_config, run_service
+    from ovamos.shared.config import parse_overrides
+    from ovamos.shared.keys import KeyExprError
+    from ovamos.shared.service import ServiceConfigError, load_config, run_service
     setup_logging(json_lines=log_json, level=log_level)
     try:
         cls = service_class(service)
@@ -311,8 +310,8 @@ def submit(targets: Annotated[list[str], typer.Argument(help="Object names.")],
            wait: Annotated[bool, typer.Option(help="Follow until the task ends.")] = False,
            timeout: Annotated[float, typer.Option(help="Seconds to wait with --wait.")] = 600.0) -> None:
     """Submit a search task to the gateway (exit 1 when a followed task does not succeed)."""
-    from services.gateway.client import GatewayError, wait_task
-    from services.gateway.client import submit as submit_task
+    from ovamos.services.gateway.client import GatewayError, wait_task
+    from ovamos.services.gateway.client import submit as submit_task
     gateway = _deployment_endpoint(endpoints, gateway is not None, "gateway", DEFAULT_GATEWAY) or gateway
     try:
         task = submit_task(targets, gateway, token, robot_id, max_steps)
@@ -332,7 +331,7 @@ def status(robot_id: RobotId = "*", zenoh_file: ZenohFile = None, connect: Conne
                help="Seconds to wait for a router, then as long for the services' answers.")] = 2.0,
            as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False) -> None:
     """List live services (from Zenoh liveliness) with their message counters."""
-    from shared.status import live_services
+    from ovamos.shared.status import live_services
     cfg = _tool_config(zenoh_file, connect, endpoints, timeout, "client")
     try:
         session = open_session(cfg)
@@ -390,7 +389,7 @@ def graph_table(data: dict) -> Table:
 @app.command()
 def graph(as_json: AsJson = False) -> None:
     """The services' dataflow (shared/topology.py): each service's keys in and out, with message types."""
-    from shared.topology import graph as dataflow
+    from ovamos.shared.topology import graph as dataflow
     data = dataflow()
     if as_json:
         print(json.dumps(data))
@@ -447,7 +446,7 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
 def _into_loopback_namespace(robots: int) -> None:
     """``demo --base ros2`` runs DDS, which only starts in a loopback-only network namespace: run the
     demo again in one unless it is in one already."""
-    from shared.dds import DdsNetworkError, check_loopback_only, in_own_namespace, rerun_in_loopback_namespace
+    from ovamos.shared.dds import DdsNetworkError, check_loopback_only, in_own_namespace, rerun_in_loopback_namespace
     if robots > 1:
         raise _fail("--base ros2 runs one robot (--robots 1)")
     try:
@@ -456,7 +455,7 @@ def _into_loopback_namespace(robots: int) -> None:
         if in_own_namespace():
             raise _fail(str(exc)) from None
         console.print("--base ros2: DDS starts only in a network namespace with nothing but loopback; running "
-                      "the demo in one (python -m shared.dds -- ...); its router and gateway answer only "
+                      "the demo in one (python -m ovamos.shared.dds -- ...); its router and gateway answer only "
                       "inside it.")
         rerun_in_loopback_namespace([sys.executable, "-m", "ovamos.cli", *sys.argv[1:]])
 
@@ -483,7 +482,7 @@ def record(out: Annotated[Path, typer.Option("--out", help="MCAP file to write."
     from ovamos.record.channels import UnknownKeyError, select
     from ovamos.record.live import record as run_record
     from ovamos.record.recorder import RecorderConfig, RecordingExistsError
-    from shared.keys import KeyExprError
+    from ovamos.shared.keys import KeyExprError
     setup_logging(json_lines=log_json, level=log_level)
     if compression not in ("zstd", "lz4", "none"):
         raise _fail(f"--compression {compression!r}: one of zstd, lz4, none")
@@ -521,9 +520,10 @@ def replay(recording: Annotated[Path, typer.Argument(help="MCAP file written by 
            log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Publish a recording's raw channels back on Zenoh, with their recorded timing."""
     from ovamos.record.channels import UnknownKeyError
-    from ovamos.record.live import LiveRobotError, replay as run_replay
+    from ovamos.record.live import LiveRobotError
+    from ovamos.record.live import replay as run_replay
     from ovamos.record.replay import RecordingError
-    from shared.keys import KeyExprError
+    from ovamos.shared.keys import KeyExprError
     setup_logging(json_lines=log_json, level=log_level)
     if rate <= 0:
         raise _fail(f"--rate {rate}: must be > 0")
@@ -551,7 +551,7 @@ def view(robot_id: RobotId = "robot1", keys_: KeyNames = None,
     """A Foxglove WebSocket server showing a robot's live traffic (camera, map layers, planner, task)."""
     from ovamos.record.channels import UnknownKeyError, select
     from ovamos.record.live import view as run_view
-    from shared.keys import KeyExprError
+    from ovamos.shared.keys import KeyExprError
     setup_logging(json_lines=log_json, level=log_level)
 
     def started(bound: int) -> None:
@@ -574,9 +574,9 @@ def map_png(out: Annotated[Path, typer.Option(help="PNG to write.")],
             timeout: Annotated[float, typer.Option(
                 help="Seconds to wait for a router, then as long for the map.")] = 5.0) -> None:
     """Fetch the mapping service's current map and draw it (obstacles, values, frontiers, objects)."""
-    from services.mapping.render import render_map, write_png
-    from shared import keys
-    from shared.messages import DecodeError, MapSnapshot
+    from ovamos.services.mapping.render import render_map, write_png
+    from ovamos.shared import keys
+    from ovamos.shared.messages import DecodeError, MapSnapshot
     cfg = _tool_config(zenoh_file, connect, endpoints, timeout, "client")
     try:
         session = open_session(cfg)
@@ -620,15 +620,16 @@ def bench_transport(
     """Latency of a 640x480 RGB-D frame through a router: raw Zenoh vs. the ovamos bus (--tls: over
     the laptop-robot link, plain TCP vs mTLS; --stages: the round trip split into stages)."""
     if stages:
-        from bench.transport_stages import print_stages, run_stages
+        from ovamos.bench.transport_stages import print_stages, run_stages
         _report(run_stages(frames=frames, gap_ms=gap_ms), as_json, print_stages)
         return
     if tls:
-        from bench.transport_tls import print_table as print_tls, run_tls_benchmark
+        from ovamos.bench.transport_tls import print_table as print_tls
+        from ovamos.bench.transport_tls import run_tls_benchmark
         result = run_tls_benchmark(frames=frames, runs=runs, gap_ms=gap_ms, progress=None if as_json else err)
         _report(result, as_json, print_tls)
         return
-    from bench.transport import print_table, run_benchmark
+    from ovamos.bench.transport import print_table, run_benchmark
     result = run_benchmark(frames=frames, runs=runs, gap_ms=gap_ms, progress=None if as_json else err)
     _report(result, as_json, print_table)
 
@@ -639,7 +640,7 @@ def bench_sim(frames: Annotated[int, typer.Option(help="Frames per run.")] = 50,
               as_json: AsJson = False
               ) -> None:
     """Rendered frames per second of the simulator at 640x480 and 320x240."""
-    from bench.sim import print_table, run_benchmark
+    from ovamos.bench.sim import print_table, run_benchmark
     result = run_benchmark(frames=frames, runs=runs)
     _report(result, as_json, print_table)
 
@@ -650,7 +651,7 @@ def bench_mapping(frames: Annotated[int, typer.Option(help="Frames per run.")] =
                   as_json: AsJson = False
                   ) -> None:
     """Milliseconds per 640x480 frame for a full map update with 1, 3 and 10 target layers."""
-    from bench.mapping import print_table, run_benchmark
+    from ovamos.bench.mapping import print_table, run_benchmark
     result = run_benchmark(frames=frames, runs=runs, progress=None if as_json else err)
     _report(result, as_json, print_table)
 
@@ -660,7 +661,7 @@ def bench_planner(runs: Annotated[int, typer.Option(help="Instances per size (me
                   as_json: AsJson = False
                   ) -> None:
     """POUCT simulations per second and decision latency for 5, 10 and 20 candidates."""
-    from bench.planner import print_table, run_benchmark
+    from ovamos.bench.planner import print_table, run_benchmark
     result = run_benchmark(runs=runs, progress=None if as_json else err)
     _report(result, as_json, print_table)
 
@@ -671,7 +672,7 @@ def bench_camera(frames: Annotated[int, typer.Option(help="Frames per run.")] = 
                  as_json: AsJson = False
                  ) -> None:
     """Frames per second of the RealSense backend at 640x480 (SDK software device), published over Zenoh."""
-    from bench.camera import print_table, run_benchmark
+    from ovamos.bench.camera import print_table, run_benchmark
     result = run_benchmark(frames=frames, runs=runs, progress=None if as_json else err)
     _report(result, as_json, print_table)
 
@@ -686,13 +687,13 @@ def bench_ros2(seconds: Annotated[float, typer.Option(help="Seconds of frames pe
     import subprocess
     import sys
 
-    from shared.dds import DdsNetworkError, check_loopback_only
+    from ovamos.shared.dds import DdsNetworkError, check_loopback_only
     try:
         check_loopback_only()
     except DdsNetworkError:  # not yet inside one: run again in a loopback-only namespace
-        raise typer.Exit(subprocess.run([sys.executable, "-m", "shared.dds", "--", sys.executable, "-m",
+        raise typer.Exit(subprocess.run([sys.executable, "-m", "ovamos.shared.dds", "--", sys.executable, "-m",
                                          "ovamos.cli", *sys.argv[1:]]).returncode) from None
-    from bench.ros2 import print_table, run_benchmark
+    from ovamos.bench.ros2 import print_table, run_benchmark
     result = run_benchmark(runs=runs, seconds=seconds, commands=commands, progress=None if as_json else err)
     _report(result, as_json, print_table)
 
@@ -703,7 +704,7 @@ def bench_record(seconds: Annotated[float, typer.Option(help="How long to record
                                                           "(flat renders compress ~170x).")] = True,
                  as_json: AsJson = False) -> None:
     """Recording 640x480 RGB-D at 30 Hz plus map snapshots at 2 Hz over Zenoh: MB/s, frames/s, drops."""
-    from bench.record import print_table, run_benchmark
+    from ovamos.bench.record import print_table, run_benchmark
     _report(run_benchmark(seconds=seconds, noise=noise), as_json, print_table)
 
 
@@ -718,7 +719,7 @@ def bench_perception(frames: Annotated[int, typer.Option(help="hf frames per run
                      hf: Annotated[bool, typer.Option("--hf/--no-hf", help="Also time the real models.")] = True,
                      as_json: AsJson = False) -> None:
     """Frames per second of the sim and hf perception backends (CPU; GPU fp16 when CUDA is present)."""
-    from bench.perception import print_table, run_benchmark
+    from ovamos.bench.perception import print_table, run_benchmark
     result = run_benchmark(frames=frames, runs=runs, sim_frames=sim_frames, hf=hf,
                            progress=None if as_json else err)
     _report(result, as_json, print_table)
@@ -737,7 +738,7 @@ def bench_fleet(robots: Annotated[str, typer.Option(help="Robot counts, comma-se
                                                              "on 2 CPU cores), not scores only.")] = False,
                 as_json: AsJson = False) -> None:
     """Perception frames/s (batch 1 vs batched), planner decisions/s and step latency per robot count."""
-    from bench.fleet import print_table, run_benchmark
+    from ovamos.bench.fleet import print_table, run_benchmark
     try:
         counts = [int(n) for n in robots.split(",") if n.strip()]
         result = run_benchmark(counts, window_s=window, warmup_s=warmup, sim_rounds=sim_rounds, hf=hf,
@@ -754,7 +755,7 @@ def bench_soak(tasks: Annotated[int, typer.Option(help="Tasks in sequence on one
                as_json: AsJson = False) -> None:
     """One demo stack left up for task after task: per task result, steps, seconds, why it failed,
     and each service's RSS."""
-    from bench.soak import print_table, run_benchmark
+    from ovamos.bench.soak import print_table, run_benchmark
     try:
         result = run_benchmark(tasks, fresh=fresh, progress=None if as_json else err)
     except ValueError as exc:
@@ -767,7 +768,7 @@ def bench_homes(count: Annotated[int, typer.Option(help="Homes to generate (seed
                 homes: Annotated[str, typer.Option(help="Home tier: default or large.")] = "default",
                 as_json: AsJson = False) -> None:
     """Statistics of the generated homes (rooms, areas, furniture, small objects) beside ProcTHOR-10K's."""
-    from bench.homes import print_table, run
+    from ovamos.bench.homes import print_table, run
     try:
         result = run(count, homes)
     except ValueError as exc:
@@ -781,8 +782,8 @@ def bench_compare(a: Annotated[Path, typer.Argument(help="Run A: an ovamos bench
                   as_json: AsJson = False) -> None:
     """Two search runs on their shared episodes: SR, MSPL, steps, B minus A with 95% intervals
     (e.g. --base kinematic against --base kobuki on one seed)."""
-    from bench.compare import compare_runs, print_comparison
-    from bench.search import SearchError
+    from ovamos.bench.compare import compare_runs, print_comparison
+    from ovamos.bench.search import SearchError
     try:
         result = compare_runs(a, b)
     except SearchError as exc:
@@ -818,8 +819,8 @@ def bench_search(
                                                "base, in simulated time).")] = "kinematic",
         as_json: AsJson = False) -> None:
     """Search benchmark: SR and MSPL per policy (the paper's Tables I and II), or one episode's picture."""
-    from bench.search import SearchError
-    from bench.search import main as search_main
+    from ovamos.bench.search import SearchError
+    from ovamos.bench.search import main as search_main
     try:
         code = search_main(episodes=episodes, seed=seed, policies=policies, workers=workers, as_json=as_json,
                            out=out, max_steps=max_steps, replay_id=replay, policy=policy, source=source,
@@ -830,8 +831,8 @@ def bench_search(
 
 
 def _scene(seed: int, scene_file: Path | None):
-    from services.sim.generate import generate_scene
-    from services.sim.world import Scene, SceneError
+    from ovamos.services.sim.generate import generate_scene
+    from ovamos.services.sim.world import Scene, SceneError
     if scene_file is None:
         return generate_scene(seed)
     try:
@@ -856,15 +857,16 @@ def sim_scene(out: Annotated[Optional[Path], typer.Option(
               ) -> None:
     """Draw a scene from above: rooms, walls, objects with labels; or list the objects it holds."""
     import cv2
-    from services.sim.draw import draw_scene
+
+    from ovamos.services.sim.draw import draw_scene
     if out is None and not objects and not as_json:
         raise _fail("nothing to do: give --out PNG (the picture) and/or --objects (the list)")
     start, stoppable = None, None
     if episode is not None:
         if seed is not None or scene_file is not None:
             raise _fail("--episode or --seed / --scene, not both")
-        from bench.search import SearchError, parse_episode_id
-        from services.sim.episodes import make_episode
+        from ovamos.bench.search import SearchError, parse_episode_id
+        from ovamos.services.sim.episodes import make_episode
         try:
             spec, scene, truth = make_episode(*parse_episode_id(episode))
         except SearchError as exc:
@@ -923,9 +925,10 @@ def sim_render(out: Annotated[Path, typer.Option(help="PNG to write: RGB | depth
                width: int = 640, height: int = 480) -> None:
     """Render what the robot's camera sees, side by side: RGB, depth, instance ids."""
     import cv2
-    from services.sim.evaluator import GroundTruth
-    from services.sim.draw import side_by_side
-    from services.sim.render import SceneRenderer
+
+    from ovamos.services.sim.draw import side_by_side
+    from ovamos.services.sim.evaluator import GroundTruth
+    from ovamos.services.sim.render import SceneRenderer
     scene = _scene(seed, scene_file)
     truth = GroundTruth(scene)
     if x is None or y is None:  # default: about 2 m from the biggest object, looking at it
@@ -954,11 +957,12 @@ def sim_ros2(config: Annotated[Optional[Path], typer.Option(
                                "Create 3's Twist (repeatable).")] = None,
              log_level: LogLevel = "INFO") -> None:
     """A simulated robot behind ROS 2 topics: cmd_vel in, odom and a RealSense's topics out, until
-    Ctrl-C. DDS stays in a loopback-only namespace: run it as `python -m shared.dds -- ovamos sim ros2`."""
-    from bench.search import SearchError, parse_episode_id
-    from services.sim.ros2_robot import Ros2SimRobotConfig, main as run_robot
-    from shared.config import ServiceConfigError, parse_overrides, read_config
-    from shared.ros2 import Ros2Unavailable
+    Ctrl-C. DDS stays in a loopback-only namespace: run it as `python -m ovamos.shared.dds -- ovamos sim ros2`."""
+    from ovamos.bench.search import SearchError, parse_episode_id
+    from ovamos.services.sim.ros2_robot import Ros2SimRobotConfig
+    from ovamos.services.sim.ros2_robot import main as run_robot
+    from ovamos.shared.config import ServiceConfigError, parse_overrides, read_config
+    from ovamos.shared.ros2 import Ros2Unavailable
     setup_logging(level=log_level)
     try:
         overrides = parse_overrides(set_ or [])

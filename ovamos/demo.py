@@ -30,17 +30,17 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from bench.episode import scene_mapping
-from services.gateway.client import GatewayClient, GatewayError
-from services.gateway.models import TaskView
-from services.sim.episodes import make_episode
-from services.sim.prior import ObjectPrior
-from services.perception.config import PerceptionServiceConfig
-from services.sim.wheels import Motion
 from ovamos import fleet
+from ovamos.bench.episode import scene_mapping
+from ovamos.services.gateway.client import GatewayClient, GatewayError
+from ovamos.services.gateway.models import TaskView
+from ovamos.services.perception.config import PerceptionServiceConfig
+from ovamos.services.sim.episodes import make_episode
+from ovamos.services.sim.prior import ObjectPrior
+from ovamos.services.sim.wheels import Motion
+from ovamos.shared.dds import in_own_namespace
+from ovamos.shared.procs import free_port, loopback
 from ovamos.supervisor import Entry, Supervisor
-from shared.dds import in_own_namespace
-from shared.procs import free_port, loopback
 
 DEMO_SEED, DEMO_EPISODE = 0, 4
 #: a fleet's homes: episodes of seed 0 the method solves in 72-217 steps (in-process, default
@@ -48,7 +48,7 @@ DEMO_SEED, DEMO_EPISODE = 0, 4
 FLEET_EPISODES = (4, 1, 2, 3, 6, 9)
 STARTUP_TIMEOUT_S = 90.0
 SERVICES = ("mapping", "perception", "planner", "sim", "gateway")
-#: with ``--base ros2`` the robot is a ROS 2 one (:mod:`services.sim.ros2_robot`), driven and seen
+#: with ``--base ros2`` the robot is a ROS 2 one (:mod:`ovamos.services.sim.ros2_robot`), driven and seen
 #: through the ros2 base driver and camera
 ROS2_SERVICES = ("mapping", "perception", "planner", "base_driver", "camera", "gateway")
 ROS2_BASE = "ros2"
@@ -107,7 +107,7 @@ def _robot_configs(folder: Path, seed: int, episode: int, *, width: int, height:
                          "checkpoint_path": str(folder / checkpoint)}}
     if base != ROS2_BASE:
         return {**robot, "sim": {**episode_keys, "motion": base, "lock_step": True, "width": width, "height": height}}
-    from services.sim.ros2_robot import BUMP_TOPIC, INSTANCE_IDS_TOPIC
+    from ovamos.services.sim.ros2_robot import BUMP_TOPIC, INSTANCE_IDS_TOPIC
     return {**robot, "ros2_robot": {**episode_keys, "width": width, "height": height},
             # the base's topics and geometry are the defaults, as the simulated robot's, which
             # also reports contact on BUMP_TOPIC

@@ -20,11 +20,11 @@ from typing import Any
 from pydantic import Field, PrivateAttr, ValidationError, field_validator
 
 from ovamos.registry import SERVICES
+from ovamos.shared.config import StrictModel, format_override
+from ovamos.shared.deploy import DEPLOY_DIR
 from ovamos.supervisor import DEFAULT_LOG_DIR, Backoff, Entry, Supervisor
-from shared.config import StrictModel, format_override
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-PROFILE_DIR = REPO_ROOT / "deploy" / "profiles"
+PROFILE_DIR = DEPLOY_DIR / "profiles"
 DEFAULT_CERTS = Path("state/certs")  # relative to the working directory, like the logs
 
 
@@ -81,7 +81,7 @@ class Profile(StrictModel):
     @field_validator("robots")
     @classmethod
     def _robot_ids(cls, robots: list[str]) -> list[str]:
-        from shared.keys import check_chunk
+        from ovamos.shared.keys import check_chunk
         for robot in robots:
             check_chunk(robot, "robot id")
         if len(set(robots)) != len(robots):
@@ -148,7 +148,7 @@ class Profile(StrictModel):
         return _flat_endpoints(self._router_config([]).get_json("listen/endpoints"))
 
     def _router_config(self, listen: list[str]) -> Any:
-        from shared.zconfig import ZenohConfigError, build_config
+        from ovamos.shared.zconfig import ZenohConfigError, build_config
         assert self.router is not None
         try:
             return build_config("router", file=self.router.config, listen=listen, require_certs=False)
@@ -179,7 +179,7 @@ class Profile(StrictModel):
 def _service_config(spec: ServiceSpec) -> Any:
     """A service entry's config as its service's model (the fleet's settings are derived from it)."""
     from ovamos.registry import service_class
-    from shared.service import load_config
+    from ovamos.shared.service import load_config
     return load_config(service_class(spec.service), spec.config)
 
 
@@ -310,7 +310,7 @@ def check_service_configs(profile: Profile) -> None:
     is a separate step from :func:`load_profile`.
     """
     from ovamos.registry import UnknownServiceError, service_class
-    from shared.service import ServiceConfigError, load_config
+    from ovamos.shared.service import ServiceConfigError, load_config
     problems: list[str] = []
     for i, spec in enumerate(profile.services):
         try:
@@ -325,8 +325,8 @@ def check_certs(profile: Profile, certs: Path | None) -> None:
     """A secure profile's certificate folder has the CA and this host's pair, valid now."""
     if not profile.secure:
         return
-    from shared.certs import CertError, check_certificate, check_key
-    from shared.zconfig import TlsFiles
+    from ovamos.shared.certs import CertError, check_certificate, check_key
+    from ovamos.shared.zconfig import TlsFiles
     assert profile.router is not None and profile.router.cert is not None
     files = TlsFiles.from_folder(certs or DEFAULT_CERTS, profile.router.cert)
     try:

@@ -9,20 +9,20 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:  # importing shared.service loads Zenoh; profiles only need the names
-    from shared.service import Service
+if TYPE_CHECKING:  # importing ovamos.shared.service loads Zenoh; profiles only need the names
+    from ovamos.shared.service import Service
 
 SERVICES: dict[str, str] = {
-    "testpattern": "services.diag.service:TestPatternService",
-    "monitor": "services.diag.service:MonitorService",
-    "mapping": "services.mapping.service:MappingService",
-    "planner": "services.planner.service:PlannerService",
-    "gateway": "services.gateway.service:GatewayService",
-    "perception": "services.perception.service:PerceptionService",
-    "sim": "services.sim.service:SimRobotService",
-    "base_driver": "services.base_driver.service:BaseDriverService",
-    "camera": "services.camera.service:CameraService",
-    "rosview": "services.rosview.service:RosViewService",
+    "testpattern": "ovamos.services.diag.service:TestPatternService",
+    "monitor": "ovamos.services.diag.service:MonitorService",
+    "mapping": "ovamos.services.mapping.service:MappingService",
+    "planner": "ovamos.services.planner.service:PlannerService",
+    "gateway": "ovamos.services.gateway.service:GatewayService",
+    "perception": "ovamos.services.perception.service:PerceptionService",
+    "sim": "ovamos.services.sim.service:SimRobotService",
+    "base_driver": "ovamos.services.base_driver.service:BaseDriverService",
+    "camera": "ovamos.services.camera.service:CameraService",
+    "rosview": "ovamos.services.rosview.service:RosViewService",
 }
 
 

@@ -20,7 +20,7 @@ A log over ``max_log_bytes`` is rotated when its child (re)starts (``.log.1``
 
 No child outlives the supervisor: while it runs, SIGTERM / SIGHUP / SIGINT that
 would end the process without clean-up unwind the main thread instead
-(:func:`shared.procs.signals_unwind`), so ``with Supervisor(...)`` stops every child
+(:func:`ovamos.shared.procs.signals_unwind`), so ``with Supervisor(...)`` stops every child
 on them as on any exception; :meth:`run_forever` has its own handlers (a clean stop).
 On Linux each child also gets SIGTERM from the kernel if the supervisor dies
 without stopping it (SIGKILL, a crash).
@@ -48,7 +48,8 @@ from typing import Self
 from pydantic import BaseModel, ConfigDict, Field
 from rich.table import Table
 
-from shared.procs import deferred_signals, signals_unwind, start_cli, stop as stop_process
+from ovamos.shared.procs import deferred_signals, signals_unwind, start_cli
+from ovamos.shared.procs import stop as stop_process
 
 log = logging.getLogger("ovamos.supervisor")
 
@@ -210,7 +211,7 @@ class Supervisor:
         Raises :class:`SupervisorError` (after stopping what it started) when a
         router exits or does not open its port within ``ready_timeout_s``. From here
         to :meth:`stop`, SIGTERM / SIGHUP / SIGINT left at their default unwind the main
-        thread (:func:`~shared.procs.signals_unwind`) so that the caller's ``finally`` /
+        thread (:func:`~ovamos.shared.procs.signals_unwind`) so that the caller's ``finally`` /
         ``__exit__`` stops the children.
         """
         if self._signals is None:
@@ -315,7 +316,7 @@ class Supervisor:
             except Exception:  # a bug here must not leave the children unsupervised silently
                 log.exception("supervisor poll failed; retrying")
         # The children this thread (re)started get SIGTERM from the kernel when it ends (see
-        # shared.procs.start_cli): it ends after stop() stopped them, in order.
+        # ovamos.shared.procs.start_cli): it ends after stop() stopped them, in order.
         self._stopped.wait()
 
     def _schedule_services(self) -> None:

@@ -6,9 +6,9 @@ guarantees for free: payloads are validated on receipt, a malformed one is
 logged, counted and dropped, a handler that raises is logged and counted, and
 neither ever reaches Zenoh's threads (which would swallow the exception).
 
-Threads: Zenoh's callbacks only enqueue on the bus's :class:`~shared.inbox.Inbox`;
+Threads: Zenoh's callbacks only enqueue on the bus's :class:`~ovamos.shared.inbox.Inbox`;
 handlers, query answers and request replies all run on one thread, the inbox's
-taker (a service's main loop, see :func:`shared.service.run_service`, or a
+taker (a service's main loop, see :func:`ovamos.shared.service.run_service`, or a
 dispatcher thread of the bus for tools). A service's handlers therefore never
 run concurrently with each other or with its tick, and need no locks. A
 ``keep=n`` subscription keeps only its newest ``n`` samples while the service
@@ -22,17 +22,18 @@ import logging
 import os
 import threading
 import time
-from typing import Any, Generic, Literal, Protocol, Self, TypeVar
 from collections.abc import Callable
+from typing import Any, Generic, Literal, Protocol, Self, TypeVar
 
 import zenoh
 
-from shared import keys
-from shared.inbox import Inbox
-from shared.log import fields, sampled
-from shared.messages import CounterSet, DecodeError, ServiceStats
-from shared.shm import ShmPool, enabled as shm_enabled
-from shared.zconfig import open_session
+from ovamos.shared import keys
+from ovamos.shared.inbox import Inbox
+from ovamos.shared.log import fields, sampled
+from ovamos.shared.messages import CounterSet, DecodeError, ServiceStats
+from ovamos.shared.shm import ShmPool
+from ovamos.shared.shm import enabled as shm_enabled
+from ovamos.shared.zconfig import open_session
 
 log = logging.getLogger("ovamos.bus")
 
@@ -125,7 +126,7 @@ class BusCore:
     Declarations are typed; every callback from the transport only enqueues on
     :attr:`inbox`, and the handlers run when the inbox's taker (the service's
     main loop, or a dispatcher thread) gets to them. Subclasses provide the
-    transport: :class:`Bus` (Zenoh) and :class:`shared.fake_bus.FakeBus`.
+    transport: :class:`Bus` (Zenoh) and :class:`ovamos.shared.fake_bus.FakeBus`.
     """
 
     def __init__(self, robot_id: str, service: str, instance: str, inbox: Inbox | None = None) -> None:
@@ -136,7 +137,7 @@ class BusCore:
         self.started = time.time()
         self.inbox = inbox or Inbox()
         #: what ``ovamos status`` shows of the service: a snapshot its own thread refreshes
-        #: (:func:`shared.service.run_loop`), so answering a stats query reads no live state
+        #: (:func:`ovamos.shared.service.run_loop`), so answering a stats query reads no live state
         self.info: dict[str, Any] = {}
         self._declared: list[Any] = []  # keep references: a dropped declaration is undeclared
         self._closed = False
@@ -368,8 +369,8 @@ class Bus(BusCore):
 
     ``dispatch="thread"`` (tools, tests, embedding programs): a thread of the bus
     takes the inbox's events. ``"caller"``: the owner takes them
-    (:func:`shared.service.run_service` runs them between a service's ticks).
-    ``shm``: large payloads go out through this shared-memory pool (:mod:`shared.shm`);
+    (:func:`ovamos.shared.service.run_service` runs them between a service's ticks).
+    ``shm``: large payloads go out through this shared-memory pool (:mod:`ovamos.shared.shm`);
     :meth:`open` gives one when the session's config has shared memory on.
     """
 

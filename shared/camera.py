@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from shared.messages import Intrinsics
+from ovamos.shared.messages import Intrinsics
 
 CAMERA_HEIGHT_M = 0.88
 HFOV_DEG = 79.0

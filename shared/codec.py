@@ -32,8 +32,8 @@ import math
 import struct
 import weakref
 import zlib
-from typing import Any, NamedTuple
 from collections.abc import Callable, Mapping
+from typing import Any, NamedTuple
 
 import numpy as np
 from pydantic_core import from_json

@@ -3,7 +3,7 @@
 Every config in the project derives from :class:`StrictModel` (unknown keys are
 errors: a typo in a TOML file must not pass silently). Cores (mapping, planner,
 perception backends, the benchmark) import their configs from here, so that
-loading a core never loads Zenoh; only :mod:`shared.service` and the adapters do.
+loading a core never loads Zenoh; only :mod:`ovamos.shared.service` and the adapters do.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ else runs ROS 2 (and their robots). So every process of ours that loads DDS for 
 demo runs in a network namespace holding nothing but loopback, with Fast DDS held to 127.0.0.1
 by a profile without multicast (:data:`LOOPBACK_PROFILE`) and ROS's discovery range at
 ``LOCALHOST``: :func:`check_loopback_only` refuses anything else, before rclpy is imported, and
-``python -m shared.dds -- CMD ...`` runs ``CMD`` in such a namespace (its own ``/dev/shm`` too:
+``python -m ovamos.shared.dds -- CMD ...`` runs ``CMD`` in such a namespace (its own ``/dev/shm`` too:
 a killed DDS process leaves its shared-memory segments behind).
 
 Both environment variables are set: Jazzy's Fast DDS 2.x reads ``FASTRTPS_DEFAULT_PROFILES_FILE``,
@@ -26,10 +26,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import NoReturn
 
+from ovamos.shared.deploy import DEPLOY_DIR
+
 __all__ = ["DdsNetworkError", "LOOPBACK_PROFILE", "PROFILE_VARS", "check_loopback_only", "loopback_env",
            "in_own_namespace", "rerun_in_loopback_namespace"]
 
-LOOPBACK_PROFILE = Path(__file__).resolve().parent.parent / "deploy" / "ros2" / "fastdds-loopback.xml"
+LOOPBACK_PROFILE = DEPLOY_DIR / "ros2" / "fastdds-loopback.xml"
 PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 RANGE_VAR = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 _CLEARED = ("ROS_STATIC_PEERS", "ROS_DISCOVERY_SERVER", "ROS_LOCALHOST_ONLY")  # would widen discovery
@@ -48,7 +50,7 @@ def check_loopback_only(environ: Mapping[str, str] = os.environ, interfaces: Seq
     if names != ["lo"]:
         raise DdsNetworkError(
             f"refusing to start DDS: this network namespace has {', '.join(names)}, not only lo; DDS "
-            "discovers by multicast on every interface. Run it with `python -m shared.dds -- COMMAND`")
+            "discovers by multicast on every interface. Run it with `python -m ovamos.shared.dds -- COMMAND`")
     for var in PROFILE_VARS:
         if not environ.get(var):
             raise DdsNetworkError(f"refusing to start DDS: {var} is not set (the loopback profile: {LOOPBACK_PROFILE})")
@@ -93,26 +95,26 @@ _INSIDE = "OVAMOS_DDS_NAMESPACE"  # set by main() once it runs in the namespace 
 
 
 def in_own_namespace() -> bool:
-    """Whether this process runs in a namespace that ``python -m shared.dds`` made."""
+    """Whether this process runs in a namespace that ``python -m ovamos.shared.dds`` made."""
     return os.environ.get(_INSIDE) == "1"
 
 
 def rerun_in_loopback_namespace(command: Sequence[str]) -> NoReturn:
-    """Replace this process with ``python -m shared.dds -- COMMAND``: ``command`` again, in a
+    """Replace this process with ``python -m ovamos.shared.dds -- COMMAND``: ``command`` again, in a
     loopback-only namespace (for a command that finds itself where DDS may not start)."""
-    os.execv(sys.executable, [sys.executable, "-m", "shared.dds", "--", *command])
+    os.execv(sys.executable, [sys.executable, "-m", "ovamos.shared.dds", "--", *command])
 
 
 def main(argv: Sequence[str]) -> int:
-    """``python -m shared.dds -- COMMAND ...``: COMMAND in a new loopback-only network namespace
+    """``python -m ovamos.shared.dds -- COMMAND ...``: COMMAND in a new loopback-only network namespace
     (``unshare``: root, or user namespaces), with a private ``/dev/shm`` and the loopback env."""
     command = list(argv[1:] if argv[:1] == ["--"] else argv)
     if not command:
-        print("usage: python -m shared.dds -- COMMAND [ARG ...]", file=sys.stderr)
+        print("usage: python -m ovamos.shared.dds -- COMMAND [ARG ...]", file=sys.stderr)
         return 2
     if not in_own_namespace():
         unshare = ["unshare", "--net", "--mount", "--propagation", "private", "--",
-                   sys.executable, "-m", "shared.dds", "--", *command]
+                   sys.executable, "-m", "ovamos.shared.dds", "--", *command]
         try:
             child = subprocess.Popen(unshare, env={**os.environ, _INSIDE: "1"})
         except OSError as exc:

@@ -3,7 +3,7 @@
 NOT Zenoh and not a mock of it: a :class:`FakeNetwork` routes the bytes a
 :class:`FakeBus` publishes to every subscription whose key expression
 matches (``*`` one chunk, ``**`` any number), queries to queryables and
-liveliness tokens to their watchers (with history, as Zenoh's), through the same :class:`~shared.bus.BusCore` as the real bus. So messages are
+liveliness tokens to their watchers (with history, as Zenoh's), through the same :class:`~ovamos.shared.bus.BusCore` as the real bus. So messages are
 encoded, validated and counted exactly as in production, handlers run from
 each bus's inbox, and a test decides when they run (:meth:`FakeNetwork.pump`),
 which makes the adapter's logic testable step by step without a router. The
@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from shared.bus import BusCore
+from ovamos.shared.bus import BusCore
 
 __all__ = ["FakeNetwork", "FakeBus", "key_matches"]
 

@@ -6,9 +6,8 @@ the bottom); cell (r, c) covers ``[x0 + c*res, x0 + (c+1)*res) x [y0 + r*res, ..
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np

@@ -5,7 +5,7 @@ Users: the planner's navigator (a cost-to-go field to its goal, with each cell's
 point, on a coarsened window: :meth:`FreeSpaceGraph.from_cells`) and the simulator's ground
 truth (distance fields to objects: :meth:`FreeSpaceGraph.field`).
 
-Grids follow :class:`shared.grid.GridGeometry`: row index grows with y, column with x.
+Grids follow :class:`ovamos.shared.grid.GridGeometry`: row index grows with y, column with x.
 Paths are 8-connected without corner cutting (a diagonal step needs both cells beside it free):
 that is exactly 4-connectivity for reachability, which lets a cheap connected-components
 labelling answer "can the robot get there at all" before any Dijkstra runs. A straight step
@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from shared.grid import inflate
+from ovamos.shared.grid import inflate
 
 __all__ = ["Window", "FreeSpaceGraph", "traversable", "auto_window", "shortest_paths",
            "distance_field", "path_lengths", "gather"]

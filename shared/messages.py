@@ -6,7 +6,7 @@ bus can publish and validate any of them the same way:
 * :class:`JsonMessage` for small messages (odometry, task events, stats): a
   pydantic model sent as JSON, readable with any Zenoh tool.
 * :class:`BinaryMessage` for messages with arrays (frames, maps): pydantic for
-  the scalar fields, :mod:`shared.codec` for the arrays.
+  the scalar fields, :mod:`ovamos.shared.codec` for the arrays.
 
 Every message carries its schema version; decoding the wrong kind, an unknown
 version or an inconsistent payload raises :class:`DecodeError` and nothing else.
@@ -23,10 +23,10 @@ from typing import Annotated, Any, ClassVar, Literal, Self
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from shared.codec import DecodeError, body_size, loan, pack, unpack
-from shared.detections import Detection
-from shared.motion import Action
-from shared.robot import Primitives
+from ovamos.shared.codec import DecodeError, body_size, loan, pack, unpack
+from ovamos.shared.detections import Detection
+from ovamos.shared.motion import Action
+from ovamos.shared.robot import Primitives
 
 __all__ = ["DecodeError", "MAX_TEXT_CHARS", "MAX_NAME_CHARS", "MAX_TARGETS", "MAX_FRAME_SHAPE",
            "MAX_DETECTIONS", "MAX_MAP_SIDE", "WIRE_CONFIG", "Name", "OdomSession", "new_odom_session", "JsonMessage", "BinaryMessage", "ArraySpec",
@@ -160,7 +160,7 @@ class ArraySpec:
 
 
 class BinaryMessage(BaseModel):
-    """A message whose ``ARRAYS`` fields travel as raw bytes (see :mod:`shared.codec`).
+    """A message whose ``ARRAYS`` fields travel as raw bytes (see :mod:`ovamos.shared.codec`).
 
     Subclasses declare ``KIND``, ``ARRAYS``, ``MAX_BODY_BYTES`` and, for large but sparse content
     such as map grids, ``COMPRESS_LEVEL``. Array shapes and dtypes are checked

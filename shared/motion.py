@@ -13,7 +13,7 @@ from pydantic import BaseModel, ConfigDict
 
 
 class Action(str, Enum):
-    """The paper's discrete commands (sizes: :class:`shared.robot.Primitives`)."""
+    """The paper's discrete commands (sizes: :class:`ovamos.shared.robot.Primitives`)."""
 
     MOVE_FORWARD = "MOVE_FORWARD"
     TURN_LEFT = "TURN_LEFT"

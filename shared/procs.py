@@ -302,7 +302,7 @@ def _end_if_terminated() -> None:
     os.kill(os.getpid(), signum)  # ends here; were the signal blocked, the Terminated unwinds on
 
 
-class deferred_signals:  # noqa: N801 - used like a function: ``with deferred_signals():``
+class deferred_signals:
     """Hold back what :func:`signals_unwind` would raise while a child is started (until its
     handle is stored) or stopped; it is raised when the outermost of these blocks ends.
 

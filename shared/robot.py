@@ -10,7 +10,7 @@ changes it everywhere; a config file may still override it for one service.
 Primitive sizes must match between the planner and the driver that executes
 them (a planner that believes a step is 0.25 m while the base drives 0.30 m
 plans on a robot it does not have): the driver advertises its sizes in
-``driver/state`` (:class:`shared.messages.DriverState`) and the planner
+``driver/state`` (:class:`ovamos.shared.messages.DriverState`) and the planner
 refuses to plan when they differ from its own.
 """
 

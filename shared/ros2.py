@@ -3,10 +3,10 @@
 One rclpy context, one node and one executor spinning on a daemon thread, made on first use and
 shared by whatever in the process talks ROS (the ros2 base today). rclpy callbacks run on that
 thread and only hand data over under the user's own lock, as Zenoh's do. rclpy is initialised
-without its signal handlers: SIGINT and SIGTERM stay the service's (:mod:`shared.service`).
+without its signal handlers: SIGINT and SIGTERM stay the service's (:mod:`ovamos.shared.service`).
 
 ``network`` says where DDS may go. ``"loopback"`` (the default; tests, CI, the demo) refuses to
-start unless :func:`shared.dds.check_loopback_only` passes. ``"host"`` is for a robot, whose ROS
+start unless :func:`ovamos.shared.dds.check_loopback_only` passes. ``"host"`` is for a robot, whose ROS
 graph spans its own computers (a TurtleBot 4's Create 3 is another host): the robot's own ROS
 environment then applies as it is, and the service logs that it chose it.
 """
@@ -20,7 +20,7 @@ from typing import Any, Literal
 
 from pydantic import Field
 
-from shared.dds import check_loopback_only
+from ovamos.shared.dds import check_loopback_only
 
 __all__ = ["Network", "NETWORK_FIELD", "Ros2Unavailable", "node"]
 

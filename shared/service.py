@@ -1,14 +1,14 @@
 """The life cycle every service shares: configure, start, one event loop, stop on a signal.
 
 A service subclass holds only its wiring (which of its declared inputs feed
-which core methods, see :mod:`shared.topology`); the core it wraps knows
+which core methods, see :mod:`ovamos.shared.topology`); the core it wraps knows
 nothing of Zenoh. :func:`run_service` is what ``ovamos run SERVICE`` calls,
 and what tests and the demo start in a spawned process.
 
 One thread per service (dora's node model): the main thread takes the bus's
 events (messages, queries, replies) one at a time and runs the ticks between
 them, so a service's state is touched by one thread only and needs no lock.
-Zenoh's callbacks only enqueue (:mod:`shared.inbox`).
+Zenoh's callbacks only enqueue (:mod:`ovamos.shared.inbox`).
 """
 
 from __future__ import annotations
@@ -17,16 +17,16 @@ import logging
 import signal
 import threading
 import time
-from pathlib import Path
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any, ClassVar
 
 import zenoh
 
-from shared.bus import Bus, BusCore, Publisher
-from shared.config import ServiceConfig, ServiceConfigError, read_config
-from shared import keys
-from shared.topology import TOPOLOGY, Node
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus, BusCore, Publisher
+from ovamos.shared.config import ServiceConfig, ServiceConfigError, read_config
+from ovamos.shared.topology import TOPOLOGY, Node
 
 __all__ = ["Service", "ServiceConfig", "ServiceConfigError", "load_config", "run_loop", "run_service"]
 
@@ -53,7 +53,7 @@ class Service:
     def wire(self, handlers: dict[str, Callable[[Any], None]], *, keep: dict[str, int] | None = None,
              answers: dict[str, Callable[[], Any]] | None = None) -> None:
         """Subscribe ``handlers`` to this service's declared inputs and publish its declared
-        outputs as ``self.out[name]`` (:data:`shared.topology.TOPOLOGY`).
+        outputs as ``self.out[name]`` (:data:`ovamos.shared.topology.TOPOLOGY`).
 
         The handlers must cover the declared inputs exactly, so a service cannot
         listen to a key the graph does not show. ``keep`` overrides an input's

@@ -26,13 +26,13 @@ from dataclasses import dataclass
 
 from pydantic import Field
 
-from shared.config import StrictModel
+from ovamos.shared.config import StrictModel
 
 __all__ = ["SessionSwitch", "SessionFollower", "Evidence"]
 
 
 class SessionSwitch(StrictModel):
-    """When a consumer follows a new odometry session (see :mod:`shared.sessions`)."""
+    """When a consumer follows a new odometry session (see :mod:`ovamos.shared.sessions`)."""
 
     messages: int = Field(
         default=5, ge=1,

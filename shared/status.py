@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import zenoh
 
-from shared import keys
-from shared.messages import DecodeError, ServiceStats
+from ovamos.shared import keys
+from ovamos.shared.messages import DecodeError, ServiceStats
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,9 @@
 """The services' dataflow, declared once: what each service takes in and puts out.
 
 This table is the architecture in data (like a dora dataflow or ``ros2 node
-info``): services wire themselves from it (:meth:`shared.service.Service.wire`),
+info``): services wire themselves from it (:meth:`ovamos.shared.service.Service.wire`),
 so a key a service uses but does not declare cannot exist, and ``ovamos graph``
-prints it. Keys are named by their builder in :mod:`shared.keys`; every key is
+prints it. Keys are named by their builder in :mod:`ovamos.shared.keys`; every key is
 under ``ovamos/<robot_id>/``.
 """
 
@@ -12,9 +12,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from shared import keys
-from shared.messages import (CameraState, DecisionTrace, DriverState, EStop, MapSnapshot, Odometry,
-                             PerceptionResult, PlanCommand, RgbdFrame, TaskEvent, TaskSpec)
+from ovamos.shared import keys
+from ovamos.shared.messages import (
+    CameraState,
+    DecisionTrace,
+    DriverState,
+    EStop,
+    MapSnapshot,
+    Odometry,
+    PerceptionResult,
+    PlanCommand,
+    RgbdFrame,
+    TaskEvent,
+    TaskSpec,
+)
 
 __all__ = ["Port", "Node", "TOPOLOGY", "graph"]
 

@@ -21,14 +21,14 @@ from __future__ import annotations
 
 import ipaddress
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
-from collections.abc import Sequence
 
 import zenoh
 
-from shared.certs import CA_CERT, CertError, CertInfo, check_ca, check_certificate, check_key
+from ovamos.shared.certs import CA_CERT, CertError, CertInfo, check_ca, check_certificate, check_key
 
 Mode = Literal["client", "peer", "router"]
 DEFAULT_PORT = 7447

@@ -6,12 +6,12 @@ import itertools
 import math
 from collections.abc import Callable
 
-from services.base_driver.controller import BaseDriver
-from services.base_driver.kinematics import integrate_arc
-from services.sim.robot import SimRobot
-from services.sim.wheels import WheeledSimRobot
-from shared.messages import DriverMode, PlanCommand
-from shared.motion import Action, Pose
+from ovamos.services.base_driver.controller import BaseDriver
+from ovamos.services.base_driver.kinematics import integrate_arc
+from ovamos.services.sim.robot import SimRobot
+from ovamos.services.sim.wheels import WheeledSimRobot
+from ovamos.shared.messages import DriverMode, PlanCommand
+from ovamos.shared.motion import Action, Pose
 from tests.polling import wait_for
 
 _ids = itertools.count(1)
@@ -23,7 +23,7 @@ def open_space(x: float, y: float) -> bool:
 
 def sim_base(is_free: Callable[[float, float], bool] = open_space, **driver: object) -> WheeledSimRobot:
     """A started simulated base at the origin; stop() it."""
-    from services.base_driver.config import DriverConfig
+    from ovamos.services.base_driver.config import DriverConfig
     robot = SimRobot(Pose(x=0.0, y=0.0, yaw=0.0), is_free)
     base = WheeledSimRobot(robot, DriverConfig(**driver)).start()  # type: ignore[arg-type]
     wait_for_mode(base.driver, DriverMode.READY)
@@ -86,13 +86,13 @@ class FakeHardware:
             self.stamp = now
 
     def open(self) -> None:
-        from services.base_driver.hardware import HardwareError
+        from ovamos.services.base_driver.hardware import HardwareError
         self.opens += 1
         if self.broken:
             raise HardwareError(self.broken)
 
     def set_velocity(self, linear_m_s: float, angular_rad_s: float) -> None:
-        from services.base_driver.hardware import HardwareError
+        from ovamos.services.base_driver.hardware import HardwareError
         if self.broken:
             raise HardwareError(self.broken)
         self._advance()
@@ -105,7 +105,7 @@ class FakeHardware:
         self.halts += 1
 
     def feedback(self):  # type: ignore[no-untyped-def]
-        from services.base_driver.hardware import WheelFeedback
+        from ovamos.services.base_driver.hardware import WheelFeedback
         self._advance()
         if self.silent:  # the last message, again
             return self._last_fb
@@ -141,7 +141,7 @@ class FakeOdometryBase(FakeHardware):
                                   (self.v + self.w * self.track / 2) * dt, self.track)
 
     def feedback(self):  # type: ignore[no-untyped-def]
-        from services.base_driver.hardware import WheelFeedback
+        from ovamos.services.base_driver.hardware import WheelFeedback
         self._advance()
         return WheelFeedback(stamp=self.stamp, left_pos_rad=0.0, right_pos_rad=0.0, pose=self.pose,
                              body_vel=(self.v, self.w) if self.report_velocity else None,

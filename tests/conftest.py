@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from services.gateway.client import GatewayClient
-from shared.procs import free_port, loopback, start_cli, stop
-from shared.zconfig import build_config, open_session
+from ovamos.services.gateway.client import GatewayClient
+from ovamos.shared.procs import free_port, loopback, start_cli, stop
+from ovamos.shared.zconfig import build_config, open_session
 from tests.gateway_mocks import MockPlanner, RunningGateway, gateway_config
 from tests.polling import port_open, wait_for
 

@@ -15,15 +15,26 @@ from typing import Any
 
 import numpy as np
 
-from services.gateway.config import GatewayConfig
-from services.gateway.service import GatewayService
-from shared import keys
-from shared.bus import Bus
-from shared.messages import (DriverMode, DriverState, EStop, FoundObject, Goal, MapSnapshot, ObjectInstance,
-                             Odometry, TaskEvent, TaskSpec, TaskStatus)
-from shared.procs import free_port
-from shared.service import run_service
-from shared.zconfig import build_config
+from ovamos.services.gateway.config import GatewayConfig
+from ovamos.services.gateway.service import GatewayService
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import (
+    DriverMode,
+    DriverState,
+    EStop,
+    FoundObject,
+    Goal,
+    MapSnapshot,
+    ObjectInstance,
+    Odometry,
+    TaskEvent,
+    TaskSpec,
+    TaskStatus,
+)
+from ovamos.shared.procs import free_port
+from ovamos.shared.service import run_service
+from ovamos.shared.zconfig import build_config
 from tests.polling import port_open, wait_for
 
 ROBOT = "sim"

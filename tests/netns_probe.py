@@ -24,12 +24,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import zenoh  # noqa: E402
+import zenoh
 
-from shared import keys  # noqa: E402
-from shared.messages import EStop, PlanCommand  # noqa: E402
-from shared.log import setup_logging  # noqa: E402
-from shared.zconfig import TlsFiles, build_config, open_session  # noqa: E402
+from ovamos.shared import keys
+from ovamos.shared.log import setup_logging
+from ovamos.shared.messages import EStop, PlanCommand
+from ovamos.shared.zconfig import TlsFiles, build_config, open_session
 
 _lock = threading.Lock()
 

@@ -5,14 +5,14 @@ from __future__ import annotations
 import math
 import threading
 
-from services.perception.config import PerceptionServiceConfig
-from services.perception.service import PerceptionService
-from services.sim.render import SceneRenderer
-from shared import keys
-from shared.fake_bus import FakeNetwork
-from shared.messages import PerceptionResult, RgbdFrame, TaskEvent, TaskSpec
-from shared.service import run_service
-from shared.zconfig import build_config
+from ovamos.services.perception.config import PerceptionServiceConfig
+from ovamos.services.perception.service import PerceptionService
+from ovamos.services.sim.render import SceneRenderer
+from ovamos.shared import keys
+from ovamos.shared.fake_bus import FakeNetwork
+from ovamos.shared.messages import PerceptionResult, RgbdFrame, TaskEvent, TaskSpec
+from ovamos.shared.service import run_service
+from ovamos.shared.zconfig import build_config
 from tests.sim_scenes import two_rooms
 
 ROBOT = "r1"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from shared.messages import MapSnapshot
+from ovamos.shared.messages import MapSnapshot
 
 N = 200  # 10 x 10 m at 5 cm
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from shared.procs import loopback
+from ovamos.shared.procs import loopback
 
 
 def wait_for(predicate: Callable[[], object], timeout: float = 20.0, what: str = "condition",

@@ -5,12 +5,12 @@ from __future__ import annotations
 import threading
 from typing import Any
 
-from shared import keys
-from shared.bus import Bus
-from shared.messages import DriverState, Odometry, PlanCommand
-from shared.service import Service, ServiceConfig, run_service
-from shared.status import live_services
-from shared.zconfig import build_config
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import DriverState, Odometry, PlanCommand
+from ovamos.shared.service import Service, ServiceConfig, run_service
+from ovamos.shared.status import live_services
+from ovamos.shared.zconfig import build_config
 from tests.polling import wait_for
 
 ROBOT = "r1"

@@ -19,10 +19,10 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from shared.acl import AclConfigError, bind_robots, robot_common_names
-from shared.certs import init_ca, issue
-from shared.procs import free_port, loopback
-from shared.zconfig import build_config
+from ovamos.shared.acl import AclConfigError, bind_robots, robot_common_names
+from ovamos.shared.certs import init_ca, issue
+from ovamos.shared.procs import free_port, loopback
+from ovamos.shared.zconfig import build_config
 from tests.polling import port_open, wait_for
 
 REPO = Path(__file__).resolve().parents[1]

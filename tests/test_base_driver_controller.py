@@ -7,12 +7,11 @@ import math
 
 import pytest
 
-from services.base_driver.config import DriverConfig
-from services.base_driver.controller import BaseController, make_hardware
-from services.base_driver.odrive_can import ODriveCanHardware
-from shared.messages import DriverMode
-from shared.motion import Action
-from shared.motion import Pose
+from ovamos.services.base_driver.config import DriverConfig
+from ovamos.services.base_driver.controller import BaseController, make_hardware
+from ovamos.services.base_driver.odrive_can import ODriveCanHardware
+from ovamos.shared.messages import DriverMode
+from ovamos.shared.motion import Action, Pose
 from tests.base_driver_helpers import FakeHardware, FakeOdometryBase, command
 
 DT = 0.02

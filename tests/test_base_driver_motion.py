@@ -8,10 +8,10 @@ from collections.abc import Iterator
 
 import pytest
 
-from services.base_driver.protocol import AxisState, ControlMode, InputMode
-from services.sim.wheels import WheeledSimRobot
-from shared.messages import DriverMode
-from shared.motion import Action
+from ovamos.services.base_driver.protocol import AxisState, ControlMode, InputMode
+from ovamos.services.sim.wheels import WheeledSimRobot
+from ovamos.shared.messages import DriverMode
+from ovamos.shared.motion import Action
 from tests.base_driver_helpers import command, heading_deg, run, sim_base, wheels_at_rest
 from tests.polling import wait_for
 
@@ -105,9 +105,9 @@ def test_a_blocked_move_backs_off_to_its_start_and_reports_blocked() -> None:
 
 
 def test_the_driver_advertises_its_primitive_sizes() -> None:
-    from services.base_driver.config import DriverConfig
-    from services.base_driver.controller import BaseDriver
-    from shared.robot import PRIMITIVES, Primitives
+    from ovamos.services.base_driver.config import DriverConfig
+    from ovamos.services.base_driver.controller import BaseDriver
+    from ovamos.shared.robot import PRIMITIVES, Primitives
 
     assert BaseDriver(DriverConfig()).state().primitives == PRIMITIVES
     assert BaseDriver(DriverConfig(forward_m=0.3)).state().primitives == Primitives(forward_m=0.3)

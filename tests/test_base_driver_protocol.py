@@ -10,8 +10,16 @@ from pathlib import Path
 import can
 import pytest
 
-from services.base_driver.protocol import (DBC_PATH, AxisState, CanSimple, Cmd, ODriveError,
-                                           ProtocolError, arbitration_id, error_names)
+from ovamos.services.base_driver.protocol import (
+    DBC_PATH,
+    AxisState,
+    CanSimple,
+    Cmd,
+    ODriveError,
+    ProtocolError,
+    arbitration_id,
+    error_names,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 

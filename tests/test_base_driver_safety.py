@@ -15,13 +15,13 @@ import can
 import numpy as np
 import pytest
 
-from services.base_driver.config import CanConfig, DriverConfig, ODriveConfig
-from services.base_driver.controller import BaseDriver
-from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
-from services.base_driver.protocol import AxisState, CanSimple, Cmd, ControlMode, InputMode, ODriveError
-from services.sim.wheels import WheeledSimRobot
-from shared.messages import DriverMode
-from shared.motion import Action
+from ovamos.services.base_driver.config import CanConfig, DriverConfig, ODriveConfig
+from ovamos.services.base_driver.controller import BaseDriver
+from ovamos.services.base_driver.odrive_sim import SimAxisConfig, SimODrives
+from ovamos.services.base_driver.protocol import AxisState, CanSimple, Cmd, ControlMode, InputMode, ODriveError
+from ovamos.services.sim.wheels import WheeledSimRobot
+from ovamos.shared.messages import DriverMode
+from ovamos.shared.motion import Action
 from tests.base_driver_helpers import command, run, sim_base, wait_for_mode, wheels_at_rest
 from tests.polling import wait_for
 

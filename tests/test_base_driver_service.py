@@ -7,13 +7,13 @@ from collections.abc import Iterator
 
 import pytest
 
-from services.base_driver.config import CanConfig, DriverConfig, ODriveConfig
-from services.base_driver.service import BaseDriverService, BaseDriverServiceConfig
-from shared import keys
-from shared.bus import Bus
-from shared.messages import DriverMode, EStop, PlanCommand
-from shared.motion import Action
-from shared.zconfig import build_config
+from ovamos.services.base_driver.config import CanConfig, DriverConfig, ODriveConfig
+from ovamos.services.base_driver.service import BaseDriverService, BaseDriverServiceConfig
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import DriverMode, EStop, PlanCommand
+from ovamos.shared.motion import Action
+from ovamos.shared.zconfig import build_config
 from tests.polling import wait_for
 from tests.service_helpers import ROBOT, Planner, Running, service_stats
 

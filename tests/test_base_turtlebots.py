@@ -12,18 +12,18 @@ from contextlib import contextmanager
 
 import pytest
 
-from services.base_driver.config import DriverConfig
-from services.base_driver.controller import BaseController
-from services.base_driver.kobuki import KobukiConfig
-from services.base_driver.kobuki_protocol import WHEEL_BASE_M, WHEEL_RADIUS_M
-from services.base_driver.kobuki_sim import SimKobuki
-from services.base_driver.opencr import OpenCRConfig
-from services.base_driver.opencr_sim import SimOpenCR
-from services.base_driver.opencr_table import MODELS
-from services.sim.robot import MotionConfig, SimRobot
-from services.sim.wheels import SerialSimRobot
-from shared.messages import DriverMode
-from shared.motion import Action, Pose
+from ovamos.services.base_driver.config import DriverConfig
+from ovamos.services.base_driver.controller import BaseController
+from ovamos.services.base_driver.kobuki import KobukiConfig
+from ovamos.services.base_driver.kobuki_protocol import WHEEL_BASE_M, WHEEL_RADIUS_M
+from ovamos.services.base_driver.kobuki_sim import SimKobuki
+from ovamos.services.base_driver.opencr import OpenCRConfig
+from ovamos.services.base_driver.opencr_sim import SimOpenCR
+from ovamos.services.base_driver.opencr_table import MODELS
+from ovamos.services.sim.robot import MotionConfig, SimRobot
+from ovamos.services.sim.wheels import SerialSimRobot
+from ovamos.shared.messages import DriverMode
+from ovamos.shared.motion import Action, Pose
 from tests.base_driver_helpers import command, run, wait_for_mode
 from tests.polling import wait_for
 

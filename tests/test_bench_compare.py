@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from bench.compare import compare_runs
-from bench.episode import EpisodeResult
-from bench.search import EPISODES_FILE, RUN_FILE, SearchError, jsonl_line
+from ovamos.bench.compare import compare_runs
+from ovamos.bench.episode import EpisodeResult
+from ovamos.bench.search import EPISODES_FILE, RUN_FILE, SearchError, jsonl_line
 from tests.polling import ovamos_unwrapped
 from tests.test_bench_search import fake
 

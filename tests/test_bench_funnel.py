@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.funnel import FunnelRecorder, StopRecord, TargetFunnel
-from shared.messages import Miss
-from bench.jobs import Job, run_job
-from shared.detections import Detection
-from shared.messages import Intrinsics, ObjectInstance, RgbdFrame
+from ovamos.bench.funnel import FunnelRecorder, StopRecord, TargetFunnel
+from ovamos.bench.jobs import Job, run_job
+from ovamos.shared.detections import Detection
+from ovamos.shared.messages import Intrinsics, Miss, ObjectInstance, RgbdFrame
 from tests.sim_scenes import two_rooms
 
 

@@ -8,9 +8,9 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from bench.homes import PROCTHOR_10K, home_statistics
+from ovamos.bench.homes import PROCTHOR_10K, home_statistics
 from ovamos.cli import app
-from services.sim.prior import ObjectPrior
+from ovamos.services.sim.prior import ObjectPrior
 from tests.sim_scenes import two_rooms
 
 

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.provenance import code_version
-from shared import __version__
+from ovamos import __version__
+from ovamos.bench.provenance import code_version
 
 
 def git(root: Path, *args: str) -> str:

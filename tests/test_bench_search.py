@@ -16,16 +16,32 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from bench.draw import draw_chart, legend_lines
-from bench.episode import EpisodeResult
-from bench.funnel import StopRecord, TargetFunnel
-from bench.jobs import EpisodeFailed, Job, iter_results
-from bench.provenance import code_version
-from bench.search import (CHART_FILE, EPISODES_FILE, RUN_FILE, SUMMARY_FILE, TIMINGS_FILE, UNRECORDED, SearchError,
-                          SearchRun, jsonl_line, main, parse_episode_id, parse_policies, read_results, replay, run_search,
-                          summary, write_outputs)
-from bench.stats import miss_reasons, paired_differences, policy_scores
-from bench.tables import print_table
+from ovamos.bench.draw import draw_chart, legend_lines
+from ovamos.bench.episode import EpisodeResult
+from ovamos.bench.funnel import StopRecord, TargetFunnel
+from ovamos.bench.jobs import EpisodeFailed, Job, iter_results
+from ovamos.bench.provenance import code_version
+from ovamos.bench.search import (
+    CHART_FILE,
+    EPISODES_FILE,
+    RUN_FILE,
+    SUMMARY_FILE,
+    TIMINGS_FILE,
+    UNRECORDED,
+    SearchError,
+    SearchRun,
+    jsonl_line,
+    main,
+    parse_episode_id,
+    parse_policies,
+    read_results,
+    replay,
+    run_search,
+    summary,
+    write_outputs,
+)
+from ovamos.bench.stats import miss_reasons, paired_differences, policy_scores
+from ovamos.bench.tables import print_table
 
 SEED, EPISODES, STEPS = 0, 2, 15
 POLICIES = ("random", "ovamos")

@@ -14,15 +14,15 @@ from pathlib import Path
 
 import pytest
 
-from bench.episode import EpisodeConfig, run_episode
-from bench.jobs import load_episode, load_prior
-from services.base_driver.config import DriverConfig
-from services.planner.agent import Step
-from services.sim.robot import MotionConfig, SimRobot
-from services.sim.wheels import SerialSimRobot, WheeledSimRobot, base_motion, wheeled
-from shared.messages import DriverMode, PlanCommand
-from shared.motion import Action
-from shared.simtime import SimClock
+from ovamos.bench.episode import EpisodeConfig, run_episode
+from ovamos.bench.jobs import load_episode, load_prior
+from ovamos.services.base_driver.config import DriverConfig
+from ovamos.services.planner.agent import Step
+from ovamos.services.sim.robot import MotionConfig, SimRobot
+from ovamos.services.sim.wheels import SerialSimRobot, WheeledSimRobot, base_motion, wheeled
+from ovamos.shared.messages import DriverMode, PlanCommand
+from ovamos.shared.motion import Action
+from ovamos.shared.simtime import SimClock
 from tests.base_driver_helpers import turns_to_nearest_wall
 from tests.polling import wait_for
 

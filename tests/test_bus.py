@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 import zenoh
 
-from services.diag.testpattern import pattern_frame
-from shared import keys
-from shared.bus import Bus
-from shared.messages import JsonMessage, RgbdFrame
-from shared.status import live_services
-from shared.zconfig import build_config
+from ovamos.services.diag.testpattern import pattern_frame
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import JsonMessage, RgbdFrame
+from ovamos.shared.status import live_services
+from ovamos.shared.zconfig import build_config
 from tests.polling import wait_for
 
 

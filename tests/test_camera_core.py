@@ -12,15 +12,15 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from services.camera.capture import CapturedFrame
-from services.camera.clock import DeviceClock, HostClock, make_clock
-from services.camera.config import CameraConfig, ClockConfig
-from services.camera.core import CLOCK_JUMP, DEPTH_ALL_ZERO, CameraCore
-from services.camera.pose import BasePose, Miss, OdometryBuffer, wrap_angle
-from shared.sessions import SessionSwitch
-from shared.camera import camera_pose as sim_camera_pose
-from shared.config import ServiceConfigError, read_config
-from shared.messages import CameraState, DriverMode, DriverState, Intrinsics, Odometry, RgbdFrame
+from ovamos.services.camera.capture import CapturedFrame
+from ovamos.services.camera.clock import DeviceClock, HostClock, make_clock
+from ovamos.services.camera.config import CameraConfig, ClockConfig
+from ovamos.services.camera.core import CLOCK_JUMP, DEPTH_ALL_ZERO, CameraCore
+from ovamos.services.camera.pose import BasePose, Miss, OdometryBuffer, wrap_angle
+from ovamos.shared.camera import camera_pose as sim_camera_pose
+from ovamos.shared.config import ServiceConfigError, read_config
+from ovamos.shared.messages import CameraState, DriverMode, DriverState, Intrinsics, Odometry, RgbdFrame
+from ovamos.shared.sessions import SessionSwitch
 
 WALL = 1.7e9            # host wall clock = host monotonic + WALL
 K = Intrinsics(fx=20.0, fy=20.0, cx=7.5, cy=5.5)

@@ -18,16 +18,16 @@ import cv2
 import numpy as np
 import pytest
 
-from services.camera.capture import CapturedFrame
-from services.camera.config import CameraConfig, ClockConfig, Mount
-from services.camera.core import CameraCore
-from services.camera.pose import BasePose, base_T_optical, camera_pose
-from services.mapping.config import MappingConfig
-from services.mapping.state import MapState
-from services.sim.occupancy import rasterize
-from shared.camera import CAMERA_HEIGHT_M, OPTICAL_TO_BODY
-from shared.camera import camera_pose as sim_camera_pose
-from shared.messages import Intrinsics, Odometry
+from ovamos.services.camera.capture import CapturedFrame
+from ovamos.services.camera.config import CameraConfig, ClockConfig, Mount
+from ovamos.services.camera.core import CameraCore
+from ovamos.services.camera.pose import BasePose, base_T_optical, camera_pose
+from ovamos.services.mapping.config import MappingConfig
+from ovamos.services.mapping.state import MapState
+from ovamos.services.sim.occupancy import rasterize
+from ovamos.shared.camera import CAMERA_HEIGHT_M, OPTICAL_TO_BODY
+from ovamos.shared.camera import camera_pose as sim_camera_pose
+from ovamos.shared.messages import Intrinsics, Odometry
 from tests.sim_scenes import two_rooms
 
 # -- the mount's conventions ---------------------------------------------------------------------
@@ -133,7 +133,7 @@ def surface_cells(depth_m: np.ndarray, k: Intrinsics, pose: tuple[float, ...], s
 @pytest.fixture(scope="module")
 def recording() -> Recording:
     """The path rendered once (the frames do not depend on the mount under test)."""
-    from services.sim.render import SceneRenderer  # MuJoCo (EGL): only when these tests run
+    from ovamos.services.sim.render import SceneRenderer  # MuJoCo (EGL): only when these tests run
 
     rng = np.random.default_rng(16)
     events: list[tuple[float, Odometry | Shot]] = []

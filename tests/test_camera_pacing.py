@@ -10,12 +10,12 @@ import time
 
 import numpy as np
 
-from services.camera.capture import CameraError, CapturedFrame
-from services.camera.config import CameraConfig, OdometryConfig
-from services.camera.service import CAPTURE_KEEP, CameraService
-from shared import keys
-from shared.fake_bus import FakeNetwork
-from shared.messages import Intrinsics, Odometry, RgbdFrame
+from ovamos.services.camera.capture import CameraError, CapturedFrame
+from ovamos.services.camera.config import CameraConfig, OdometryConfig
+from ovamos.services.camera.service import CAPTURE_KEEP, CameraService
+from ovamos.shared import keys
+from ovamos.shared.fake_bus import FakeNetwork
+from ovamos.shared.messages import Intrinsics, Odometry, RgbdFrame
 from tests.polling import wait_for
 
 ROBOT = "r1"

@@ -14,21 +14,21 @@ import pytest
 
 pytest.importorskip("pyrealsense2")
 
-from services.camera.config import CameraConfig, OdometryConfig  # noqa: E402
-from services.camera.file import FileConfig  # noqa: E402
-from services.camera.realsense import RealSenseBackend, RealSenseConfig  # noqa: E402
-from services.camera.service import CameraService  # noqa: E402
-from services.camera.software_device import SoftwareCamera  # noqa: E402
-from services.sim.render import SceneRenderer  # noqa: E402
-from shared import keys  # noqa: E402
-from shared.bus import Bus  # noqa: E402
-from shared.camera import camera_pose  # noqa: E402
-from shared.messages import CameraState, Odometry, RgbdFrame, ServiceStats  # noqa: E402
-from shared.zconfig import build_config  # noqa: E402
-from tests.polling import wait_for  # noqa: E402
-from shared.status import live_services  # noqa: E402
-from tests.service_helpers import ROBOT, Running  # noqa: E402
-from tests.sim_scenes import two_rooms  # noqa: E402
+from ovamos.services.camera.config import CameraConfig, OdometryConfig
+from ovamos.services.camera.file import FileConfig
+from ovamos.services.camera.realsense import RealSenseBackend, RealSenseConfig
+from ovamos.services.camera.service import CameraService
+from ovamos.services.camera.software_device import SoftwareCamera
+from ovamos.services.sim.render import SceneRenderer
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.camera import camera_pose
+from ovamos.shared.messages import CameraState, Odometry, RgbdFrame, ServiceStats
+from ovamos.shared.status import live_services
+from ovamos.shared.zconfig import build_config
+from tests.polling import wait_for
+from tests.service_helpers import ROBOT, Running
+from tests.sim_scenes import two_rooms
 
 W, H, FPS, FRAMES = 160, 120, 30, 12
 MAX_FRAMES = 60  # enough that a capture queue which drops while the service is busy loses some

@@ -1,7 +1,7 @@
 """The RealSense backend through the real pyrealsense2 SDK, without a camera.
 
 Frames rendered by the simulator go into the SDK's own ``software_device``
-(:class:`services.camera.software_device.SoftwareCamera`); the backend reads them
+(:class:`ovamos.services.camera.software_device.SoftwareCamera`); the backend reads them
 through the SDK's syncer, ``rs.align`` and its conversion, as it reads a D4xx.
 The same device is recorded with ``rs.recorder`` and played back by the file
 backend through ``rs.pipeline``.
@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 from scipy.ndimage import maximum_filter, minimum_filter
 
-from services.camera.capture import CameraError, CapturedFrame
-from services.camera.file import FileBackend, FileConfig, RecordingEnded
-from services.camera.oakd import OakdBackend, OakdConfig
-from services.camera.realsense import RealSenseBackend, RealSenseConfig
-from services.camera.software_device import SoftwareCamera
-from shared.messages import Intrinsics
+from ovamos.services.camera.capture import CameraError, CapturedFrame
+from ovamos.services.camera.file import FileBackend, FileConfig, RecordingEnded
+from ovamos.services.camera.oakd import OakdBackend, OakdConfig
+from ovamos.services.camera.realsense import RealSenseBackend, RealSenseConfig
+from ovamos.services.camera.software_device import SoftwareCamera
+from ovamos.shared.messages import Intrinsics
 from tests.sim_scenes import two_rooms
 
 W, H, FPS = 160, 120, 30
@@ -33,7 +33,7 @@ SCALE = 0.001
 @pytest.fixture(scope="module")
 def rendered() -> tuple[list[tuple[np.ndarray, np.ndarray]], Intrinsics]:
     """Six views of the two-room house as (rgb8, z16 in millimetres), and the intrinsics."""
-    from services.sim.render import SceneRenderer
+    from ovamos.services.sim.render import SceneRenderer
 
     with SceneRenderer(two_rooms(), W, H) as renderer:
         frames = [renderer.render(1.5, 2.0, i * math.pi / 3) for i in range(6)]
@@ -324,7 +324,7 @@ def test_oakd_is_refused_with_the_reason() -> None:
 
 
 def test_camera_benchmark_reports_its_keys() -> None:
-    from bench.camera import run_benchmark
+    from ovamos.bench.camera import run_benchmark
 
     result = run_benchmark(frames=3, runs=1)
     assert result["fps_640x480"] > 0

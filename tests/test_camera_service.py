@@ -13,16 +13,16 @@ import pytest
 
 pytest.importorskip("pyrealsense2")
 
-from services.camera.config import CameraConfig  # noqa: E402
-from services.camera.realsense import RealSenseBackend, RealSenseConfig  # noqa: E402
-from services.camera.service import CameraService  # noqa: E402
-from services.camera.software_device import SoftwareCamera  # noqa: E402
-from services.sim.render import SceneRenderer  # noqa: E402
-from shared import keys  # noqa: E402
-from shared.camera import camera_pose  # noqa: E402
-from shared.fake_bus import FakeNetwork  # noqa: E402
-from shared.messages import CameraState, DriverMode, DriverState, Odometry, RgbdFrame  # noqa: E402
-from tests.sim_scenes import two_rooms  # noqa: E402
+from ovamos.services.camera.config import CameraConfig
+from ovamos.services.camera.realsense import RealSenseBackend, RealSenseConfig
+from ovamos.services.camera.service import CameraService
+from ovamos.services.camera.software_device import SoftwareCamera
+from ovamos.services.sim.render import SceneRenderer
+from ovamos.shared import keys
+from ovamos.shared.camera import camera_pose
+from ovamos.shared.fake_bus import FakeNetwork
+from ovamos.shared.messages import CameraState, DriverMode, DriverState, Odometry, RgbdFrame
+from tests.sim_scenes import two_rooms
 
 ROBOT, W, H, FPS = "r1", 160, 120, 30
 POSE = (1.5, 2.0, 0.3)  # the robot stands still here

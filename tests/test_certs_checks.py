@@ -21,10 +21,11 @@ import pytest
 import zenoh
 
 from ovamos.router import log_certificates
-from shared.certs import CertInfo, check_certificate, init_ca, issue
-from shared.procs import free_port, loopback
-from shared.zconfig import TlsFiles, ZenohConfigError, build_config, check_plain_listeners, open_session
-from tests.polling import ovamos_unwrapped as ovamos, port_open, wait_for
+from ovamos.shared.certs import CertInfo, check_certificate, init_ca, issue
+from ovamos.shared.procs import free_port, loopback
+from ovamos.shared.zconfig import TlsFiles, ZenohConfigError, build_config, check_plain_listeners, open_session
+from tests.polling import ovamos_unwrapped as ovamos
+from tests.polling import port_open, wait_for
 
 REPO = Path(__file__).resolve().parents[1]
 SECURE_LAPTOP = REPO / "deploy" / "zenoh" / "laptop-router-secure.json5"

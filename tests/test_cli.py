@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from bench.transport import run_benchmark
+from ovamos import __version__
+from ovamos.bench.transport import run_benchmark
 from ovamos.demo import DEMO_EPISODE, DEMO_SEED
-from shared import __version__
 
 
 def ovamos(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
@@ -56,7 +56,7 @@ def _ports(node: dict, kind: str) -> set[tuple[str, str | None]]:
 
 def test_graph_json_is_the_declared_topology() -> None:
     """``ovamos graph --json`` prints shared/topology.py's table: keys in and out with message types."""
-    from shared.topology import TOPOLOGY, graph
+    from ovamos.shared.topology import TOPOLOGY, graph
     out = ovamos("graph", "--json")
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
@@ -76,7 +76,7 @@ def test_graph_json_is_the_declared_topology() -> None:
 
 
 def test_graph_table_has_a_row_per_service() -> None:
-    from shared.topology import TOPOLOGY
+    from ovamos.shared.topology import TOPOLOGY
     out = ovamos("graph")
     assert out.returncode == 0, out.stderr
     assert all(name in out.stdout for name in TOPOLOGY)
@@ -101,8 +101,8 @@ def test_demo_finds_every_target_through_the_http_api_and_cleans_up(tmp_path: Pa
     planner_log = (tmp_path / "logs" / "planner.log").read_text()  # a normal end is no lost link
     assert "robot unreachable" not in planner_log and "driver shut down" in planner_log
     # lock-step with the kinematic robot: the distributed run is the in-process episode, step by step
-    from bench.episode import EpisodeConfig, run_episode
-    from services.sim.episodes import make_episode
+    from ovamos.bench.episode import EpisodeConfig, run_episode
+    from ovamos.services.sim.episodes import make_episode
     local = run_episode(*make_episode(DEMO_SEED, DEMO_EPISODE), EpisodeConfig())
     assert task["steps"] == local.steps
     assert task["distance_m"] == pytest.approx(local.path_m, abs=1e-6)
@@ -120,7 +120,7 @@ def test_transport_benchmark_reports_both_paths_with_and_without_shared_memory()
 
 
 def test_transport_stages_split_each_round_trip_across_the_processes() -> None:
-    from bench.transport_stages import STAGES, run_stages
+    from ovamos.bench.transport_stages import STAGES, run_stages
     result = run_stages(frames=5, gap_ms=1.0)
     paths = {"raw", "ovamos", "raw+shm", "ovamos+shm"}
     assert set(result["median_us"]) == paths and set(result["lost"]) == paths
@@ -134,14 +134,14 @@ def test_transport_stages_split_each_round_trip_across_the_processes() -> None:
 
 
 def test_tls_transport_benchmark_compares_the_links() -> None:
-    from bench.transport_tls import run_tls_benchmark
+    from ovamos.bench.transport_tls import run_tls_benchmark
     result = run_tls_benchmark(frames=5, runs=1, gap_ms=1.0)
     assert result["tcp_median_us"] > 0 and result["tls_median_us"] > 0 and result["tls_acl_median_us"] > 0
     assert result["tls_overhead_ratio"] == round(result["tls_median_us"] / result["tcp_median_us"], 3)
 
 
 def test_sim_benchmark_reports_both_resolutions() -> None:
-    from bench.sim import run_benchmark as run_sim_benchmark
+    from ovamos.bench.sim import run_benchmark as run_sim_benchmark
     result = run_sim_benchmark(frames=3, runs=1)
     assert result["fps_640x480"] > 0 and result["fps_320x240"] > 0
     assert result["objects"] > 0
@@ -164,14 +164,14 @@ def test_sim_commands_write_pictures(tmp_path: Path) -> None:
 
 
 def test_planner_benchmark_reports_latency_and_sims() -> None:
-    from bench.planner import run_benchmark as run_planner_benchmark
+    from ovamos.bench.planner import run_benchmark as run_planner_benchmark
     result = run_planner_benchmark(runs=1, sims=50)
     assert set(result["decision_ms"]) == set(result["plus_decision_ms"]) == {"5", "10", "20"}
     assert result["sims_per_s"] > 0
 
 
 def test_submit_through_a_gateway_process(cli, router_port: int, tmp_path: Path) -> None:
-    from shared.procs import free_port, loopback
+    from ovamos.shared.procs import free_port, loopback
     from tests.polling import port_open, wait_for
     port = free_port()
     cfg = tmp_path / "gateway.toml"

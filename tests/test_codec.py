@@ -1,4 +1,4 @@
-"""Wire-format tests for shared.codec and the messages built on it.
+"""Wire-format tests for ovamos.shared.codec and the messages built on it.
 
 The codec is the one place where bytes from the network meet numpy, so these
 tests pin three promises: what a producer sends is what a consumer gets, bit
@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import json
 import zlib
-from typing import Any, NamedTuple
 from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import numpy as np
 import pytest
@@ -20,10 +20,9 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from pydantic import ValidationError
 
-from shared import codec
-from shared.codec import BODY_OFFSET, FLAG_ZLIB, HEADER, MAGIC, WIRE_VERSION, DecodeError, loan, pack, unpack
-from shared.messages import (CounterSet, Intrinsics, MapSnapshot, ObjectInstance, RgbdFrame,
-                             ServiceStats)
+from ovamos.shared import codec
+from ovamos.shared.codec import BODY_OFFSET, FLAG_ZLIB, HEADER, MAGIC, WIRE_VERSION, DecodeError, loan, pack, unpack
+from ovamos.shared.messages import CounterSet, Intrinsics, MapSnapshot, ObjectInstance, RgbdFrame, ServiceStats
 
 SETTINGS = settings(max_examples=50, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -122,7 +121,7 @@ def assert_same_message(got: RgbdFrame | MapSnapshot, want: RgbdFrame | MapSnaps
 
 
 class Parts(NamedTuple):
-    """A payload taken apart (see the layout in shared.codec's docstring)."""
+    """A payload taken apart (see the layout in ovamos.shared.codec's docstring)."""
 
     flags: int
     body: bytes

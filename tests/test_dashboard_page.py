@@ -13,16 +13,34 @@ import pytest
 from selenium.webdriver.common.by import By
 from selenium.webdriver.common.keys import Keys
 
-from services.gateway.page import STATIC
-from shared import keys
-from shared.bus import Bus
-from services.gateway.client import GatewayClient
-from shared.messages import Goal, ObjectInstance, TaskStatus
-from shared.zconfig import build_config
-from tests.browser import (PHONE, by_id, chromium, console_errors, row, screenshot, set_viewport,
-                           task_rows, text_of, wait_text)
-from tests.gateway_mocks import (ODOM_SESSION, ROBOT, MockDriver, MockMapping, MockPlanner, RunningGateway, gateway_config,
-                                 small_map)
+from ovamos.services.gateway.client import GatewayClient
+from ovamos.services.gateway.page import STATIC
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import Goal, ObjectInstance, TaskStatus
+from ovamos.shared.zconfig import build_config
+from tests.browser import (
+    PHONE,
+    by_id,
+    chromium,
+    console_errors,
+    row,
+    screenshot,
+    set_viewport,
+    task_rows,
+    text_of,
+    wait_text,
+)
+from tests.gateway_mocks import (
+    ODOM_SESSION,
+    ROBOT,
+    MockDriver,
+    MockMapping,
+    MockPlanner,
+    RunningGateway,
+    gateway_config,
+    small_map,
+)
 from tests.polling import wait_for
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from shared.dds import LOOPBACK_PROFILE, PROFILE_VARS, DdsNetworkError, check_loopback_only, loopback_env
+from ovamos.shared.dds import LOOPBACK_PROFILE, PROFILE_VARS, DdsNetworkError, check_loopback_only, loopback_env
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -25,7 +25,7 @@ def test_the_shipped_profile_passes_in_a_loopback_only_namespace() -> None:
 
 
 def test_another_interface_is_refused_by_name() -> None:
-    with pytest.raises(DdsNetworkError, match=r"has eth0, lo, not only lo.*python -m shared.dds"):
+    with pytest.raises(DdsNetworkError, match=r"has eth0, lo, not only lo.*python -m ovamos.shared.dds"):
         check_loopback_only(loopback_env({}), interfaces=["lo", "eth0"])
 
 
@@ -75,10 +75,10 @@ def _unshare_reason() -> str | None:
 def test_the_runner_gives_a_command_a_loopback_only_namespace_that_passes_the_guard() -> None:
     if (reason := _unshare_reason()) is not None:
         pytest.skip(reason)
-    probe = ("import json, os, socket; from shared.dds import check_loopback_only; check_loopback_only(); "
+    probe = ("import json, os, socket; from ovamos.shared.dds import check_loopback_only; check_loopback_only(); "
              "print(json.dumps({'links': sorted(n for _, n in socket.if_nameindex()), "
              "'shm': os.listdir('/dev/shm'), 'range': os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE']}))")
-    done = subprocess.run([sys.executable, "-m", "shared.dds", "--", sys.executable, "-c", probe], cwd=REPO,
+    done = subprocess.run([sys.executable, "-m", "ovamos.shared.dds", "--", sys.executable, "-c", probe], cwd=REPO,
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     inside = json.loads(done.stdout)
@@ -86,6 +86,6 @@ def test_the_runner_gives_a_command_a_loopback_only_namespace_that_passes_the_gu
     # a 127.0.0.1 socket works in there (the lo the runner brought up)
     echo = ("import socket; s = socket.socket(); s.bind(('127.0.0.1', 0)); s.listen(); "
             "c = socket.create_connection(s.getsockname()); print('connected')")
-    done = subprocess.run([sys.executable, "-m", "shared.dds", "--", sys.executable, "-c", echo], cwd=REPO,
+    done = subprocess.run([sys.executable, "-m", "ovamos.shared.dds", "--", sys.executable, "-c", echo], cwd=REPO,
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 0 and done.stdout.strip() == "connected", done.stderr

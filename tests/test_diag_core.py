@@ -15,9 +15,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from services.diag import testpattern as tp
-from services.diag.monitor import TrafficStats
-from shared.messages import RgbdFrame
+from ovamos.services.diag import testpattern as tp
+from ovamos.services.diag.monitor import TrafficStats
+from ovamos.shared.messages import RgbdFrame
 
 SETTINGS = settings(max_examples=50, deadline=None)
 

@@ -18,17 +18,17 @@ import numpy as np
 import pytest
 from scipy.ndimage import binary_dilation
 
-from bench.episode import EpisodeConfig, run_episode
+from ovamos.bench.episode import EpisodeConfig, run_episode
 from ovamos.demo import FLEET_ID, fleet_entries, wait_for_services, write_fleet_configs
+from ovamos.services.gateway.client import GatewayClient
+from ovamos.services.sim.episodes import make_episode
+from ovamos.services.sim.occupancy import grid_for, rasterize
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import MapSnapshot
+from ovamos.shared.procs import free_port, kill, loopback
+from ovamos.shared.zconfig import build_config
 from ovamos.supervisor import Backoff, Supervisor, port_open
-from services.gateway.client import GatewayClient
-from services.sim.episodes import make_episode
-from services.sim.occupancy import grid_for, rasterize
-from shared import keys
-from shared.bus import Bus
-from shared.messages import MapSnapshot
-from shared.procs import free_port, kill, loopback
-from shared.zconfig import build_config
 from tests.polling import wait_for
 
 SEED = 0

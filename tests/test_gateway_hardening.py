@@ -17,9 +17,9 @@ from pathlib import Path
 import httpx
 import pytest
 
-from services.gateway.config import TOKEN_ENV, GatewayConfig
-from services.gateway.service import GatewayService
-from shared.service import ServiceConfigError, load_config
+from ovamos.services.gateway.config import TOKEN_ENV, GatewayConfig
+from ovamos.services.gateway.service import GatewayService
+from ovamos.shared.service import ServiceConfigError, load_config
 from tests.gateway_mocks import ROBOT, MockDriver, MockPlanner, RunningGateway, gateway_config
 from tests.polling import wait_for
 
@@ -148,8 +148,8 @@ def test_every_answer_carries_the_security_headers(gateway: RunningGateway) -> N
 
 
 def test_the_page_has_no_inline_script_or_style_for_the_policy_to_block() -> None:
-    from services.gateway.page import STATIC
-    from services.gateway.security import DOCS_PAGE
+    from ovamos.services.gateway.page import STATIC
+    from ovamos.services.gateway.security import DOCS_PAGE
     for text in [*(p.read_text() for p in STATIC.glob("*.html")), DOCS_PAGE]:
         assert "<style" not in text and " style=" not in text and not re.search(r"\son[a-z]+=", text)
         scripts = text.split("<script")[1:]

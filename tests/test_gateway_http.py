@@ -11,16 +11,16 @@ import httpx
 import numpy as np
 import pytest
 
-from services.gateway import client as gw_client
-from services.gateway.client import GatewayClient, GatewayError
-from services.gateway.config import TOKEN_ENV, GatewayConfig
-from services.gateway.models import TaskView
-from services.gateway.service import GatewayService
-from shared.messages import FoundObject, TaskStatus
-from shared.service import ServiceConfigError, load_config, run_service
-from shared.zconfig import build_config
-from tests.polling import wait_for
+from ovamos.services.gateway import client as gw_client
+from ovamos.services.gateway.client import GatewayClient, GatewayError
+from ovamos.services.gateway.config import TOKEN_ENV, GatewayConfig
+from ovamos.services.gateway.models import TaskView
+from ovamos.services.gateway.service import GatewayService
+from ovamos.shared.messages import FoundObject, TaskStatus
+from ovamos.shared.service import ServiceConfigError, load_config, run_service
+from ovamos.shared.zconfig import build_config
 from tests.gateway_mocks import ODOM_SESSION, ROBOT, MockMapping, MockPlanner, RunningGateway, gateway_config
+from tests.polling import wait_for
 
 CHAIR = FoundObject(label="chair", x=0.6, y=1.4, step=2)
 

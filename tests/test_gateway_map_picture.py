@@ -6,11 +6,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from services.gateway.maps import map_png, map_view
-from services.gateway.models import Pose
-from services.gateway.store import TaskRecord
-from services.mapping import render
-from shared.messages import FoundObject, Goal, ObjectInstance, TaskStatus
+from ovamos.services.gateway.maps import map_png, map_view
+from ovamos.services.gateway.models import Pose
+from ovamos.services.gateway.store import TaskRecord
+from ovamos.services.mapping import render
+from ovamos.shared.messages import FoundObject, Goal, ObjectInstance, TaskStatus
 from tests.gateway_mocks import small_map
 
 PPC = 2  # the PNG's pixels per cell

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from services.gateway.store import StoreError, TaskStore
-from shared.messages import TaskStatus
+from ovamos.services.gateway.store import StoreError, TaskStore
+from ovamos.shared.messages import TaskStatus
 
 
 def test_a_second_store_on_the_same_file_is_refused_until_the_first_closes(tmp_path: Path) -> None:

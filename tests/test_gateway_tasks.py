@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from services.gateway.client import GatewayClient, GatewayError
-from shared import keys
-from shared.messages import FoundObject, TaskStatus
-from tests.polling import wait_for
+from ovamos.services.gateway.client import GatewayClient, GatewayError
+from ovamos.shared import keys
+from ovamos.shared.messages import FoundObject, TaskStatus
 from tests.gateway_mocks import ODOM_SESSION, ROBOT, MockPlanner, RunningGateway, gateway_config
+from tests.polling import wait_for
 
 CHAIR = FoundObject(label="chair", x=1.5, y=-0.5, step=3)
 FRIDGE = FoundObject(label="fridge", x=4.0, y=2.25, step=7)

@@ -17,14 +17,14 @@ from typing import Any
 import httpx
 import pytest
 
-from services.gateway import app as gateway_app
-from services.gateway.client import GatewayClient
-from services.gateway.config import GatewayConfig
-from services.gateway.store import TaskRecord, TaskStore
-from services.gateway.tasks import GatewayBusy, TaskManager
-from shared import keys
-from shared.fake_bus import FakeNetwork
-from shared.messages import TaskEvent, TaskSpec, TaskStatus
+from ovamos.services.gateway import app as gateway_app
+from ovamos.services.gateway.client import GatewayClient
+from ovamos.services.gateway.config import GatewayConfig
+from ovamos.services.gateway.store import TaskRecord, TaskStore
+from ovamos.services.gateway.tasks import GatewayBusy, TaskManager
+from ovamos.shared import keys
+from ovamos.shared.fake_bus import FakeNetwork
+from ovamos.shared.messages import TaskEvent, TaskSpec, TaskStatus
 from tests.gateway_mocks import ROBOT, MockPlanner, RunningGateway, gateway_config
 from tests.polling import wait_for
 

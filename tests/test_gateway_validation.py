@@ -12,9 +12,9 @@ from collections.abc import Iterator
 import pytest
 from fastapi.testclient import TestClient
 
-from services.gateway.app import create_app
-from shared.bus import Bus
-from shared.zconfig import build_config
+from ovamos.services.gateway.app import create_app
+from ovamos.shared.bus import Bus
+from ovamos.shared.zconfig import build_config
 from tests.gateway_mocks import ROBOT, gateway_config
 
 JSON = {"content-type": "application/json"}

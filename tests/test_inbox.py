@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 import time
 
-from shared.inbox import Inbox
+from ovamos.shared.inbox import Inbox
 
 
 def test_ordinary_events_run_in_order_and_keep_latest_channels_keep_only_the_newest() -> None:

@@ -14,8 +14,8 @@ import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from shared import keys
-from shared.keys import KeyExprError, ServiceKey, parse_service_key
+from ovamos.shared import keys
+from ovamos.shared.keys import KeyExprError, ServiceKey, parse_service_key
 
 SETTINGS = settings(max_examples=50, deadline=None)
 

@@ -14,7 +14,6 @@ those tables (shown in the comments), not produced by this code.
 
 from __future__ import annotations
 
-import math
 import os
 import time
 import tty
@@ -22,13 +21,26 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from services.base_driver.hardware import HardwareError
-from services.base_driver.kobuki import KobukiConfig, KobukiHardware
-from services.base_driver.kobuki_protocol import (
-    TICK_TO_RAD, TICKS_PER_REV, WHEEL_BASE_M, WHEEL_RADIUS_M, BasicSensorData, PacketDecoder, ProtocolError,
-    TickUnwrapper, body_to_speed_radius, checksum, encode_base_control, encode_packet, encode_sub_payload,
-    speed_radius_to_wheels, split_sub_payloads)
-from services.base_driver.kobuki_sim import SimKobuki
+from ovamos.services.base_driver.hardware import HardwareError
+from ovamos.services.base_driver.kobuki import KobukiConfig, KobukiHardware
+from ovamos.services.base_driver.kobuki_protocol import (
+    TICK_TO_RAD,
+    TICKS_PER_REV,
+    WHEEL_BASE_M,
+    WHEEL_RADIUS_M,
+    BasicSensorData,
+    PacketDecoder,
+    ProtocolError,
+    TickUnwrapper,
+    body_to_speed_radius,
+    checksum,
+    encode_base_control,
+    encode_packet,
+    encode_sub_payload,
+    speed_radius_to_wheels,
+    split_sub_payloads,
+)
+from ovamos.services.base_driver.kobuki_sim import SimKobuki
 from tests.polling import wait_for
 
 R = WHEEL_RADIUS_M

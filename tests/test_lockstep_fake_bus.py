@@ -1,7 +1,7 @@
 """The simulated robot, perception, mapping and planner services' adapters wired on the fake bus (no router).
 
 The services are the real ones (their ``start``/``tick`` and handlers); only the
-transport is :mod:`shared.fake_bus`, and the test runs their one event loop by
+transport is :mod:`ovamos.shared.fake_bus`, and the test runs their one event loop by
 hand, so the lock-step protocol can be checked decision by decision: with the
 robot's clock 5 s ahead of or behind the laptop's, the planner must still run
 the task to its end and never decide on a map that has not fused a frame taken
@@ -16,18 +16,18 @@ from types import SimpleNamespace
 
 import pytest
 
-import services.sim.kinematic
-from services.mapping.service import MappingService, MappingServiceConfig
-from services.perception.config import PerceptionServiceConfig
-from services.perception.service import PerceptionService
-from services.perception.sim_backend import SimBackend
-from services.planner.agent import AgentConfig
-from services.planner.service import PlannerService, PlannerServiceConfig
-from services.sim.service import SimRobotService, SimServiceConfig
-from shared import keys
-from shared.fake_bus import FakeNetwork, key_matches
-from shared.messages import PlanCommand, TaskEvent, TaskSpec, TaskStatus
-from shared.motion import Pose
+import ovamos.services.sim.kinematic
+from ovamos.services.mapping.service import MappingService, MappingServiceConfig
+from ovamos.services.perception.config import PerceptionServiceConfig
+from ovamos.services.perception.service import PerceptionService
+from ovamos.services.perception.sim_backend import SimBackend
+from ovamos.services.planner.agent import AgentConfig
+from ovamos.services.planner.service import PlannerService, PlannerServiceConfig
+from ovamos.services.sim.service import SimRobotService, SimServiceConfig
+from ovamos.shared import keys
+from ovamos.shared.fake_bus import FakeNetwork, key_matches
+from ovamos.shared.messages import PlanCommand, TaskEvent, TaskSpec, TaskStatus
+from ovamos.shared.motion import Pose
 from tests.sim_scenes import two_rooms
 
 ROBOT = "r1"
@@ -47,7 +47,7 @@ def test_lock_step_over_the_fake_bus_with_a_skewed_robot_clock(
     # the robot host's wall clock, off by the offset (monotonic time is per host anyway)
     robot_clock = SimpleNamespace(time=lambda: time.time() + robot_clock_offset_s,
                                   monotonic=time.monotonic, sleep=time.sleep)
-    monkeypatch.setattr(services.sim.kinematic, "time", robot_clock)
+    monkeypatch.setattr(ovamos.services.sim.kinematic, "time", robot_clock)
     scene = tmp_path / "scene.json"
     two_rooms().save(scene)
     net = FakeNetwork()

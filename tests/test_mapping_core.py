@@ -7,14 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from services.mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from services.mapping.config import MappingConfig
-from services.mapping.layers import aggregate, decay, fov_confidence, fuse
-from services.mapping.state import MapState
-from services.sim.render import SceneRenderer
-from shared.detections import Detection
-from shared.messages import PerceptionResult
-from services.sim.world import Room, Scene, Wall
+from ovamos.services.mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from ovamos.services.mapping.config import MappingConfig
+from ovamos.services.mapping.layers import aggregate, decay, fov_confidence, fuse
+from ovamos.services.mapping.state import MapState
+from ovamos.services.sim.render import SceneRenderer
+from ovamos.services.sim.world import Room, Scene, Wall
+from ovamos.shared.detections import Detection
+from ovamos.shared.messages import PerceptionResult
 from tests.sim_scenes import two_rooms
 
 CONFIG = MappingConfig(grid_cells=200)  # 10 x 10 m around the origin

@@ -20,11 +20,11 @@ import cv2
 import numpy as np
 import pytest
 
-from services.mapping.objects import ObjectMap, detection_position, mask_points
-from services.sim.render import SceneRenderer
-from shared.camera import CAMERA_HEIGHT_M, camera_pose, pinhole
-from shared.detections import Detection
-from shared.messages import ObjectInstance, RgbdFrame
+from ovamos.services.mapping.objects import ObjectMap, detection_position, mask_points
+from ovamos.services.sim.render import SceneRenderer
+from ovamos.shared.camera import CAMERA_HEIGHT_M, camera_pose, pinhole
+from ovamos.shared.detections import Detection
+from ovamos.shared.messages import ObjectInstance, RgbdFrame
 from tests.sim_scenes import two_rooms
 
 CELL = 0.05  # the map's resolution: "within one cell"
@@ -315,7 +315,7 @@ def test_views_without_detections_keep_a_rare_false_positive_unconfirmed() -> No
 
 
 def test_defaults_are_the_mapping_services_and_a_ratio_of_zero_switches_views_off() -> None:
-    from services.mapping.config import MappingConfig
+    from ovamos.services.mapping.config import MappingConfig
 
     c, obj_map = MappingConfig(), ObjectMap()
     assert (obj_map.merge_distance_m, obj_map.confirm_hits, obj_map.decision_threshold,

@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from services.mapping import render
-from services.mapping.render import render_map, value_image, write_png
-from shared.messages import MapSnapshot, ObjectInstance
+from ovamos.services.mapping import render
+from ovamos.services.mapping.render import render_map, value_image, write_png
+from ovamos.shared.messages import MapSnapshot, ObjectInstance
 
 ROWS, COLS, RES = 200, 300, 0.05
 X0, Y0 = -1.0, -2.0
@@ -223,7 +223,7 @@ def test_write_png_into_a_missing_directory_fails_clearly(tmp_path) -> None:
 
 
 def test_the_picture_shows_the_decayed_map_the_planner_decides_on() -> None:
-    from services.planner.decide import DecisionConfig, decision_values, explored_window
+    from ovamos.services.planner.decide import DecisionConfig, decision_values, explored_window
 
     counts = np.zeros((2, ROWS, COLS), np.uint16)
     counts[:, HOT[0], HOT[1]] = 12    # looked at twice tau times: nearly faded
@@ -306,7 +306,7 @@ def test_only_objects_of_the_tasks_targets_are_drawn_as_its_detections() -> None
 
 
 def test_a_found_target_whose_layer_is_gone_stays_this_tasks_and_is_a_green_square() -> None:
-    from shared.messages import FoundObject
+    from ovamos.shared.messages import FoundObject
 
     # the cup was found: the mapping service dropped its layer; its object is still on the map
     snap = snapshot(layers=("bed",), values=snapshot().values[1:], counts=snapshot().counts[1:])
@@ -321,7 +321,7 @@ def test_a_found_target_whose_layer_is_gone_stays_this_tasks_and_is_a_green_squa
 
 
 def test_the_goal_is_a_red_ring_and_the_crop_shows_it_and_the_found_targets() -> None:
-    from shared.messages import FoundObject, Goal
+    from ovamos.shared.messages import FoundObject, Goal
 
     goal_cell, found_cell = (120, 125), (20, 125)  # both outside the explored patch
     goal = Goal(kind="candidate", x=centre(goal_cell)[0], y=centre(goal_cell)[1])

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 import zenoh
 
-from services.mapping.checkpoint import load_checkpoint
-from services.mapping.service import MappingService, MappingServiceConfig
-from services.sim.render import SceneRenderer
-from shared import keys
-from shared.bus import Bus
-from shared.messages import MapSnapshot, Odometry, PerceptionResult, RgbdFrame
-from shared.status import live_services
-from shared.zconfig import build_config
+from ovamos.services.mapping.checkpoint import load_checkpoint
+from ovamos.services.mapping.service import MappingService, MappingServiceConfig
+from ovamos.services.sim.render import SceneRenderer
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import MapSnapshot, Odometry, PerceptionResult, RgbdFrame
+from ovamos.shared.status import live_services
+from ovamos.shared.zconfig import build_config
 from tests.polling import wait_for
 from tests.service_helpers import Running
 from tests.sim_scenes import two_rooms

@@ -9,12 +9,10 @@ from __future__ import annotations
 
 import threading
 
-import numpy as np
-
-from services.mapping.config import MappingConfig
-from services.mapping.state import MapState
-from services.sim.render import SceneRenderer
-from shared.messages import MapSnapshot, PerceptionResult
+from ovamos.services.mapping.config import MappingConfig
+from ovamos.services.mapping.state import MapState
+from ovamos.services.sim.render import SceneRenderer
+from ovamos.shared.messages import MapSnapshot, PerceptionResult
 from tests.sim_scenes import two_rooms
 
 FRAMES = 40

@@ -17,12 +17,12 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from services.planner.navigator import NavigationConfig, NavMap, Navigator, Unreachable, segment_cells
-from services.sim.robot import SimRobot
-from shared.motion import Action, Pose
-from shared.grid import GridGeometry, inflate
-from shared.gridpaths import FreeSpaceGraph, auto_window, distance_field, path_lengths, traversable
-from shared.messages import MapSnapshot
+from ovamos.services.planner.navigator import NavigationConfig, Navigator, NavMap, Unreachable, segment_cells
+from ovamos.services.sim.robot import SimRobot
+from ovamos.shared.grid import GridGeometry, inflate
+from ovamos.shared.gridpaths import FreeSpaceGraph, auto_window, distance_field, path_lengths, traversable
+from ovamos.shared.messages import MapSnapshot
+from ovamos.shared.motion import Action, Pose
 
 RES = 0.05
 RADIUS = NavigationConfig().robot_radius

@@ -29,8 +29,8 @@ from typing import Any
 import pytest
 
 from ovamos.demo import write_configs
-from services.base_driver.config import DriverConfig
-from shared.certs import init_ca, issue
+from ovamos.services.base_driver.config import DriverConfig
+from ovamos.shared.certs import init_ca, issue
 from tests.netns import LINKS, Hosts, unavailable_reason
 from tests.polling import wait_for
 

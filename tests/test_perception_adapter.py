@@ -9,12 +9,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.perception.config import PerceptionServiceConfig
-from services.perception.service import PerceptionService
-from services.perception.sim_backend import SimBackend
-from shared import keys
-from shared.messages import FoundObject, RgbdFrame, TaskEvent, TaskSpec, TaskStatus
-from shared.fake_bus import FakeNetwork
+from ovamos.services.perception.config import PerceptionServiceConfig
+from ovamos.services.perception.service import PerceptionService
+from ovamos.services.perception.sim_backend import SimBackend
+from ovamos.shared import keys
+from ovamos.shared.fake_bus import FakeNetwork
+from ovamos.shared.messages import FoundObject, RgbdFrame, TaskEvent, TaskSpec, TaskStatus
 from tests.perception_helpers import ROBOT, Robot, render_frames
 from tests.sim_scenes import two_rooms
 

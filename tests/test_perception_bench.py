@@ -6,7 +6,7 @@ import io
 
 from rich.console import Console
 
-from bench.perception import main, print_table, run_benchmark
+from ovamos.bench.perception import main, print_table, run_benchmark
 
 
 def test_the_sim_part_reports_frames_per_second_and_prints() -> None:

@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from services.perception.backend import load_backend
-from services.perception.config import FrameLimits, HfBackendConfig, PerceptionServiceConfig, SimBackendConfig
-from services.perception.errors import BackendError, FrameRejected
-from services.perception.frames import frame_problem
-from services.perception.hf.backend import HfBackend
-from services.perception.hf.loading import ModelFilesError
-from services.perception.hf.models import caption, pixel_boxes
-from services.perception.replicas import ReplicaSet
-from services.perception.sim_backend import SimBackend
+from ovamos.services.perception.backend import load_backend
+from ovamos.services.perception.config import FrameLimits, HfBackendConfig, PerceptionServiceConfig, SimBackendConfig
+from ovamos.services.perception.errors import BackendError, FrameRejected
+from ovamos.services.perception.frames import frame_problem
+from ovamos.services.perception.hf.backend import HfBackend
+from ovamos.services.perception.hf.loading import ModelFilesError
+from ovamos.services.perception.hf.models import caption, pixel_boxes
+from ovamos.services.perception.replicas import ReplicaSet
+from ovamos.services.perception.sim_backend import SimBackend
 from tests.perception_helpers import render_frames
 from tests.sim_scenes import two_rooms
 
@@ -69,7 +69,7 @@ def test_the_sim_backend_matches_the_simulators_perception_and_refuses_camera_fr
 
 def test_the_sim_backend_can_take_an_episodes_scene() -> None:
     backend = SimBackend.load(SimBackendConfig(episode_seed=3, episode_index=1))
-    from services.sim.episodes import make_episode
+    from ovamos.services.sim.episodes import make_episode
     _, scene, _ = make_episode(3, 1)
     assert dict(backend.perception.labels.classes) == {o.id: o.cls for o in scene.objects}
 
@@ -116,7 +116,7 @@ def test_a_sharded_checkpoint_needs_every_shard(tmp_path) -> None:
     files = {"config.json": json.dumps({"model_type": "sam"}), "preprocessor_config.json": "{}",
              "model.safetensors.index.json": json.dumps(index), "model-1.safetensors": ""}
     _write(tmp_path / "sam", files)
-    from services.perception.hf.loading import SEGMENTER, model_type
+    from ovamos.services.perception.hf.loading import SEGMENTER, model_type
     with pytest.raises(ModelFilesError, match="incomplete"):
         model_type(SEGMENTER, tmp_path / "sam")
     (tmp_path / "sam" / "model-2.safetensors").write_text("")

@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import pytest
 
-from services.perception.config import PerceptionServiceConfig
-from services.perception.fleet import FrameSlots
-from services.perception.service import PerceptionService
-from services.perception.sim_backend import SimBackend
-from shared import keys
-from shared.fake_bus import FakeNetwork
-from shared.messages import RgbdFrame, TaskSpec
+from ovamos.services.perception.config import PerceptionServiceConfig
+from ovamos.services.perception.fleet import FrameSlots
+from ovamos.services.perception.service import PerceptionService
+from ovamos.services.perception.sim_backend import SimBackend
+from ovamos.shared import keys
+from ovamos.shared.fake_bus import FakeNetwork
+from ovamos.shared.messages import RgbdFrame, TaskSpec
 from tests.perception_helpers import Robot, render_frames
 from tests.sim_scenes import two_rooms
 
@@ -100,8 +100,8 @@ def test_batches_take_the_robots_in_turn() -> None:
 
 
 def test_the_fleet_benchmark_times_a_step_from_capture_to_the_next_command() -> None:
-    from bench.fleet import StepClock
-    from shared.messages import PlanCommand
+    from ovamos.bench.fleet import StepClock
+    from ovamos.shared.messages import PlanCommand
     clock, frame = StepClock(), render_frames(1)[0]
     clock.on_frame("r1", frame.model_copy(update={"after_action": 3, "stamp": 10.0}))
     clock.on_frame("r1", frame.model_copy(update={"after_action": 3, "stamp": 11.0}))  # re-published

@@ -15,13 +15,13 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
-from services.perception.config import PerceptionServiceConfig  # noqa: E402
-from services.perception.hf.backend import HfBackend  # noqa: E402
-from services.perception.hf.loading import Placement  # noqa: E402
-from services.perception.hf.models import GroundingDetector, ItmScorer  # noqa: E402
-from bench.random_models import save_model_dirs  # noqa: E402
-from shared.messages import TaskSpec  # noqa: E402
-from tests.perception_helpers import render_frames  # noqa: E402
+from ovamos.bench.random_models import save_model_dirs
+from ovamos.services.perception.config import PerceptionServiceConfig
+from ovamos.services.perception.hf.backend import HfBackend
+from ovamos.services.perception.hf.loading import Placement
+from ovamos.services.perception.hf.models import GroundingDetector, ItmScorer
+from ovamos.shared.messages import TaskSpec
+from tests.perception_helpers import render_frames
 
 TARGETS = ("fridge", "cup", "chair")
 
@@ -94,12 +94,12 @@ def test_the_cpu_gets_full_precision() -> None:
 
 
 def test_the_service_runs_the_hf_backend_from_its_config(model_dirs, inproc_router, frame) -> None:
-    from shared import keys
-    from shared.bus import Bus
-    from shared.messages import PerceptionResult, RgbdFrame
-    from shared.zconfig import build_config
-    from tests.polling import wait_for
+    from ovamos.shared import keys
+    from ovamos.shared.bus import Bus
+    from ovamos.shared.messages import PerceptionResult, RgbdFrame
+    from ovamos.shared.zconfig import build_config
     from tests.perception_helpers import ROBOT, RunningPerception
+    from tests.polling import wait_for
 
     config = PerceptionServiceConfig(backend="hf", hf=model_dirs["blip"])
     got: list[PerceptionResult] = []
@@ -121,8 +121,8 @@ def test_the_service_runs_the_hf_backend_from_its_config(model_dirs, inproc_rout
 def test_frames_of_two_robots_go_through_each_model_in_one_call_and_back_to_their_robot(backends) -> None:
     """One ITM pass and one GroundingDINO pass for two robots' frames, each with its own targets;
     each result goes to its robot's key with its frame's seq and that robot's targets."""
-    from services.perception.service import PerceptionService
-    from shared.fake_bus import FakeNetwork
+    from ovamos.services.perception.service import PerceptionService
+    from ovamos.shared.fake_bus import FakeNetwork
     from tests.perception_helpers import Robot
 
     backend = backends["blip"]

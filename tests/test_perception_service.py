@@ -10,20 +10,20 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
-from services.perception.backend import Job, Seen
-from services.perception.config import PerceptionServiceConfig, SimBackendConfig
-from services.perception.service import PerceptionService
-from services.perception.sim_backend import SimBackend
-from shared import keys
-from shared.bus import Bus
-from shared.codec import pack
-from shared.fake_bus import FakeNetwork
-from shared.messages import PerceptionResult, RgbdFrame, TaskSpec
-from shared.service import INFO_EVERY_S
-from shared.status import live_services
-from shared.zconfig import build_config
-from tests.polling import wait_for
+from ovamos.services.perception.backend import Job, Seen
+from ovamos.services.perception.config import PerceptionServiceConfig, SimBackendConfig
+from ovamos.services.perception.service import PerceptionService
+from ovamos.services.perception.sim_backend import SimBackend
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.codec import pack
+from ovamos.shared.fake_bus import FakeNetwork
+from ovamos.shared.messages import PerceptionResult, RgbdFrame, TaskSpec
+from ovamos.shared.service import INFO_EVERY_S
+from ovamos.shared.status import live_services
+from ovamos.shared.zconfig import build_config
 from tests.perception_helpers import ROBOT, Robot, RunningPerception, render_frames
+from tests.polling import wait_for
 from tests.sim_scenes import two_rooms
 
 

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.mapping.layers import aggregate, decay
-from services.planner.agent import AgentConfig, Reason, SearchAgent
-from services.planner.decide import GoalKind
-from services.planner.task import SearchTask
-from shared.messages import ObjectInstance
-from shared.motion import Action, Pose
+from ovamos.services.mapping.layers import aggregate, decay
+from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent
+from ovamos.services.planner.decide import GoalKind
+from ovamos.services.planner.task import SearchTask
+from ovamos.shared.messages import ObjectInstance
+from ovamos.shared.motion import Action, Pose
 from tests.planner_maps import snapshot
 
 

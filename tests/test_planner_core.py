@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.planner.candidates import CandidateConfig, best_frontier, find_candidates
-from services.planner.task import SearchTask, SearchTaskError
-from shared.grid import GridGeometry
-from shared.messages import FoundObject, TaskStatus
+from ovamos.services.planner.candidates import CandidateConfig, best_frontier, find_candidates
+from ovamos.services.planner.task import SearchTask, SearchTaskError
+from ovamos.shared.grid import GridGeometry
+from ovamos.shared.messages import FoundObject, TaskStatus
 
 GRID = GridGeometry(0.05, 0.0, 0.0, 100, 100)  # 5 x 5 m
 

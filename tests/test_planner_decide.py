@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.planner.decide import ActionDistances, DecisionConfig, GoalKind, Policy, decide
-from shared.messages import ObjectInstance
+from ovamos.services.planner.decide import ActionDistances, DecisionConfig, GoalKind, Policy, decide
+from ovamos.shared.messages import ObjectInstance
 from tests.planner_maps import snapshot
+
 
 def test_a_near_likely_candidate_beats_a_far_frontier() -> None:
     snap = snapshot({(6.0, 5.0): 0.9}, [(9.5, 9.5)])

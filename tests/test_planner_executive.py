@@ -6,11 +6,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.planner.agent import AgentConfig
-from services.planner.executive import OLD_MAP, Executive, ExecutiveConfig
-from shared.messages import (DecisionTrace, DriverMode, DriverState, MapSnapshot, ObjectInstance, Odometry,
-                             PlanCommand, TaskEvent, TaskSpec, TaskStatus)
-from shared.motion import Action
+from ovamos.services.planner.agent import AgentConfig
+from ovamos.services.planner.executive import OLD_MAP, Executive, ExecutiveConfig
+from ovamos.shared.messages import (
+    DecisionTrace,
+    DriverMode,
+    DriverState,
+    MapSnapshot,
+    ObjectInstance,
+    Odometry,
+    PlanCommand,
+    TaskEvent,
+    TaskSpec,
+    TaskStatus,
+)
+from ovamos.shared.motion import Action
 
 N = 120  # 6 x 6 m at 5 cm
 
@@ -189,7 +199,7 @@ def test_a_completion_waits_for_the_odometry_taken_after_it(ex: Executive) -> No
 
 
 def test_no_plan_while_the_drivers_primitives_differ_from_the_planners(ex: Executive) -> None:
-    from shared.robot import PRIMITIVES, Primitives
+    from ovamos.shared.robot import PRIMITIVES, Primitives
 
     ex.on_snapshot(snapshot(0))
     ex.on_odom(odom())
@@ -254,7 +264,7 @@ def test_a_restarted_planner_waits_for_the_drivers_command_and_continues_after_i
 
 
 def test_no_decision_while_the_camera_reports_a_fault_and_the_event_says_why(ex: Executive) -> None:
-    from shared.messages import CameraState
+    from ovamos.shared.messages import CameraState
 
     ex.on_driver(driver())
     ex.on_snapshot(snapshot(0))

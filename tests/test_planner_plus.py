@@ -7,14 +7,14 @@ import random
 import numpy as np
 import pytest
 
-from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
-from services.planner.candidates import Candidates
-from services.planner.decide import DecisionConfig, GoalKind, Policy, decide
-from services.planner.plus import ManyFrontierPOMDP, PlusConfig, frontier_bonuses, goal_budget
-from services.planner.pomdp import POMDPConfig
-from services.planner.task import SearchTask
-from shared.messages import ObjectInstance
-from shared.motion import Action, Pose
+from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
+from ovamos.services.planner.candidates import Candidates
+from ovamos.services.planner.decide import DecisionConfig, GoalKind, Policy, decide
+from ovamos.services.planner.plus import ManyFrontierPOMDP, PlusConfig, frontier_bonuses, goal_budget
+from ovamos.services.planner.pomdp import POMDPConfig
+from ovamos.services.planner.task import SearchTask
+from ovamos.shared.messages import ObjectInstance
+from ovamos.shared.motion import Action, Pose
 from tests.planner_maps import snapshot
 
 PLUS = DecisionConfig(policy=Policy.OVAMOS_PLUS)

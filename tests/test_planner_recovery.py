@@ -8,11 +8,11 @@ import math
 import cv2
 import numpy as np
 
-from services.planner.agent import AgentConfig, BoxedIn, SearchAgent, Step
-from services.planner.task import SearchTask
-from services.sim.robot import SimRobot
-from shared.messages import MapSnapshot, Miss, ObjectInstance, TaskStatus
-from shared.motion import Pose
+from ovamos.services.planner.agent import AgentConfig, BoxedIn, SearchAgent, Step
+from ovamos.services.planner.task import SearchTask
+from ovamos.services.sim.robot import SimRobot
+from ovamos.shared.messages import MapSnapshot, Miss, ObjectInstance, TaskStatus
+from ovamos.shared.motion import Pose
 from tests.planner_maps import N, snapshot
 
 HOME, FAR = (8.0, 5.0), (2.0, 5.0)

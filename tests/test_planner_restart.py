@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from services.gateway.client import GatewayClient
-from services.planner.task import SearchTask
-from shared.bus import Bus
-from shared.messages import FoundObject, MapSnapshot, ObjectInstance, TaskSpec, TaskStatus
-from shared.procs import kill
-from shared.zconfig import build_config
+from ovamos.services.gateway.client import GatewayClient
+from ovamos.services.planner.task import SearchTask
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import FoundObject, MapSnapshot, ObjectInstance, TaskSpec, TaskStatus
+from ovamos.shared.procs import kill
+from ovamos.shared.zconfig import build_config
 from tests.conftest import StartCli
 from tests.gateway_mocks import RunningGateway, gateway_config
 from tests.polling import wait_for

@@ -14,13 +14,23 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from services.perception.config import PerceptionServiceConfig, SimBackendConfig
-from services.planner.service import PlannerService, PlannerServiceConfig
-from shared import keys
-from shared.bus import Bus
-from shared.messages import (DriverMode, DriverState, MapSnapshot, ObjectInstance, Odometry, PlanCommand,
-                             ServiceStats, TaskEvent, TaskSpec, TaskStatus)
-from shared.zconfig import build_config
+from ovamos.services.perception.config import PerceptionServiceConfig, SimBackendConfig
+from ovamos.services.planner.service import PlannerService, PlannerServiceConfig
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import (
+    DriverMode,
+    DriverState,
+    MapSnapshot,
+    ObjectInstance,
+    Odometry,
+    PlanCommand,
+    ServiceStats,
+    TaskEvent,
+    TaskSpec,
+    TaskStatus,
+)
+from ovamos.shared.zconfig import build_config
 from tests.perception_helpers import RunningPerception
 from tests.polling import wait_for
 from tests.service_helpers import Running

@@ -11,7 +11,7 @@ from functools import cache
 
 import pytest
 
-from services.planner.pouct import POUCT, GenerativeModel
+from ovamos.services.planner.pouct import POUCT, GenerativeModel
 
 # --- Tiger -------------------------------------------------------------------------------------
 # Kaelbling, Littman & Cassandra (1998). The tiger is behind the left or the right door.
@@ -298,7 +298,7 @@ def test_compare_benchmark_smoke(hide_pomdp_py: bool, monkeypatch: pytest.Monkey
 
     from rich.console import Console
 
-    from bench.pouct_compare import compare, print_table
+    from ovamos.bench.pouct_compare import compare, print_table
     if hide_pomdp_py:
         monkeypatch.setitem(sys.modules, "pomdp_py", None)     # import pomdp_py -> ImportError
     result = compare(num_sims=200, repeats=1)

@@ -8,13 +8,13 @@ import signal
 import threading
 import time
 
-from services.diag.testpattern import pattern_frame
-from shared import keys
-from shared.bus import Bus
-from shared.messages import RgbdFrame
-from shared.procs import free_port, kill, loopback, stop
-from shared.status import live_services
-from shared.zconfig import build_config, open_session
+from ovamos.services.diag.testpattern import pattern_frame
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import RgbdFrame
+from ovamos.shared.procs import free_port, kill, loopback, stop
+from ovamos.shared.status import live_services
+from ovamos.shared.zconfig import build_config, open_session
 from tests.polling import port_open, status_cli, wait_for
 
 SEED = 11

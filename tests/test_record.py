@@ -37,16 +37,16 @@ from ovamos.record.channels import META_KEY, RawChannel, recorded_ports
 from ovamos.record.live import LiveRobotError, replay
 from ovamos.record.replay import RecordingError, read_raw
 from ovamos.record.views import TOPICS
+from ovamos.services.gateway.client import GatewayClient
+from ovamos.services.mapping.checkpoint import load_checkpoint
+from ovamos.services.mapping.service import MappingServiceConfig
+from ovamos.services.sim.episodes import make_episode
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import Odometry, ServiceStats
+from ovamos.shared.procs import free_port, kill, loopback, start_cli, stop
+from ovamos.shared.zconfig import build_config, open_session
 from ovamos.supervisor import Entry, Supervisor, port_open
-from services.gateway.client import GatewayClient
-from services.mapping.checkpoint import load_checkpoint
-from services.mapping.service import MappingServiceConfig
-from services.sim.episodes import make_episode
-from shared import keys
-from shared.bus import Bus
-from shared.messages import Odometry, ServiceStats
-from shared.procs import free_port, kill, loopback, start_cli, stop
-from shared.zconfig import build_config, open_session
 from tests.polling import wait_for
 
 ROBOT = "sim"

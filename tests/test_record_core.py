@@ -12,7 +12,7 @@ from mcap.reader import make_reader
 from ovamos.record.channels import META_VERSION, RawChannel, UnknownKeyError, from_metadata, select
 from ovamos.record.recorder import Recorder, RecorderConfig, RecordingExistsError, part_path
 from ovamos.record.replay import RawMessage, ReadReport, paced, read_raw
-from shared.messages import Odometry, TaskSpec
+from ovamos.shared.messages import Odometry, TaskSpec
 
 
 def _odom(seq: int) -> bytes:

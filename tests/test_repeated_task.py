@@ -1,11 +1,11 @@
 """A task repeated on the map of the first, as a deployment keeps its map between tasks: the
-second goes straight to what the first found (bench.episode's world, the services' cores)."""
+second goes straight to what the first found (ovamos.bench.episode's world, the services' cores)."""
 
 from __future__ import annotations
 
-from bench.episode import EpisodeConfig, EpisodeWorld, episode_config, run_task
-from services.sim.episodes import make_episode
-from services.sim.perception_presets import perception_preset
+from ovamos.bench.episode import EpisodeConfig, EpisodeWorld, episode_config, run_task
+from ovamos.services.sim.episodes import make_episode
+from ovamos.services.sim.perception_presets import perception_preset
 
 # Development seed 1, episode 18 (three targets, found by the first task): taking the confirmed
 # objects in the order the map confirmed them, the second task's first STOP came at step 69.

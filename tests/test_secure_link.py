@@ -13,11 +13,10 @@ from pathlib import Path
 import pytest
 
 from ovamos.profiles import PROFILE_DIR, ProfileError, load_profile, supervisor_for
-from shared.acl import TraceParser
-from shared.certs import CertError, check_certificate, init_ca, issue, list_certificates
-from shared.zconfig import TlsFiles, ZenohConfigError, build_config
+from ovamos.shared.acl import TraceParser
+from ovamos.shared.certs import CertError, check_certificate, init_ca, issue, list_certificates
+from ovamos.shared.zconfig import TlsFiles, ZenohConfigError, build_config
 from tests.polling import ovamos_unwrapped as ovamos
-
 
 
 @pytest.fixture

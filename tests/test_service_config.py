@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from services.diag import service as diag
-from shared.service import ServiceConfig, ServiceConfigError, load_config
+from ovamos.services.diag import service as diag
+from ovamos.shared.service import ServiceConfig, ServiceConfigError, load_config
 
 SERVICE = diag.TestPatternService
 

@@ -9,7 +9,7 @@ unwinding, SIGTERM ends it with "SIGTERM: what this process started is stopped";
 stops cleanly with 0): a child's own guard against its parent dying (PR_SET_PDEATHSIG) would
 otherwise hide a command that merely died.
 
-The guard pieces (:func:`shared.procs.signals_unwind`, :class:`shared.procs.deferred_signals`,
+The guard pieces (:func:`ovamos.shared.procs.signals_unwind`, :class:`ovamos.shared.procs.deferred_signals`,
 ``die_with_parent``) are checked on their own in small child scripts at the end.
 """
 
@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pytest
 
-from shared.procs import free_port, loopback
+from ovamos.shared.procs import free_port, loopback
 from tests.polling import port_open, wait_for
 
 REPO = Path(__file__).resolve().parents[1]
@@ -304,7 +304,7 @@ def test_sigterm_unwinds_and_then_ends_the_process(tmp_path: Path, scripts: list
     process, as it would have at once without the scope."""
     proc = _script(tmp_path, """
         import os, signal
-        from shared.procs import Terminated, deferred_signals, signals_unwind
+        from ovamos.shared.procs import Terminated, deferred_signals, signals_unwind
         kill = lambda sig: os.kill(os.getpid(), sig)
         with signals_unwind():
             try:
@@ -337,7 +337,7 @@ def test_signals_unwind_restores_the_handlers_and_keeps_the_programs_own(
         tmp_path: Path, scripts: list[subprocess.Popen]) -> None:
     proc = _script(tmp_path, """
         import os, signal
-        from shared.procs import signals_unwind
+        from ovamos.shared.procs import signals_unwind
         def own(*_): print("own handler", flush=True)
         signal.signal(signal.SIGUSR1, own)
         with signals_unwind():
@@ -365,7 +365,7 @@ def test_a_child_dies_with_its_sigkilled_parent(tmp_path: Path, scripts: list[su
     port = free_port()
     proc = _script(tmp_path, f"""
         import time
-        from shared.procs import start_cli
+        from ovamos.shared.procs import start_cli
         router = start_cli(["router", "--listen", "{loopback(port)}", "--log-level", "WARNING"])
         print("CHILD", router.pid, flush=True)
         time.sleep(600)

@@ -7,13 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from services.perception.backend import Job, Seen
-from services.perception.sim_backend import SimBackend
-from services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
-from services.sim.perception_presets import PERCEPTION_PRESETS, perception_preset
-from services.sim.prior import ObjectPrior
-from services.sim.render import SceneRenderer
-from services.sim.world import Scene
+from ovamos.services.perception.backend import Job, Seen
+from ovamos.services.perception.sim_backend import SimBackend
+from ovamos.services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
+from ovamos.services.sim.perception_presets import PERCEPTION_PRESETS, perception_preset
+from ovamos.services.sim.prior import ObjectPrior
+from ovamos.services.sim.render import SceneRenderer
+from ovamos.services.sim.world import Scene
 from tests.sim_scenes import two_rooms
 
 POSE = (1.6, 1.2, math.atan2(3.0 - 1.2, 0.4 - 1.6))  # kitchen, looking at the fridge

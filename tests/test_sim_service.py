@@ -9,12 +9,12 @@ from pathlib import Path
 
 import pytest
 
-from services.sim.service import SimRobotService, SimServiceConfig
-from shared import keys
-from shared.bus import Bus
-from shared.messages import DriverMode, PlanCommand, RgbdFrame
-from shared.motion import Action, Pose
-from shared.zconfig import build_config
+from ovamos.services.sim.service import SimRobotService, SimServiceConfig
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import DriverMode, PlanCommand, RgbdFrame
+from ovamos.shared.motion import Action, Pose
+from ovamos.shared.zconfig import build_config
 from tests.polling import wait_for
 from tests.service_helpers import ROBOT, Planner, Running
 from tests.sim_scenes import two_rooms
@@ -145,11 +145,11 @@ def test_config_refuses_a_scene_without_a_start_and_unknown_keys(scene_file: Pat
 
 
 def test_the_kinematic_base_advertises_its_primitive_sizes_and_runs_an_id_once() -> None:
-    from services.sim.kinematic import KinematicBase
-    from services.sim.robot import MotionConfig, SimRobot
-    from shared.messages import PlanCommand
-    from shared.motion import Action, Pose
-    from shared.robot import PRIMITIVES, Primitives
+    from ovamos.services.sim.kinematic import KinematicBase
+    from ovamos.services.sim.robot import MotionConfig, SimRobot
+    from ovamos.shared.messages import PlanCommand
+    from ovamos.shared.motion import Action, Pose
+    from ovamos.shared.robot import PRIMITIVES, Primitives
 
     base = KinematicBase(SimRobot(Pose(x=0.0, y=0.0), lambda x, y: True))
     assert base.state().primitives == PRIMITIVES

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from bench.soak import ABSENT_STEPS, fresh_steps, run_soak, soak_tasks
+from ovamos.bench.soak import ABSENT_STEPS, fresh_steps, run_soak, soak_tasks
 
 TASKS = 8
 MARGIN_STEPS = 120

@@ -21,12 +21,19 @@ import pytest
 from rich.console import Console
 from rich.table import Table
 
-from ovamos.profiles import (PROFILE_DIR, ProfileError, check_service_configs, laptop_endpoint, load_profile,
-                             resolve_profile, supervisor_for, tcp_address)
-from ovamos.supervisor import (Backoff, Entry, State, Supervisor, SupervisorError, exit_reason, port_open,
-                               status_table)
-from shared.procs import free_port, kill, loopback
-from shared.service import load_config
+from ovamos.profiles import (
+    PROFILE_DIR,
+    ProfileError,
+    check_service_configs,
+    laptop_endpoint,
+    load_profile,
+    resolve_profile,
+    supervisor_for,
+    tcp_address,
+)
+from ovamos.shared.procs import free_port, kill, loopback
+from ovamos.shared.service import load_config
+from ovamos.supervisor import Backoff, Entry, State, Supervisor, SupervisorError, exit_reason, port_open, status_table
 from tests.polling import status_cli, wait_for
 
 REPO = Path(__file__).resolve().parents[1]
@@ -376,7 +383,7 @@ def test_a_fleet_profile_runs_per_robot_services_per_robot_and_tells_the_others_
     home (the episode after the previous robot's), one perception told each robot's scene, one
     gateway; each process's settings parse as its service's config."""
     from ovamos.registry import service_class
-    from shared.config import parse_overrides
+    from ovamos.shared.config import parse_overrides
     entries = {e.name: e for e in load_profile(resolve_profile("fleet")).entries()}
     assert sorted(entries) == sorted(["router", "gateway", "perception",
                                       *(f"{s}-{r}" for s in ("mapping", "planner", "sim") for r in ("r1", "r2", "r3"))])
@@ -397,7 +404,7 @@ def test_a_fleet_profile_runs_per_robot_services_per_robot_and_tells_the_others_
 
 
 def test_override_settings_are_json_and_a_bad_one_is_refused() -> None:
-    from shared.config import ServiceConfigError, format_override, parse_overrides
+    from ovamos.shared.config import ServiceConfigError, format_override, parse_overrides
     assert parse_overrides([format_override("robots", ["a", "b"]), "batch_wait_ms=2.5"]) == \
         {"robots": ["a", "b"], "batch_wait_ms": 2.5}
     with pytest.raises(ServiceConfigError, match="not JSON"):

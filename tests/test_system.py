@@ -14,11 +14,11 @@ from pathlib import Path
 import pytest
 
 from ovamos.demo import DEMO_EPISODE, DEMO_SEED, demo_entries, write_configs
+from ovamos.services.gateway.client import GatewayClient, GatewayError
+from ovamos.services.gateway.models import TaskView
+from ovamos.shared.messages import MapSnapshot
+from ovamos.shared.procs import free_port, kill
 from ovamos.supervisor import Backoff, Supervisor, port_open
-from services.gateway.client import GatewayClient, GatewayError
-from services.gateway.models import TaskView
-from shared.messages import MapSnapshot
-from shared.procs import free_port, kill
 from tests.polling import wait_for
 
 ROBOT = "sim"

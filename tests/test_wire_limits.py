@@ -24,24 +24,50 @@ import pytest
 import zenoh
 from pydantic import ValidationError
 
-from services.camera.oakd import OakdConfig
-from services.camera.realsense import RealSenseConfig
-from services.diag.testpattern import pattern_frame
-from services.mapping.config import MappingConfig
-from services.perception.config import HfBackendConfig
-from shared import codec, keys, messages
-from shared.bus import Bus
-from shared.codec import FLAG_ZLIB, DecodeError
-from shared.detections import Detection
-from shared.messages import (MAX_DETECTIONS, MAX_FRAME_SHAPE, MAX_MAP_SIDE, MAX_NAME_CHARS, MAX_TARGETS,
-                             MAX_TEXT_CHARS, BinaryMessage, CameraState, CounterSet, DecisionTrace,
-                             DriverMode, DriverState, EStop, FoundObject, Goal, Intrinsics, JsonMessage,
-                             MapSnapshot, Miss, ObjectInstance, Odometry, PerceptionResult, PlanCommand,
-                             RgbdFrame, ServiceStats, TargetMiss, TaskEvent, TaskSpec, TaskStatus,
-                             TraceOption)
-from shared.motion import Action
-from shared.robot import Primitives
-from shared.zconfig import build_config
+from ovamos.services.camera.oakd import OakdConfig
+from ovamos.services.camera.realsense import RealSenseConfig
+from ovamos.services.diag.testpattern import pattern_frame
+from ovamos.services.mapping.config import MappingConfig
+from ovamos.services.perception.config import HfBackendConfig
+from ovamos.shared import codec, keys, messages
+from ovamos.shared.bus import Bus
+from ovamos.shared.codec import FLAG_ZLIB, DecodeError
+from ovamos.shared.detections import Detection
+from ovamos.shared.messages import (
+    MAX_DETECTIONS,
+    MAX_FRAME_SHAPE,
+    MAX_MAP_SIDE,
+    MAX_NAME_CHARS,
+    MAX_TARGETS,
+    MAX_TEXT_CHARS,
+    BinaryMessage,
+    CameraState,
+    CounterSet,
+    DecisionTrace,
+    DriverMode,
+    DriverState,
+    EStop,
+    FoundObject,
+    Goal,
+    Intrinsics,
+    JsonMessage,
+    MapSnapshot,
+    Miss,
+    ObjectInstance,
+    Odometry,
+    PerceptionResult,
+    PlanCommand,
+    RgbdFrame,
+    ServiceStats,
+    TargetMiss,
+    TaskEvent,
+    TaskSpec,
+    TaskStatus,
+    TraceOption,
+)
+from ovamos.shared.motion import Action
+from ovamos.shared.robot import Primitives
+from ovamos.shared.zconfig import build_config
 from tests.polling import wait_for
 from tests.test_codec import assemble, split  # the payload surgery of the codec tests
 
@@ -120,8 +146,8 @@ def test_the_bomb_is_a_megabyte_that_inflates_to_a_gibibyte(bomb: bytes, bomb_st
 _DECODE_IN_CHILD = """
 import json, resource, sys
 from pathlib import Path
-from shared import codec
-from shared.messages import DecodeError, PerceptionResult
+from ovamos.shared import codec
+from ovamos.shared.messages import DecodeError, PerceptionResult
 payload = Path(sys.argv[1]).read_bytes()
 decode = {"codec-wide bound": lambda: codec.unpack(payload, PerceptionResult.KIND, PerceptionResult.VERSION),
           "PerceptionResult.from_bytes": lambda: PerceptionResult.from_bytes(payload)}[sys.argv[2]]

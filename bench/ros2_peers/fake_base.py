@@ -17,14 +17,14 @@ import sys
 import threading
 import time
 
-from shared.dds import check_loopback_only
+from ovamos.shared.dds import check_loopback_only
 
 check_loopback_only()
 
-from nodes import serve  # noqa: E402  (this folder: the script's own)
 import rclpy  # noqa: E402  (after the check, by design)
 from geometry_msgs.msg import Twist, TwistStamped  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
+from nodes import serve  # noqa: E402  (this folder: the script's own)
 from std_msgs.msg import Bool  # noqa: E402
 
 

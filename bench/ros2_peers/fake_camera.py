@@ -11,12 +11,12 @@ import argparse
 
 import numpy as np
 
-from shared.dds import check_loopback_only
+from ovamos.shared.dds import check_loopback_only
 
 check_loopback_only()
 
-from nodes import serve  # noqa: E402  (this folder: the script's own)
 import rclpy  # noqa: E402  (after the check, by design)
+from nodes import serve  # noqa: E402  (this folder: the script's own)
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 

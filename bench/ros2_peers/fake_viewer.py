@@ -8,13 +8,13 @@ from __future__ import annotations
 import argparse
 import json
 
-from shared.dds import check_loopback_only
+from ovamos.shared.dds import check_loopback_only
 
 check_loopback_only()
 
-from nodes import serve  # noqa: E402  (this folder: the script's own)
 import rclpy  # noqa: E402  (after the check, by design)
 from nav_msgs.msg import OccupancyGrid, Path  # noqa: E402
+from nodes import serve  # noqa: E402  (this folder: the script's own)
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
 

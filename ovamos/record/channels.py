@@ -1,6 +1,6 @@
 """Which keys a recording holds, and how each is stored as a raw MCAP channel.
 
-The list is derived from :data:`shared.topology.TOPOLOGY` (every key a service publishes,
+The list is derived from :data:`ovamos.shared.topology.TOPOLOGY` (every key a service publishes,
 with its message type), never kept a second time here: a new key in the topology is
 recorded, replayed and viewed without a change in this package.
 
@@ -8,7 +8,7 @@ A raw channel stores each payload exactly as it was published (a replay puts the
 bytes back on the wire). Its topic is the Zenoh key; its metadata names the key, the robot,
 the message type and its version, so a reader knows what it holds without our code. JSON
 messages carry their JSON schema (Foxglove shows their fields), binary ones the codec's
-description (see :mod:`shared.codec`).
+description (see :mod:`ovamos.shared.codec`).
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import foxglove
 
-from shared import keys
-from shared.messages import BinaryMessage, JsonMessage
-from shared.topology import TOPOLOGY
+from ovamos.shared import keys
+from ovamos.shared.messages import BinaryMessage, JsonMessage
+from ovamos.shared.topology import TOPOLOGY
 
 __all__ = ["UnknownKeyError", "RawChannel", "recorded_ports", "select", "from_metadata"]
 
@@ -37,7 +37,7 @@ class UnknownKeyError(ValueError):
 
 
 def recorded_ports() -> dict[str, type[JsonMessage] | type[BinaryMessage]]:
-    """Every key some service publishes, by its builder's name in :mod:`shared.keys`, with its type."""
+    """Every key some service publishes, by its builder's name in :mod:`ovamos.shared.keys`, with its type."""
     out: dict[str, type] = {}
     for node in TOPOLOGY.values():
         for port in node.outputs:

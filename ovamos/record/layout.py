@@ -16,10 +16,11 @@ from pathlib import Path
 import foxglove.layouts as fl
 
 from ovamos.record.views import BASE
+from ovamos.shared.deploy import DEPLOY_DIR
 
 __all__ = ["layout", "LAYOUT_FILE"]
 
-LAYOUT_FILE = Path(__file__).resolve().parents[2] / "deploy" / "foxglove" / "ovamos.json"
+LAYOUT_FILE = DEPLOY_DIR / "foxglove" / "ovamos.json"
 
 
 def _grid(low: str, high: str, max_value: float = 1.0) -> fl.BaseRendererGridTopicSettings:

@@ -1,10 +1,10 @@
 """The Zenoh side of ``ovamos record``, ``replay`` and ``view``: the cores wired to a robot's keys.
 
-Each runs as a tool on a :class:`~shared.bus.Bus` of its own (service ``recorder``,
+Each runs as a tool on a :class:`~ovamos.shared.bus.Bus` of its own (service ``recorder``,
 ``replay`` or ``viewer``, instance = its process id), so ``ovamos status`` lists it with its
 counters: a recorder's ``received`` and ``dropped`` per key, a replay's ``published``.
 Payloads are taken on Zenoh's threads straight into the recorder's byte-bounded queue
-(:meth:`~shared.bus.BusCore.tap`), never decoded there.
+(:meth:`~ovamos.shared.bus.BusCore.tap`), never decoded there.
 
 The recorder and the viewer declare a ``ready`` liveliness token once their subscriptions
 are in place: a test or a launcher that waits for it knows nothing published after it is lost.
@@ -31,10 +31,10 @@ from ovamos.record.channels import RawChannel
 from ovamos.record.recorder import Recorder, RecorderConfig
 from ovamos.record.replay import ReadReport, paced, read_raw
 from ovamos.record.views import ViewPump
-from shared import keys
-from shared.bus import Bus
-from shared.service import install_signal_handlers
-from shared.topology import DRIVERS
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.service import install_signal_handlers
+from ovamos.shared.topology import DRIVERS
 
 __all__ = ["record", "replay", "view", "STATUS_EVERY_S", "LiveRobotError"]
 

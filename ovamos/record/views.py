@@ -21,7 +21,7 @@ Images and grids are only made for channels someone takes (an MCAP file always d
 view's WebSocket client once it subscribes), so an idle ``ovamos view`` costs little.
 
 :class:`ViewPump` runs a builder on a thread of its own behind an
-:class:`~shared.inbox.Inbox`: frames and maps keep only their newest sample while it is
+:class:`~ovamos.shared.inbox.Inbox`: frames and maps keep only their newest sample while it is
 busy (a view may skip frames; the raw channels never do), the rest queue in order.
 """
 
@@ -38,19 +38,46 @@ from typing import Any
 import cv2
 import numpy as np
 from foxglove import Context
-from foxglove.channels import (CompressedImageChannel, FrameTransformChannel, GridChannel, LogChannel,
-                               PoseInFrameChannel, PosesInFrameChannel, RawImageChannel, SceneUpdateChannel)
-from foxglove.messages import (Color, CompressedImage, FrameTransform, Grid, Log, LogLevel, PackedElementField,
-                               PackedElementFieldNumericType, Pose, PoseInFrame, PosesInFrame, Quaternion,
-                               RawImage, SceneEntity, SceneEntityDeletion, SceneEntityDeletionType,
-                               SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp, Vector2, Vector3,
-                               CubePrimitive)
+from foxglove.channels import (
+    CompressedImageChannel,
+    FrameTransformChannel,
+    GridChannel,
+    LogChannel,
+    PoseInFrameChannel,
+    PosesInFrameChannel,
+    RawImageChannel,
+    SceneUpdateChannel,
+)
+from foxglove.messages import (
+    Color,
+    CompressedImage,
+    CubePrimitive,
+    FrameTransform,
+    Grid,
+    Log,
+    LogLevel,
+    PackedElementField,
+    PackedElementFieldNumericType,
+    Pose,
+    PoseInFrame,
+    PosesInFrame,
+    Quaternion,
+    RawImage,
+    SceneEntity,
+    SceneEntityDeletion,
+    SceneEntityDeletionType,
+    SceneUpdate,
+    SpherePrimitive,
+    TextPrimitive,
+    Timestamp,
+    Vector2,
+    Vector3,
+)
 
-from services.mapping.layers import value_map
-from shared.inbox import Inbox
-from shared.log import sampled
-from shared.messages import (DecisionTrace, DecodeError, MapSnapshot, Odometry, RgbdFrame, TaskEvent,
-                             TaskStatus)
+from ovamos.services.mapping.layers import value_map
+from ovamos.shared.inbox import Inbox
+from ovamos.shared.log import sampled
+from ovamos.shared.messages import DecisionTrace, DecodeError, MapSnapshot, Odometry, RgbdFrame, TaskEvent, TaskStatus
 
 __all__ = ["ViewBuilder", "ViewPump", "TOPICS", "LATEST_ONLY"]
 

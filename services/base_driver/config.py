@@ -3,7 +3,7 @@
 :class:`DriverConfig` holds the controller's settings (geometry, limits, timing, primitives:
 whatever the base) and names the hardware interface (``hardware``) with its own section
 (``odrive``: the CAN bus and the axes). Defaults are a TurtleBot3 Waffle-like base: 0.26 m/s
-and 1.82 rad/s top speeds, the wheel geometry and primitive sizes of :mod:`shared.robot`.
+and 1.82 rad/s top speeds, the wheel geometry and primitive sizes of :mod:`ovamos.shared.robot`.
 ``odrive.can`` is python-can's standard bus configuration, passed to ``can.Bus(**can)``
 unchanged, so a real robot uses e.g. ``interface = "socketcan", channel = "can0", bitrate = 250000``.
 """
@@ -15,14 +15,14 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
-from services.base_driver.kobuki import KobukiConfig
-from services.base_driver.kobuki_protocol import WHEEL_RADIUS_M as KOBUKI_WHEEL_RADIUS_M
-from services.base_driver.opencr import OpenCRConfig
-from services.base_driver.opencr_table import MODELS as TB3_MODELS
-from services.base_driver.ros2 import Ros2BaseConfig
-from shared.config import StrictModel
-from shared.motion import Pose
-from shared.robot import PRIMITIVES, ROBOT, Primitives
+from ovamos.services.base_driver.kobuki import KobukiConfig
+from ovamos.services.base_driver.kobuki_protocol import WHEEL_RADIUS_M as KOBUKI_WHEEL_RADIUS_M
+from ovamos.services.base_driver.opencr import OpenCRConfig
+from ovamos.services.base_driver.opencr_table import MODELS as TB3_MODELS
+from ovamos.services.base_driver.ros2 import Ros2BaseConfig
+from ovamos.shared.config import StrictModel
+from ovamos.shared.motion import Pose
+from ovamos.shared.robot import PRIMITIVES, ROBOT, Primitives
 
 
 class CanConfig(StrictModel):
@@ -94,7 +94,7 @@ class DriverConfig(StrictModel):
                                     description="after open(), healthy feedback must come within this")
     recover_every_s: float = Field(default=1.0, gt=0, description="retry after a fault this often")
     auto_recover: bool = Field(default=True, description="re-open once a fault's cause is gone")
-    # primitives (shared.robot's sizes; advertised in driver/state) and their closed loop
+    # primitives (ovamos.shared.robot's sizes; advertised in driver/state) and their closed loop
     forward_m: float = Field(default=PRIMITIVES.forward_m, gt=0)
     turn_deg: float = Field(default=PRIMITIVES.turn_deg, gt=0, le=180)
     linear_tolerance_m: float = Field(default=0.002, gt=0)

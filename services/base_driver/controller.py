@@ -2,7 +2,7 @@
 
 It knows nothing of Zenoh (the service feeds it commands and e-stops and
 publishes what :meth:`BaseController.state` and :meth:`BaseController.odometry`
-return) nor of any bus: a :class:`~services.base_driver.hardware.BaseHardware`
+return) nor of any bus: a :class:`~ovamos.services.base_driver.hardware.BaseHardware`
 interface sends the body velocity setpoints and reports wheel feedback
 (ros2_control's split). :func:`make_hardware` builds the one the config names.
 
@@ -53,12 +53,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
-from services.base_driver.config import DriverConfig
-from services.base_driver.hardware import BaseHardware, HardwareError, WheelFeedback
-from services.base_driver.kinematics import Geometry, WheelOdometry, toward
-from services.base_driver.primitives import PrimitiveTracker
-from shared.messages import DriverMode, DriverState, Odometry, Outcome, PlanCommand, new_odom_session
-from shared.motion import Action, ActionIds, Pose, wrap_angle
+from ovamos.services.base_driver.config import DriverConfig
+from ovamos.services.base_driver.hardware import BaseHardware, HardwareError, WheelFeedback
+from ovamos.services.base_driver.kinematics import Geometry, WheelOdometry, toward
+from ovamos.services.base_driver.primitives import PrimitiveTracker
+from ovamos.shared.messages import DriverMode, DriverState, Odometry, Outcome, PlanCommand, new_odom_session
+from ovamos.shared.motion import Action, ActionIds, Pose, wrap_angle
 
 log = logging.getLogger("ovamos.base_driver")
 
@@ -70,16 +70,16 @@ STALL_FRACTION = 0.25   # of the commanded travel: less progress than this is a 
 def make_hardware(config: DriverConfig, clock: Callable[[], float] = time.monotonic) -> BaseHardware:
     """The hardware interface ``config.hardware`` names (its module imported only when used)."""
     if config.hardware == "odrive_can":
-        from services.base_driver.odrive_can import ODriveCanHardware
+        from ovamos.services.base_driver.odrive_can import ODriveCanHardware
         return ODriveCanHardware(config, clock=clock)
     if config.hardware == "kobuki":
-        from services.base_driver.kobuki import KobukiHardware
+        from ovamos.services.base_driver.kobuki import KobukiHardware
         return KobukiHardware(config.kobuki)
     if config.hardware == "opencr":
-        from services.base_driver.opencr import OpenCRHardware
+        from ovamos.services.base_driver.opencr import OpenCRHardware
         return OpenCRHardware(config.opencr)
     if config.hardware == "ros2":
-        from services.base_driver.ros2 import Ros2Hardware
+        from ovamos.services.base_driver.ros2 import Ros2Hardware
         return Ros2Hardware(config.ros2, clock=clock)
     raise ValueError(f"unknown base hardware {config.hardware!r}")
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from shared.motion import Pose
+from ovamos.shared.motion import Pose
 
 __all__ = ["HardwareError", "WheelFeedback", "BaseHardware"]
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from shared.motion import Pose, wrap_angle
+from ovamos.shared.motion import Pose, wrap_angle
 
 
 def toward(value: float, target: float, step: float) -> float:

@@ -5,7 +5,7 @@ the base through its USB serial adapter (FTDI; kobuki_ftdi's udev rule names it
 ``/dev/kobuki``, otherwise ``/dev/ttyUSB0``). The base streams Basic Sensor Data
 at 50 Hz whether or not anyone listens, and takes Base Control (speed, radius)
 commands. Packet layouts and unit conversions are in
-:mod:`services.base_driver.kobuki_protocol`, with their sources.
+:mod:`ovamos.services.base_driver.kobuki_protocol`, with their sources.
 
 Threads: one reader thread owns the port's input. It decodes packets and keeps
 the newest :class:`WheelFeedback` under a lock; the controller's thread writes
@@ -34,12 +34,27 @@ from typing import Any
 import serial
 from pydantic import Field
 
-from services.base_driver.hardware import HardwareError, WheelFeedback
-from services.base_driver.kobuki_protocol import (
-    BASIC_SENSOR_DATA_ID, BAUDRATE, BUMPER_BITS, CLIFF_BITS, OVERCURRENT_BITS, TICK_TO_RAD,
-    WHEEL_BASE_M, WHEEL_DROP_BITS, BasicSensorData, PacketDecoder, ProtocolError, TickUnwrapper,
-    body_to_speed_radius, encode_base_control, names_from_bits, split_sub_payloads, wrap_diff16)
-from shared.config import StrictModel
+from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
+from ovamos.services.base_driver.kobuki_protocol import (
+    BASIC_SENSOR_DATA_ID,
+    BAUDRATE,
+    BUMPER_BITS,
+    CLIFF_BITS,
+    OVERCURRENT_BITS,
+    TICK_TO_RAD,
+    WHEEL_BASE_M,
+    WHEEL_DROP_BITS,
+    BasicSensorData,
+    PacketDecoder,
+    ProtocolError,
+    TickUnwrapper,
+    body_to_speed_radius,
+    encode_base_control,
+    names_from_bits,
+    split_sub_payloads,
+    wrap_diff16,
+)
+from ovamos.shared.config import StrictModel
 
 __all__ = ["KobukiConfig", "KobukiHardware"]
 
@@ -69,7 +84,7 @@ class KobukiHardware:
                  sleep: Callable[[float], None] = time.sleep, open_port: Callable[[], Any] | None = None) -> None:
         """``open_port`` (a pyserial-like port in place of ``config.port``) makes the interface
         *polled*: no reader thread, :meth:`feedback` reads what has arrived; with ``clock`` and
-        ``sleep`` that is how it runs in simulated time (:mod:`shared.simtime`)."""
+        ``sleep`` that is how it runs in simulated time (:mod:`ovamos.shared.simtime`)."""
         self.config = config or KobukiConfig()
         self._clock, self._sleep, self._open_port = clock, sleep, open_port
         self._serial: Any = None

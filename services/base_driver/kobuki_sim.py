@@ -1,6 +1,6 @@
 """A simulated Kobuki on a pseudo-terminal pair, speaking the protocol byte for byte.
 
-The host's :class:`services.base_driver.kobuki.KobukiHardware` opens the pty's
+The host's :class:`ovamos.services.base_driver.kobuki.KobukiHardware` opens the pty's
 slave path with real pyserial, exactly as it opens ``/dev/kobuki`` on a robot;
 this object plays the firmware on the master side: it reads Base Control
 packets (through the same streaming decoder, so it survives garbage too),
@@ -30,11 +30,26 @@ import time
 import tty
 from collections.abc import Callable
 
-from services.base_driver.kobuki_protocol import (
-    BASE_CONTROL_ID, BUMPER_BITS, CLIFF_BITS, OVERCURRENT_BITS, TICK_TO_RAD, WHEEL_BASE_M, WHEEL_DROP_BITS,
-    WHEEL_RADIUS_M, BasicSensorData, PacketDecoder, ProtocolError, bits_from_names, decode_base_control,
-    encode_packet, encode_sub_payload, speed_radius_to_wheels, split_sub_payloads)
-from shared.simtime import MemoryLine
+from ovamos.services.base_driver.kobuki_protocol import (
+    BASE_CONTROL_ID,
+    BUMPER_BITS,
+    CLIFF_BITS,
+    OVERCURRENT_BITS,
+    TICK_TO_RAD,
+    WHEEL_BASE_M,
+    WHEEL_DROP_BITS,
+    WHEEL_RADIUS_M,
+    BasicSensorData,
+    PacketDecoder,
+    ProtocolError,
+    bits_from_names,
+    decode_base_control,
+    encode_packet,
+    encode_sub_payload,
+    speed_radius_to_wheels,
+    split_sub_payloads,
+)
+from ovamos.shared.simtime import MemoryLine
 
 __all__ = ["SimKobuki", "Physics"]
 

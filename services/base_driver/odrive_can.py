@@ -2,7 +2,7 @@
 
 It only speaks the bus; the policy (limits, ramps, deadman, primitives, the
 fault / recover state machine) is the controller's
-(:mod:`services.base_driver.controller`).
+(:mod:`ovamos.services.base_driver.controller`).
 
 * :meth:`ODriveCanHardware.open` opens the bus (again, after a bus error) and
   sends the enable sequence: Clear_Errors, Set_Limits, velocity control with
@@ -39,11 +39,19 @@ from dataclasses import dataclass, field
 
 import can
 
-from services.base_driver.config import AxisConfig, DriverConfig
-from services.base_driver.hardware import HardwareError, WheelFeedback
-from services.base_driver.kinematics import Geometry
-from services.base_driver.protocol import (AxisState, CanSimple, Cmd, ControlMode, Frame, InputMode,
-                                           ProtocolError, error_names)
+from ovamos.services.base_driver.config import AxisConfig, DriverConfig
+from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
+from ovamos.services.base_driver.kinematics import Geometry
+from ovamos.services.base_driver.protocol import (
+    AxisState,
+    CanSimple,
+    Cmd,
+    ControlMode,
+    Frame,
+    InputMode,
+    ProtocolError,
+    error_names,
+)
 
 log = logging.getLogger("ovamos.base_driver.odrive")
 
@@ -107,7 +115,7 @@ class ODriveCanHardware:
     def __init__(self, config: DriverConfig, bus_factory: BusFactory | None = None,
                  clock: Callable[[], float] = time.monotonic, polled: bool = False) -> None:
         """``polled``: no reader thread; :meth:`feedback` takes the frames that have arrived
-        (with ``clock``, how it runs in simulated time: :mod:`shared.simtime`)."""
+        (with ``clock``, how it runs in simulated time: :mod:`ovamos.shared.simtime`)."""
         self.config, self.clock, self.polled = config, clock, polled
         od = config.odrive
         self._factory = bus_factory or (lambda: can.Bus(**od.can.bus_kwargs()))

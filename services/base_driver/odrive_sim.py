@@ -33,9 +33,17 @@ import can
 from can.interfaces.virtual import VirtualBus
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.base_driver.kinematics import toward
-from services.base_driver.protocol import (AxisState, CanSimple, Cmd, ControlMode, Frame, InputMode,
-                                           ODriveError, ProtocolError)
+from ovamos.services.base_driver.kinematics import toward
+from ovamos.services.base_driver.protocol import (
+    AxisState,
+    CanSimple,
+    Cmd,
+    ControlMode,
+    Frame,
+    InputMode,
+    ODriveError,
+    ProtocolError,
+)
 
 log = logging.getLogger("ovamos.odrive_sim")
 

@@ -44,9 +44,9 @@ from typing import Any, Literal
 import serial
 from pydantic import Field
 
-from services.base_driver import opencr_table as T
-from services.base_driver.hardware import HardwareError, WheelFeedback
-from shared.config import StrictModel
+from ovamos.services.base_driver import opencr_table as T
+from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
+from ovamos.shared.config import StrictModel
 
 __all__ = ["OpenCRConfig", "OpenCRHardware"]
 
@@ -83,14 +83,14 @@ def _i32(data: list[int] | bytes, offset: int) -> int:
 
 
 class OpenCRHardware:
-    """:class:`~services.base_driver.hardware.BaseHardware` for a TurtleBot 3 (OpenCR firmware)."""
+    """:class:`~ovamos.services.base_driver.hardware.BaseHardware` for a TurtleBot 3 (OpenCR firmware)."""
 
     name = "opencr"
 
     def __init__(self, config: OpenCRConfig | None = None, *, clock: Callable[[], float] = time.monotonic,
                  port_handler: Callable[[str], Any] | None = None) -> None:
         """``port_handler`` (a ``dynamixel_sdk.PortHandler`` class on another port than
-        ``config.port``) and ``clock`` run it in simulated time (:mod:`shared.simtime`)."""
+        ``config.port``) and ``clock`` run it in simulated time (:mod:`ovamos.shared.simtime`)."""
         self.config = config or OpenCRConfig()
         self._clock, self._port_handler = clock, port_handler
         self.model = T.MODELS[self.config.model]

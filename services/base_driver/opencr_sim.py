@@ -35,9 +35,9 @@ import tty
 from collections.abc import Callable
 from pathlib import Path
 
-from services.base_driver import opencr_table as T
-from services.base_driver.dynamixel2 import Decoder, Err, Inst, Packet, status_packet
-from shared.simtime import MemoryLine
+from ovamos.services.base_driver import opencr_table as T
+from ovamos.services.base_driver.dynamixel2 import Decoder, Err, Inst, Packet, status_packet
+from ovamos.shared.simtime import MemoryLine
 
 log = logging.getLogger("ovamos.opencr_sim")
 
@@ -386,7 +386,7 @@ def line_port_handler(line: MemoryLine) -> Callable[[str], object]:
     import dynamixel_sdk as dxl
 
     class LinePortHandler(dxl.PortHandler):  # type: ignore[misc]
-        def setupPort(self, cflag_baud: int) -> bool:  # noqa: N802  (the SDK's name)
+        def setupPort(self, cflag_baud: int) -> bool:
             line.is_open = True
             self.ser, self.is_open = line, True
             line.reset_input_buffer()

@@ -16,8 +16,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from services.base_driver.config import DriverConfig
-from shared.motion import Action, Pose, wrap_angle
+from ovamos.services.base_driver.config import DriverConfig
+from ovamos.shared.motion import Action, Pose, wrap_angle
 
 BRAKING_MARGIN = 0.8  # plan braking at 80 % of the acceleration limit: the ramp lags a tick
 

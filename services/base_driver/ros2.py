@@ -32,10 +32,10 @@ from typing import Any
 
 from pydantic import Field, field_validator
 
-from services.base_driver.hardware import HardwareError, WheelFeedback
-from shared.config import StrictModel
-from shared.motion import Pose
-from shared.ros2 import NETWORK_FIELD, Network, Ros2Unavailable, node
+from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
+from ovamos.shared.config import StrictModel
+from ovamos.shared.motion import Pose
+from ovamos.shared.ros2 import NETWORK_FIELD, Network, Ros2Unavailable, node
 
 __all__ = ["Ros2BaseConfig", "Ros2Hardware"]
 
@@ -69,7 +69,7 @@ class Ros2BaseConfig(StrictModel):
 
 
 class Ros2Hardware:
-    """The :class:`~services.base_driver.hardware.BaseHardware` of a ROS 2 base (module docstring)."""
+    """The :class:`~ovamos.services.base_driver.hardware.BaseHardware` of a ROS 2 base (module docstring)."""
 
     name = "ros2"
 

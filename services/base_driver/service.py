@@ -1,8 +1,8 @@
 """The base driver service: ``plan/command``, ``driver/estop`` and ``driver/estop/clear`` in, ``odom`` and ``driver/state`` out.
 
-A thin adapter over a *base* (the :class:`~services.base_driver.controller.BaseController`
+A thin adapter over a *base* (the :class:`~ovamos.services.base_driver.controller.BaseController`
 over the hardware interface ``driver.hardware`` names here, the simulated robot in
-``services.sim.service``): commands go to it as they
+``ovamos.services.sim.service``): commands go to it as they
 arrive (it executes an action id once, so the planner may re-send), and the
 tick publishes odometry at ``odom_hz`` and the driver state at ``state_hz`` and
 whenever it changes (odometry first, so a planner that sees a command completed
@@ -32,16 +32,15 @@ from typing import Any, Protocol
 
 from pydantic import Field, model_validator
 
-from services.base_driver.config import DriverConfig
-from services.base_driver.controller import BaseController
-from services.base_driver.odrive_can import ODriveCanHardware
-from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
-from shared import keys
-from shared.bus import BusCore
-from shared.messages import DriverMode, DriverState, EStop, Odometry, PlanCommand
-from shared.config import ServiceConfig
-from shared.service import Service
-
+from ovamos.services.base_driver.config import DriverConfig
+from ovamos.services.base_driver.controller import BaseController
+from ovamos.services.base_driver.odrive_can import ODriveCanHardware
+from ovamos.services.base_driver.odrive_sim import SimAxisConfig, SimODrives
+from ovamos.shared import keys
+from ovamos.shared.bus import BusCore
+from ovamos.shared.config import ServiceConfig
+from ovamos.shared.messages import DriverMode, DriverState, EStop, Odometry, PlanCommand
+from ovamos.shared.service import Service
 
 PLANNER_UNREACHABLE = "planner unreachable"
 
@@ -49,7 +48,7 @@ PLANNER_UNREACHABLE = "planner unreachable"
 class Base(Protocol):
     """What the service needs of whatever moves the robot."""
 
-    odom_session: str  # new when its odometry integration starts (see shared.messages.OdomSession)
+    odom_session: str  # new when its odometry integration starts (see ovamos.shared.messages.OdomSession)
 
     def submit(self, command: PlanCommand) -> str: ...
     def engage_estop(self, source: str, reason: str = "") -> None: ...

@@ -5,7 +5,7 @@ delivers colour and depth aligned to the colour camera, the colour camera's
 intrinsics, the depth unit, and when the frame was captured on the device's
 clock. Everything about the robot (where the camera is mounted, where the base
 was at the capture time, lock-step, faults) is the core's
-(:mod:`services.camera.core`), so every backend gets it the same way.
+(:mod:`ovamos.services.camera.core`), so every backend gets it the same way.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import Protocol
 
 import numpy as np
 
-from shared.messages import Intrinsics
+from ovamos.shared.messages import Intrinsics
 
 __all__ = ["CameraError", "CapturedFrame", "CameraBackend"]
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 from collections import deque
 from typing import Protocol
 
-from services.camera.config import ClockConfig
+from ovamos.services.camera.config import ClockConfig
 
 __all__ = ["CaptureClock", "DeviceClock", "HostClock", "make_clock"]
 

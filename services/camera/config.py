@@ -1,6 +1,6 @@
 """Every setting of the robot's camera service, defined once (unknown keys are errors).
 
-The core (:mod:`services.camera.core`) reads :class:`CameraConfig` and nothing
+The core (:mod:`ovamos.services.camera.core`) reads :class:`CameraConfig` and nothing
 else, so a camera that is mounted, timed or gated differently is a config file,
 not a code change. The backends' own settings (device serial, resolution, fps,
 recording path) live in their backends' modules (which import no SDK until a
@@ -13,12 +13,12 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from services.camera.file import FileConfig
-from services.camera.oakd import OakdConfig
-from services.camera.realsense import RealSenseConfig
-from services.camera.ros2 import Ros2CameraConfig
-from shared.config import ServiceConfig, StrictModel
-from shared.sessions import SessionSwitch
+from ovamos.services.camera.file import FileConfig
+from ovamos.services.camera.oakd import OakdConfig
+from ovamos.services.camera.realsense import RealSenseConfig
+from ovamos.services.camera.ros2 import Ros2CameraConfig
+from ovamos.shared.config import ServiceConfig, StrictModel
+from ovamos.shared.sessions import SessionSwitch
 
 __all__ = ["Mount", "ClockConfig", "OdometryConfig", "CameraConfig"]
 
@@ -48,7 +48,7 @@ class ClockConfig(StrictModel):
 
     ``device``: the backend's clock is its own (a RealSense hardware clock, a recording's
     timestamps); its offset to the host is estimated from the frames themselves (see
-    :class:`services.camera.clock.DeviceClock`). ``host``: the backend already stamps frames on
+    :class:`ovamos.services.camera.clock.DeviceClock`). ``host``: the backend already stamps frames on
     this host's monotonic clock (depthai's ``getTimestamp()`` is host-synchronised), used as is.
     """
 

@@ -2,7 +2,7 @@
 
 No Zenoh and no SDK here: the service adapter feeds the core from its one thread
 (DESIGN.md section 3) and publishes what :meth:`CameraCore.poll` returns; a backend
-(:mod:`services.camera.capture`) only delivers :class:`CapturedFrame` s. So every
+(:mod:`ovamos.services.camera.capture`) only delivers :class:`CapturedFrame` s. So every
 backend is timed, posed, gated and health-checked the same way, and all of it is
 tested without a device.
 
@@ -10,7 +10,7 @@ Clocks (every argument says which it is on):
 
 * **host monotonic** (``time.monotonic()`` on the camera's host): frame receipt
   (``CapturedFrame.host_time_s``), driver-state receipt, ``poll(now)``. Capture
-  times are mapped onto it from the device clock (:mod:`services.camera.clock`);
+  times are mapped onto it from the device clock (:mod:`ovamos.services.camera.clock`);
   lock-step gating, timeouts and rate limits compare times on it only.
 * **host wall** (``time.time()`` on the same host): ``Odometry.stamp`` (the base
   driver runs on the robot host too) and the published stamps. A capture time
@@ -32,7 +32,7 @@ What a frame goes through (:meth:`CameraCore.on_frame`):
    publishes every frame (``max_hz`` at most), ``after_action`` = the newest
    completion received before the capture;
 4. posed: odometry interpolated at the capture time times the mount
-   (:mod:`services.camera.pose`). A frame newer than the newest odometry waits for
+   (:mod:`ovamos.services.camera.pose`). A frame newer than the newest odometry waits for
    the next message (``odometry.wait_s``), then is extrapolated within
    ``odometry.tolerance_s`` or skipped; a frame older than the odometry window, or
    in a gap of it (``odometry.max_gap_s``), is skipped. Skips are counted by reason
@@ -56,11 +56,11 @@ from typing import Any
 
 import numpy as np
 
-from services.camera.capture import CapturedFrame
-from services.camera.clock import make_clock
-from services.camera.config import CameraConfig
-from services.camera.pose import BasePose, Miss, OdometryBuffer, base_T_optical, camera_pose
-from shared.messages import CameraState, DriverMode, DriverState, Odometry, RgbdFrame
+from ovamos.services.camera.capture import CapturedFrame
+from ovamos.services.camera.clock import make_clock
+from ovamos.services.camera.config import CameraConfig
+from ovamos.services.camera.pose import BasePose, Miss, OdometryBuffer, base_T_optical, camera_pose
+from ovamos.shared.messages import CameraState, DriverMode, DriverState, Odometry, RgbdFrame
 
 __all__ = ["CameraCore", "host_wall_offset", "DEPTH_ALL_ZERO", "CLOCK_JUMP"]
 

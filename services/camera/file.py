@@ -15,12 +15,12 @@ of ten. ``max`` turns real time off (``playback.set_real_time(False)``), so the
 playback waits for each frame to be consumed: every frame, as fast as the core
 takes them (what a replayed search wants). The backend then says it is
 ``lossless``, and the camera service's reader waits for the service instead of
-dropping captures while it is busy (:mod:`services.camera.service`).
+dropping captures while it is busy (:mod:`ovamos.services.camera.service`).
 
-pyrealsense2 is imported when the backend starts (see :mod:`services.camera.realsense`).
+pyrealsense2 is imported when the backend starts (see :mod:`ovamos.services.camera.realsense`).
 
 The end of the recording is not a silence: ``read`` raises :class:`RecordingEnded`
-(a :class:`~services.camera.capture.CameraError`, message ``"end of recording:
+(a :class:`~ovamos.services.camera.capture.CameraError`, message ``"end of recording:
 <path>"``) and :attr:`FileBackend.ended` turns true. ``start()`` plays it again
 from the beginning.
 """
@@ -33,8 +33,8 @@ from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field
 
-from services.camera.capture import CameraError
-from services.camera.realsense import DepthFilters, RealSenseBackend, sdk
+from ovamos.services.camera.capture import CameraError
+from ovamos.services.camera.realsense import DepthFilters, RealSenseBackend, sdk
 
 if TYPE_CHECKING:
     import pyrealsense2 as rs

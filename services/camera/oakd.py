@@ -14,8 +14,8 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from services.camera.capture import CameraError, CapturedFrame
-from shared.config import StrictModel
+from ovamos.services.camera.capture import CameraError, CapturedFrame
+from ovamos.shared.config import StrictModel
 
 __all__ = ["OakdConfig", "OakdBackend", "NOT_IMPLEMENTED"]
 

@@ -6,10 +6,10 @@
   interpolated between the two odometry messages around ``t`` (x, y, and yaw along
   the shorter arc: odometry at ~50 Hz is 20 ms apart, where a base's motion is a
   straight line to well under a millimetre);
-* ``base_T_body``: the mount (:class:`services.camera.config.Mount`), measured once;
-* ``body_T_optical``: :data:`shared.camera.OPTICAL_TO_BODY`, the same constant the
+* ``base_T_body``: the mount (:class:`ovamos.services.camera.config.Mount`), measured once;
+* ``body_T_optical``: :data:`ovamos.shared.camera.OPTICAL_TO_BODY`, the same constant the
   simulator's camera uses, so a level camera 0.88 m up on the base's axis gives
-  exactly :func:`shared.camera.camera_pose`.
+  exactly :func:`ovamos.shared.camera.camera_pose`.
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ from enum import Enum
 
 import numpy as np
 
-from services.camera.config import Mount
-from shared.camera import OPTICAL_TO_BODY
-from shared.messages import Odometry
-from shared.sessions import SessionFollower, SessionSwitch
+from ovamos.services.camera.config import Mount
+from ovamos.shared.camera import OPTICAL_TO_BODY
+from ovamos.shared.messages import Odometry
+from ovamos.shared.sessions import SessionFollower, SessionSwitch
 
 __all__ = ["BasePose", "Miss", "OdometryBuffer", "wrap_angle", "rotation_rpy", "base_T_optical",
            "world_T_base", "camera_pose"]
@@ -96,7 +96,7 @@ class OdometryBuffer:
     Times are the robot host's wall clock (``Odometry.stamp``, ``time.time()`` when the pose was
     measured). Messages arriving out of order are put in place; a message older than the window
     or repeating a stamp is dropped (counted). A driver that restarts (a new ``odom_session``
-    followed on evidence, ``switch``: see :mod:`shared.sessions`; or, from a driver that says
+    followed on evidence, ``switch``: see :mod:`ovamos.shared.sessions`; or, from a driver that says
     none, its ``seq`` starting again at a later stamp) starts the buffer again: poses from before
     and after a restart are in different odometry frames and must not be interpolated. A message
     of a session not followed is dropped (counted in ``stray``).

@@ -1,7 +1,7 @@
 """The RealSense backend: frames from pyrealsense2, depth aligned to colour, as CapturedFrames.
 
 One processing path serves every source of RealSense framesets, so what the tests
-and the benchmark exercise (a :class:`~services.camera.software_device.SoftwareCamera`,
+and the benchmark exercise (a :class:`~ovamos.services.camera.software_device.SoftwareCamera`,
 a recording) is the code a robot runs on a D4xx:
 
     frameset -> depth filters (optional, off by default) -> rs.align(colour)
@@ -11,7 +11,7 @@ a recording) is the code a robot runs on a D4xx:
 
 Sources (:class:`FrameSource`): :class:`DeviceSource` (a camera through
 ``rs.pipeline`` + ``rs.config``, by serial number), the file backend's
-:class:`services.camera.file.FileSource` (a recording), and the software device.
+:class:`ovamos.services.camera.file.FileSource` (a recording), and the software device.
 A source only starts, waits for the next frameset, says whether a silence means
 the device is gone, and stops.
 
@@ -30,9 +30,9 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 from pydantic import Field
 
-from services.camera.capture import CameraError, CapturedFrame
-from shared.config import StrictModel
-from shared.messages import Intrinsics
+from ovamos.services.camera.capture import CameraError, CapturedFrame
+from ovamos.shared.config import StrictModel
+from ovamos.shared.messages import Intrinsics
 
 if TYPE_CHECKING:
     import pyrealsense2 as rs
@@ -186,10 +186,10 @@ def _rgb(frame: rs.video_frame) -> np.ndarray:
 
 
 class RealSenseBackend:
-    """A :class:`~services.camera.capture.CameraBackend` over RealSense framesets.
+    """A :class:`~ovamos.services.camera.capture.CameraBackend` over RealSense framesets.
 
     Without ``source`` it opens the camera the config names; with one (a
-    :class:`~services.camera.software_device.SoftwareCamera`, a recording) it reads
+    :class:`~ovamos.services.camera.software_device.SoftwareCamera`, a recording) it reads
     that instead, through the same filters, alignment and conversion.
     """
 

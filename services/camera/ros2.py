@@ -9,7 +9,7 @@ to this host's, as for a RealSense).
 
 Subscriptions are best effort (``qos_profile_sensor_data``), which matches reliable and
 best-effort publishers alike; rclpy's callbacks only keep the newest few messages under a lock.
-What cannot make a frame is a :class:`~services.camera.capture.CameraError` with the reason (an
+What cannot make a frame is a :class:`~ovamos.services.camera.capture.CameraError` with the reason (an
 encoding this cannot read, sizes that differ, no camera info for ``info_timeout_s`` while images
 come); a colour image no depth image pairs with is dropped and counted (``unpaired``). A simulated
 robot's camera also has an instance-id image (``instance_ids``), paired as depth is.
@@ -26,10 +26,10 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
-from services.camera.capture import CameraError, CapturedFrame
-from shared.config import StrictModel
-from shared.messages import Intrinsics
-from shared.ros2 import NETWORK_FIELD, Network, Ros2Unavailable, node
+from ovamos.services.camera.capture import CameraError, CapturedFrame
+from ovamos.shared.config import StrictModel
+from ovamos.shared.messages import Intrinsics
+from ovamos.shared.ros2 import NETWORK_FIELD, Network, Ros2Unavailable, node
 
 __all__ = ["Ros2CameraConfig", "Ros2Backend"]
 
@@ -70,7 +70,7 @@ def _pixels(msg: Any, dtype: np.dtype, channels: int, topic: str) -> np.ndarray:
 
 
 class Ros2Backend:
-    """The :class:`~services.camera.capture.CameraBackend` of a ROS 2 camera (module docstring)."""
+    """The :class:`~ovamos.services.camera.capture.CameraBackend` of a ROS 2 camera (module docstring)."""
 
     name = "ros2"
 

@@ -1,6 +1,6 @@
 """The camera service (on the robot): SDK frames in, posed ``sensors/rgbd`` frames and ``camera/state`` out.
 
-A thin adapter over :class:`services.camera.core.CameraCore`. The SDK's blocking
+A thin adapter over :class:`ovamos.services.camera.core.CameraCore`. The SDK's blocking
 reads run on a reader thread of their own, which, like Zenoh's callbacks, only
 enqueues: captured frames and camera errors go to the service's inbox and are
 handled on the service's one thread with odometry and driver states, so the
@@ -29,13 +29,13 @@ import threading
 import time
 from typing import Any
 
-from services.camera.capture import CameraBackend, CameraError, CapturedFrame
-from services.camera.config import CameraConfig
-from services.camera.core import CameraCore
-from shared.bus import BusCore
-from shared.log import fields, sampled
-from shared.messages import DriverState, Odometry
-from shared.service import Service
+from ovamos.services.camera.capture import CameraBackend, CameraError, CapturedFrame
+from ovamos.services.camera.config import CameraConfig
+from ovamos.services.camera.core import CameraCore
+from ovamos.shared.bus import BusCore
+from ovamos.shared.log import fields, sampled
+from ovamos.shared.messages import DriverState, Odometry
+from ovamos.shared.service import Service
 
 __all__ = ["CameraService", "make_backend"]
 
@@ -48,16 +48,16 @@ CAPTURE_KEEP = 2  # captures waiting for the service's thread at most (a live ca
 def make_backend(config: CameraConfig) -> CameraBackend:
     """The configured backend; the SDK is imported only for the backend that is used."""
     if config.backend == "realsense":
-        from services.camera.realsense import RealSenseBackend
+        from ovamos.services.camera.realsense import RealSenseBackend
         return RealSenseBackend(config.realsense)
     if config.backend == "file":
-        from services.camera.file import FileBackend
+        from ovamos.services.camera.file import FileBackend
         assert config.file is not None  # the config's validator requires it
         return FileBackend(config.file)
     if config.backend == "ros2":
-        from services.camera.ros2 import Ros2Backend
+        from ovamos.services.camera.ros2 import Ros2Backend
         return Ros2Backend(config.ros2)
-    from services.camera.oakd import OakdBackend
+    from ovamos.services.camera.oakd import OakdBackend
     return OakdBackend(config.oakd)
 
 

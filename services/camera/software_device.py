@@ -8,8 +8,8 @@ as they process a D4xx's. :class:`SoftwareCamera` builds one shaped like a D4xx
 through it, so the RealSense backend's real processing path runs in tests and in
 the benchmark without a camera.
 
-It is a frame source of :class:`services.camera.realsense.RealSenseBackend` (see
-:class:`services.camera.realsense.FrameSource`): the backend starts its sensors
+It is a frame source of :class:`ovamos.services.camera.realsense.RealSenseBackend` (see
+:class:`ovamos.services.camera.realsense.FrameSource`): the backend starts its sensors
 into an ``rs.syncer`` and reads framesets from there. A pipeline cannot open it:
 in pyrealsense2 2.59.1 ``software_device.add_to(context)`` registers the device
 in the context only through a weak reference to a device-info object nobody
@@ -38,8 +38,8 @@ from typing import Any
 import numpy as np
 import pyrealsense2 as rs
 
-from services.camera.capture import CameraError
-from shared.messages import Intrinsics
+from ovamos.services.camera.capture import CameraError
+from ovamos.shared.messages import Intrinsics
 
 __all__ = ["SoftwareCamera"]
 

@@ -8,13 +8,13 @@ from typing import Any
 
 from pydantic import Field
 
-from services.diag.monitor import TrafficStats
-from services.diag.testpattern import pattern_frame
-from shared import keys
-from shared.bus import BusCore
-from shared.config import ServiceConfig
-from shared.messages import RgbdFrame
-from shared.service import Service
+from ovamos.services.diag.monitor import TrafficStats
+from ovamos.services.diag.testpattern import pattern_frame
+from ovamos.shared import keys
+from ovamos.shared.bus import BusCore
+from ovamos.shared.config import ServiceConfig
+from ovamos.shared.messages import RgbdFrame
+from ovamos.shared.service import Service
 
 
 class TestPatternConfig(ServiceConfig):

@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 
-from shared.camera import DEPTH_RANGE_M, camera_pose, pinhole
-from shared.messages import RgbdFrame
+from ovamos.shared.camera import DEPTH_RANGE_M, camera_pose, pinhole
+from ovamos.shared.messages import RgbdFrame
 
 TURN_PER_FRAME_RAD = math.radians(5.0)
 _BARS = np.array([[255, 255, 255], [255, 255, 0], [0, 255, 255], [0, 255, 0],

@@ -5,7 +5,7 @@ Nothing touches Zenoh at import: the bus is acquired in the lifespan (from
 the module can be imported by a process that forks later, and one process
 can build several apps (tests restart the gateway on the same state file).
 
-Threads (see :mod:`services.gateway.tasks` for the one that owns the tasks):
+Threads (see :mod:`ovamos.services.gateway.tasks` for the one that owns the tasks):
 - the asyncio event loop (uvicorn's thread) runs the middleware, the error
   handlers, the event streams and the re-publish timer; it never touches the
   store or Zenoh and takes no lock that anything holds across I/O (the
@@ -32,17 +32,17 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from services.gateway.auth import DOCS_REALM, AuthFailures, bearer_guard
-from services.gateway.config import GatewayConfig
-from services.gateway.page import mount_page
-from services.gateway.robot_routes import router as robot_router
-from services.gateway.robots import RobotMonitor
-from services.gateway.routes import Gateway, router
-from services.gateway.security import HostGuard, SecurityHeaders, mount_docs
-from services.gateway.sse import TaskWatchers
-from services.gateway.store import TaskRecord, TaskStore
-from services.gateway.tasks import TaskManager
-from shared.bus import Bus
+from ovamos.services.gateway.auth import DOCS_REALM, AuthFailures, bearer_guard
+from ovamos.services.gateway.config import GatewayConfig
+from ovamos.services.gateway.page import mount_page
+from ovamos.services.gateway.robot_routes import router as robot_router
+from ovamos.services.gateway.robots import RobotMonitor
+from ovamos.services.gateway.routes import Gateway, router
+from ovamos.services.gateway.security import HostGuard, SecurityHeaders, mount_docs
+from ovamos.services.gateway.sse import TaskWatchers
+from ovamos.services.gateway.store import TaskRecord, TaskStore
+from ovamos.services.gateway.tasks import TaskManager
+from ovamos.shared.bus import Bus
 
 log = logging.getLogger("ovamos.gateway")
 

@@ -1,4 +1,4 @@
-"""Bearer-token check for every API route (see :mod:`services.gateway.config` for when it applies)."""
+"""Bearer-token check for every API route (see :mod:`ovamos.services.gateway.config` for when it applies)."""
 
 from __future__ import annotations
 

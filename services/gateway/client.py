@@ -14,7 +14,7 @@ from typing import Any, Self
 
 import httpx
 
-from services.gateway.models import TaskAccepted, TaskList, TaskView
+from ovamos.services.gateway.models import TaskAccepted, TaskList, TaskView
 
 STREAM_READ_TIMEOUT_S = 60.0  # > the gateway's keep-alive period on event streams
 

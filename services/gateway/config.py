@@ -17,8 +17,8 @@ from typing import Self
 
 from pydantic import Field, SecretStr, field_validator, model_validator
 
-from shared import keys
-from shared.config import ServiceConfig
+from ovamos.shared import keys
+from ovamos.shared.config import ServiceConfig
 
 TOKEN_ENV = "OVAMOS_GATEWAY_TOKEN"
 MAX_STEPS_LIMIT = 100_000  # TaskSpec's own bound: a larger value could not be sent

@@ -16,15 +16,15 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from services.gateway.models import Candidate, MapView, Pose
-from services.gateway.store import TaskRecord
-from services.mapping.render import crop_box, map_raster, render_map, value_image
-from services.planner.candidates import find_candidates
-from services.planner.decide import DecisionConfig, decision_values, explored_window
-from shared.bus import Bus
-from shared.messages import Goal, MapSnapshot
-from shared.robot import ROBOT
-from shared.topology import TOPOLOGY
+from ovamos.services.gateway.models import Candidate, MapView, Pose
+from ovamos.services.gateway.store import TaskRecord
+from ovamos.services.mapping.render import crop_box, map_raster, render_map, value_image
+from ovamos.services.planner.candidates import find_candidates
+from ovamos.services.planner.decide import DecisionConfig, decision_values, explored_window
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import Goal, MapSnapshot
+from ovamos.shared.robot import ROBOT
+from ovamos.shared.topology import TOPOLOGY
 
 MAP_SNAPSHOT = TOPOLOGY["gateway"].port("queries", "map_snapshot")
 
@@ -86,7 +86,7 @@ def map_view(snapshot: MapSnapshot, task: TaskRecord | None, *, layer: str | Non
              margin_cells: int = 10) -> MapView:
     """The page's map: the raster of the window holding the explored area, the robot, the goal,
     ``task``'s path and found targets, objects and frontiers
-    (:func:`services.mapping.render.crop_box`), and those in world metres; candidates of the
+    (:func:`ovamos.services.mapping.render.crop_box`), and those in world metres; candidates of the
     ``searching`` targets (none when no task searches). ValueError for an unknown ``layer``.
 
     Objects are those of the whole map, of every label it ever searched for: the page draws only

@@ -9,16 +9,23 @@ are done by :func:`check_against_config`, which raises the same kind of error.
 from __future__ import annotations
 
 from datetime import UTC, datetime
-
-from fastapi.exceptions import RequestValidationError
 from typing import Literal
 
+from fastapi.exceptions import RequestValidationError
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from services.gateway.config import MAX_STEPS_LIMIT, GatewayConfig
-from services.gateway.store import TaskRecord
-from shared.messages import (FINAL, MAX_TARGETS, DriverState, FoundObject, Goal, ObjectInstance, TargetMiss,
-                             TaskStatus)
+from ovamos.services.gateway.config import MAX_STEPS_LIMIT, GatewayConfig
+from ovamos.services.gateway.store import TaskRecord
+from ovamos.shared.messages import (
+    FINAL,
+    MAX_TARGETS,
+    DriverState,
+    FoundObject,
+    Goal,
+    ObjectInstance,
+    TargetMiss,
+    TaskStatus,
+)
 
 MAX_TARGET_CHARS = 64
 

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 from fastapi import APIRouter, HTTPException, status
 
-from services.gateway.maps import NoMap, fetch_snapshot, map_view
-from services.gateway.models import EStopClear, EStopRequest, MapView, Problem, RobotState
-from services.gateway.robots import EStopUnconfirmed
-from services.gateway.routes import GW, Gateway, robot_pose
-from shared.messages import TaskStatus
+from ovamos.services.gateway.maps import NoMap, fetch_snapshot, map_view
+from ovamos.services.gateway.models import EStopClear, EStopRequest, MapView, Problem, RobotState
+from ovamos.services.gateway.robots import EStopUnconfirmed
+from ovamos.services.gateway.routes import GW, Gateway, robot_pose
+from ovamos.shared.messages import TaskStatus
 
 router = APIRouter(prefix="/v1/robots", responses={401: {"model": Problem}, 404: {"model": Problem}})
 

@@ -2,7 +2,7 @@
 
 The operator's page shows the driver state next to the E-STOP button and the robot's pose on
 the map whether or not a task runs, so the gateway follows ``driver/state`` and ``odom`` of
-every robot it serves (:data:`shared.topology.TOPOLOGY`) and keeps the latest of each.
+every robot it serves (:data:`ovamos.shared.topology.TOPOLOGY`) and keeps the latest of each.
 
 The e-stop is a safety function, so a request is not answered "sent" but "confirmed": the
 gateway publishes on ``driver/estop`` (a clear on ``driver/estop/clear``) and re-sends every ``estop_resend_s`` (a single Zenoh put
@@ -22,10 +22,10 @@ import time
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
-from services.gateway.config import GatewayConfig
-from shared.bus import BusCore, Publisher
-from shared.messages import DriverState, EStop, Odometry
-from shared.topology import TOPOLOGY
+from ovamos.services.gateway.config import GatewayConfig
+from ovamos.shared.bus import BusCore, Publisher
+from ovamos.shared.messages import DriverState, EStop, Odometry
+from ovamos.shared.topology import TOPOLOGY
 
 PORTS = TOPOLOGY["gateway"]
 DRIVER_STATE = PORTS.port("inputs", "driver_state")

@@ -17,18 +17,29 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
 from fastapi.responses import StreamingResponse
 
-from services.gateway.config import GatewayConfig
-from services.gateway.maps import NoMap, fetch_snapshot, map_png
-from services.gateway.models import (Health, Pose, Problem, RobotHealth, ServiceEntry, TaskAccepted,
-                                     TaskList, TaskRequest, TaskView, check_against_config, task_view)
-from services.gateway.robots import RobotMonitor
-from services.gateway.sse import TaskWatchers, task_stream
-from services.gateway.store import TaskRecord, TaskStore
-from services.gateway.tasks import GatewayBusy, TaskConflict, TaskManager
-from shared import keys
-from shared.bus import Bus
-from shared.messages import TaskStatus
-from shared.status import live_services
+from ovamos.services.gateway.config import GatewayConfig
+from ovamos.services.gateway.maps import NoMap, fetch_snapshot, map_png
+from ovamos.services.gateway.models import (
+    Health,
+    Pose,
+    Problem,
+    RobotHealth,
+    ServiceEntry,
+    TaskAccepted,
+    TaskList,
+    TaskRequest,
+    TaskView,
+    check_against_config,
+    task_view,
+)
+from ovamos.services.gateway.robots import RobotMonitor
+from ovamos.services.gateway.sse import TaskWatchers, task_stream
+from ovamos.services.gateway.store import TaskRecord, TaskStore
+from ovamos.services.gateway.tasks import GatewayBusy, TaskConflict, TaskManager
+from ovamos.shared import keys
+from ovamos.shared.bus import Bus
+from ovamos.shared.messages import TaskStatus
+from ovamos.shared.status import live_services
 
 
 @dataclass

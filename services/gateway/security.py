@@ -5,7 +5,7 @@ and the API docs served from the package.
   name to 127.0.0.1; the browser then sends that page's requests to the gateway, same-origin as
   far as it knows, with ``Host: attacker.example:8080``. So the ``Host`` name (any port: an SSH
   tunnel or a port forward changes it) must be one the gateway serves
-  (:meth:`~services.gateway.config.GatewayConfig.host_names`) or an IP address literal (which
+  (:meth:`~ovamos.services.gateway.config.GatewayConfig.host_names`) or an IP address literal (which
   cannot be rebound). A state-changing request (POST, PUT, PATCH, DELETE) that carries an
   ``Origin`` must also come from the gateway's own origin (the Origin's host and port are the
   Host header's) or from ``allowed_origins``: another site, or another local server on another
@@ -31,7 +31,7 @@ from fastapi.responses import HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from services.gateway.config import GatewayConfig, host_name
+from ovamos.services.gateway.config import GatewayConfig, host_name
 
 UNSAFE_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 CONTENT_SECURITY_POLICY = ("default-src 'self'; img-src 'self' data:; object-src 'none'; "

@@ -1,18 +1,18 @@
 """``ovamos run gateway``: the HTTP API served by uvicorn inside the common service life cycle.
 
-Running as a :class:`~shared.service.Service` gives the gateway what every
+Running as a :class:`~ovamos.shared.service.Service` gives the gateway what every
 service has (a liveliness token, a stats queryable, SIGINT/SIGTERM handling,
 ``--connect`` / ``--zenoh`` options) with no special case in the CLI. The bus
-that :func:`~shared.service.run_service` opened is lent to the app; uvicorn
+that :func:`~ovamos.shared.service.run_service` opened is lent to the app; uvicorn
 runs on its own thread (it installs no signal handlers off the main thread,
 so shutdown stays with run_service) and the app is stopped before the bus
 is closed.
 
 Threads: the main thread, once :meth:`GatewayService.start` returned, takes the
 bus's inbox (run_service's loop) and so owns the tasks (planner events,
-submits, cancels, re-publish rounds: :mod:`services.gateway.tasks`); the
+submits, cancels, re-publish rounds: :mod:`ovamos.services.gateway.tasks`); the
 ``gateway-http`` thread runs uvicorn's event loop; FastAPI's worker threads
-run the routes (:mod:`services.gateway.app`). No tick: the gateway is event
+run the routes (:mod:`ovamos.services.gateway.app`). No tick: the gateway is event
 driven, and its re-publish timer lives on the event loop.
 """
 
@@ -26,10 +26,10 @@ from typing import Any
 
 import uvicorn
 
-from services.gateway.app import create_app
-from services.gateway.config import GatewayConfig
-from shared.bus import Bus
-from shared.service import Service, ServiceConfigError
+from ovamos.services.gateway.app import create_app
+from ovamos.services.gateway.config import GatewayConfig
+from ovamos.shared.bus import Bus
+from ovamos.shared.service import Service, ServiceConfigError
 
 STARTUP_TIMEOUT_S = 30.0
 GRACEFUL_SHUTDOWN_S = 3  # open requests get this long; event streams are ended before it starts

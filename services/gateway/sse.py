@@ -19,7 +19,7 @@ from collections import defaultdict
 from collections.abc import AsyncIterator, Callable, Iterator
 from contextlib import contextmanager
 
-from services.gateway.models import TaskView
+from ovamos.services.gateway.models import TaskView
 
 _CLOSED = object()  # offered to every stream when the gateway shuts down
 

@@ -7,7 +7,7 @@ on one robot. Every write is committed before the call returns: once
 ``POST /v1/tasks`` has answered 202 the task is on disk.
 
 Threads: every write goes through one connection, used by the one thread that
-owns the task state (the TaskManager's, see :mod:`services.gateway.tasks`); a
+owns the task state (the TaskManager's, see :mod:`ovamos.services.gateway.tasks`); a
 lock guards it only against :meth:`TaskStore.close`. Reads, from any thread,
 take a query-only connection from a small pool, and the file is in WAL mode,
 so a read sees the last committed state and never waits for a write or a slow
@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from shared.messages import FoundObject, TargetMiss, TaskStatus
+from ovamos.shared.messages import FoundObject, TargetMiss, TaskStatus
 
 MAX_PATH_POINTS = 20_000  # a 500-step search reports ~500; this only bounds a runaway planner
 

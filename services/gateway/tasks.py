@@ -14,7 +14,7 @@ already finished, another robot's) are counted and ignored: a late event must
 never reopen a finished task. Malformed payloads are counted by the bus.
 
 Threads: one thread owns the task state and makes every change, the taker of
-the bus's inbox (:mod:`shared.inbox`): the service's main thread under
+the bus's inbox (:mod:`ovamos.shared.inbox`): the service's main thread under
 ``ovamos run gateway``, the bus's dispatcher thread when the app was given a
 bus of its own. Planner events reach it through the inbox (Zenoh's callback
 threads only enqueue them); an HTTP worker thread hands it a submit or cancel
@@ -39,11 +39,11 @@ from collections.abc import Callable
 from concurrent.futures import CancelledError, Future
 from typing import Any, TypeVar
 
-from services.gateway.config import GatewayConfig
-from services.gateway.store import TaskRecord, TaskStore
-from shared.bus import BusCore, Publisher
-from shared.messages import FINAL, Goal, TaskEvent, TaskSpec, TaskStatus
-from shared.topology import TOPOLOGY
+from ovamos.services.gateway.config import GatewayConfig
+from ovamos.services.gateway.store import TaskRecord, TaskStore
+from ovamos.shared.bus import BusCore, Publisher
+from ovamos.shared.messages import FINAL, Goal, TaskEvent, TaskSpec, TaskStatus
+from ovamos.shared.topology import TOPOLOGY
 
 Notify = Callable[[TaskRecord], None]
 T = TypeVar("T")
@@ -87,7 +87,7 @@ class TaskManager:
         self._live: dict[str, tuple[str, Goal | None]] = {}
 
     def start(self) -> None:
-        """Declare the gateway's ports (:data:`shared.topology.TOPOLOGY`) for every robot it
+        """Declare the gateway's ports (:data:`ovamos.shared.topology.TOPOLOGY`) for every robot it
         serves, and queue the resume (queued tasks start where no task is active) ahead of
         every event and request."""
         for robot in self.config.robots:

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from services.mapping.config import MappingConfig
-from services.mapping.state import MapState
-from shared.atomic import write_atomic
-from shared.messages import DecodeError, MapSnapshot
+from ovamos.services.mapping.config import MappingConfig
+from ovamos.services.mapping.state import MapState
+from ovamos.shared.atomic import write_atomic
+from ovamos.shared.messages import DecodeError, MapSnapshot
 
 
 class CheckpointError(ValueError):
@@ -22,7 +22,7 @@ class CheckpointError(ValueError):
 
 
 def save_checkpoint(state: MapState, path: str | Path, stamp: float) -> None:
-    """Write atomically (:func:`shared.atomic.write_atomic`): a crash never leaves half a file."""
+    """Write atomically (:func:`ovamos.shared.atomic.write_atomic`): a crash never leaves half a file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(path, state.snapshot(stamp).to_bytes())
@@ -30,7 +30,7 @@ def save_checkpoint(state: MapState, path: str | Path, stamp: float) -> None:
 
 def session_path(path: str | Path, odom_session: str) -> Path:
     """Where the map of an earlier odometry session is kept: ``map.ckpt`` -> ``map.<session>.ckpt``
-    (a session id holds only letters, digits, '-' and '_': see shared.messages.OdomSession)."""
+    (a session id holds only letters, digits, '-' and '_': see ovamos.shared.messages.OdomSession)."""
     path = Path(path)
     return path.with_name(f"{path.stem}.{odom_session or 'no-session'}{path.suffix}")
 

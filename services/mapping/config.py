@@ -4,15 +4,15 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from shared.config import ServiceConfig
-from shared.messages import MAX_MAP_SIDE
-from shared.robot import ROBOT
+from ovamos.shared.config import ServiceConfig
+from ovamos.shared.messages import MAX_MAP_SIDE
+from ovamos.shared.robot import ROBOT
 
 
 class MappingConfig(ServiceConfig):
     grid_cells: int = Field(default=1000, ge=10, le=MAX_MAP_SIDE,
                             description="the grid is square, this many cells a side (a larger map "
-                                        "could not be sent: shared.messages.MAX_MAP_SIDE)")
+                                        "could not be sent: ovamos.shared.messages.MAX_MAP_SIDE)")
     resolution: float = Field(default=0.05, gt=0, description="metres per cell")
     center: tuple[float, float] = Field(default=(0.0, 0.0), description="world xy of the grid centre")
     min_obstacle_height: float = Field(default=0.15, description="points between these heights are obstacles")

@@ -3,7 +3,7 @@
 The map state fuses each frame's reading into its layers (:func:`fov_confidence`,
 :func:`fuse`); snapshots carry those raw layers and the update counts. What the
 planner decides on is :func:`value_map` (the layers normalised, decayed by the
-counts and summed), and the map picture (:mod:`services.mapping.render`) shows
+counts and summed), and the map picture (:mod:`ovamos.services.mapping.render`) shows
 that same function's result, so a person looks at the map the planner saw.
 """
 
@@ -14,7 +14,7 @@ from functools import partial
 
 import numpy as np
 
-from shared.messages import MapSnapshot
+from ovamos.shared.messages import MapSnapshot
 
 DECAY_TAU = 6.0
 """Paper: the update count at which a value halves (tau)."""

@@ -41,9 +41,9 @@ from typing import Self
 
 import numpy as np
 
-from services.mapping.config import MappingConfig
-from shared.detections import Detection, often_detected
-from shared.messages import ObjectInstance, RgbdFrame
+from ovamos.services.mapping.config import MappingConfig
+from ovamos.shared.detections import Detection, often_detected
+from ovamos.shared.messages import ObjectInstance, RgbdFrame
 
 __all__ = ["ObjectMap", "mask_points", "detection_position"]
 
@@ -112,7 +112,7 @@ class ObjectMap:
     filters detections (lower scores are ignored). ``max_points``: mask pixels
     projected per detection (evenly subsampled). ``min_hit_ratio`` and
     ``view_range_m``: the negative evidence (see the module doc). Every default is the
-    mapping service's (:class:`~services.mapping.config.MappingConfig`).
+    mapping service's (:class:`~ovamos.services.mapping.config.MappingConfig`).
     """
 
     def __init__(self, merge_distance_m: float = _DEFAULTS.object_merge_distance_m,

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shared.messages import RgbdFrame
+from ovamos.shared.messages import RgbdFrame
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """Pictures of the mapping service's state, for people debugging a search.
 
-One BGR image of a :class:`~shared.messages.MapSnapshot` seen from above (image
-up = world +y, as in :mod:`services.sim.draw`): unexplored cells dark grey,
+One BGR image of a :class:`~ovamos.shared.messages.MapSnapshot` seen from above (image
+up = world +y, as in :mod:`ovamos.services.sim.draw`): unexplored cells dark grey,
 explored free cells light, obstacles black, the value map the planner decides on
 (decayed, :func:`value_image`) as a heat map over explored free cells, frontier waypoints,
 object instances with their labels, and optionally the robot with its heading, its path, the
@@ -27,10 +27,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from services.mapping.layers import DECAY_KAPPA, DECAY_TAU, value_map
-from shared.atomic import write_atomic
-from shared.messages import FoundObject, Goal, MapSnapshot
-from shared.robot import ROBOT as ROBOT_GEOMETRY
+from ovamos.services.mapping.layers import DECAY_KAPPA, DECAY_TAU, value_map
+from ovamos.shared.atomic import write_atomic
+from ovamos.shared.messages import FoundObject, Goal, MapSnapshot
+from ovamos.shared.robot import ROBOT as ROBOT_GEOMETRY
 
 __all__ = ["LEGEND", "crop_box", "map_raster", "place_labels", "render_map", "value_image", "write_png"]
 
@@ -60,7 +60,7 @@ def value_image(snapshot: MapSnapshot, layer: str | None = None, *, tau: float =
                 kappa: float = DECAY_KAPPA) -> np.ndarray:
     """The value map shown by :func:`render_map`: H x W float in [0, 1].
 
-    The map the planner decides on (:func:`services.mapping.layers.value_map`: each
+    The map the planner decides on (:func:`ovamos.services.mapping.layers.value_map`: each
     layer over the explored cells divided by its peak, decayed by the update counts with
     ``tau`` and ``kappa``, summed), of every layer (``layer=None``) or of one by name,
     divided by its maximum for colour. An all-zero map gives zeros. Unknown layer names
@@ -484,7 +484,7 @@ def render_map(snapshot: MapSnapshot, *, layer: str | None = None,
 
 
 def write_png(path: str | os.PathLike[str], image: np.ndarray) -> Path:
-    """Write ``image`` as a PNG at ``path`` atomically (:func:`shared.atomic.write_atomic`);
+    """Write ``image`` as a PNG at ``path`` atomically (:func:`ovamos.shared.atomic.write_atomic`);
     returns the path.
 
     A viewer that reloads the file while a search runs never sees half a

@@ -11,13 +11,13 @@ re-scores its latest frame when targets are added) adds only the values of the
 targets the frame was not fused for; the newest fused frames are kept for that.
 
 One map per odometry session. The driver's current session changes only on the
-evidence of a restart (:mod:`shared.sessions`: a sustained stream of the new
+evidence of a restart (:mod:`ovamos.shared.sessions`: a sustained stream of the new
 session, on odometry or on frames, while the current one is quiet), so one
 forged or replayed message cannot take the map away from the driver: it is
 counted (``sessions.stray``) and ignored. A session once left is never followed
 again (a session id is never used twice). A new session starts a fresh map: the map of the
 earlier one is kept on disk beside the checkpoint under its session id
-(:func:`~services.mapping.checkpoint.session_path`) and never fused into again,
+(:func:`~ovamos.services.mapping.checkpoint.session_path`) and never fused into again,
 and frames and results of a session left behind are dropped and counted. The
 checkpoint found at start is held until the current session is known and
 resumed only when it is that session's (a mapping service restarted while the
@@ -37,14 +37,14 @@ from typing import Any
 
 from pydantic import Field
 
-from services.mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint, session_path
-from services.mapping.config import MappingConfig
-from services.mapping.state import MapState
-from shared.bus import BusCore
-from shared.log import sampled
-from shared.messages import MapSnapshot, Odometry, PerceptionResult, RgbdFrame
-from shared.service import Service
-from shared.sessions import SessionFollower, SessionSwitch
+from ovamos.services.mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint, session_path
+from ovamos.services.mapping.config import MappingConfig
+from ovamos.services.mapping.state import MapState
+from ovamos.shared.bus import BusCore
+from ovamos.shared.log import sampled
+from ovamos.shared.messages import MapSnapshot, Odometry, PerceptionResult, RgbdFrame
+from ovamos.shared.service import Service
+from ovamos.shared.sessions import SessionFollower, SessionSwitch
 
 
 class MappingServiceConfig(MappingConfig):

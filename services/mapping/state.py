@@ -20,13 +20,13 @@ from collections.abc import Mapping, Sequence
 import cv2
 import numpy as np
 
-from services.mapping.config import MappingConfig
-from services.mapping.layers import fov_confidence, fuse
-from services.mapping.objects import ObjectMap
-from services.mapping.projection import View, project
-from shared.detections import Detection
-from shared.grid import GridGeometry, inflate
-from shared.messages import MapSnapshot, PerceptionResult, RgbdFrame
+from ovamos.services.mapping.config import MappingConfig
+from ovamos.services.mapping.layers import fov_confidence, fuse
+from ovamos.services.mapping.objects import ObjectMap
+from ovamos.services.mapping.projection import View, project
+from ovamos.shared.detections import Detection
+from ovamos.shared.grid import GridGeometry, inflate
+from ovamos.shared.messages import MapSnapshot, PerceptionResult, RgbdFrame
 
 
 class MapState:

@@ -16,10 +16,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
-from services.perception.config import PerceptionServiceConfig
-from services.perception.errors import FrameRejected
-from shared.detections import Detection
-from shared.messages import RgbdFrame
+from ovamos.services.perception.config import PerceptionServiceConfig
+from ovamos.services.perception.errors import FrameRejected
+from ovamos.shared.detections import Detection
+from ovamos.shared.messages import RgbdFrame
 
 
 @dataclass(frozen=True)
@@ -64,7 +64,7 @@ class PerceptionBackend(Protocol):
 def load_backend(config: PerceptionServiceConfig) -> PerceptionBackend:
     """The configured backend; modules are imported here so an unused backend costs nothing."""
     if config.backend == "sim":
-        from services.perception.sim_backend import SimBackend
+        from ovamos.services.perception.sim_backend import SimBackend
         return SimBackend.load(config.sim)
-    from services.perception.hf.backend import HfBackend
+    from ovamos.services.perception.hf.backend import HfBackend
     return HfBackend.load(config.hf)

@@ -7,10 +7,10 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
-from services.sim.perception import SimPerceptionConfig
-from shared.config import ServiceConfig, StrictModel
-from shared.keys import check_chunk
-from shared.messages import MAX_DETECTIONS
+from ovamos.services.sim.perception import SimPerceptionConfig
+from ovamos.shared.config import ServiceConfig, StrictModel
+from ovamos.shared.keys import check_chunk
+from ovamos.shared.messages import MAX_DETECTIONS
 
 
 class SceneChoice(StrictModel):
@@ -56,7 +56,7 @@ class HfBackendConfig(StrictModel):
     box_threshold: float = Field(default=0.35, ge=0, le=1)
     text_threshold: float = Field(default=0.25, ge=0, le=1)
     max_detections: int = Field(default=20, ge=1, le=MAX_DETECTIONS,
-                                description="a result with more could not be sent (shared.messages.MAX_DETECTIONS)")
+                                description="a result with more could not be sent (ovamos.shared.messages.MAX_DETECTIONS)")
 
 
 class FrameLimits(StrictModel):

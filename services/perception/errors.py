@@ -4,7 +4,7 @@ importing each other."""
 
 from __future__ import annotations
 
-from shared.config import ServiceConfigError
+from ovamos.shared.config import ServiceConfigError
 
 __all__ = ["BackendError", "FrameRejected"]
 

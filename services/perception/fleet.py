@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections import Counter
 
-from shared.messages import RgbdFrame, TaskEvent, TaskSpec
+from ovamos.shared.messages import RgbdFrame, TaskEvent, TaskSpec
 
 
 class RobotTargets:

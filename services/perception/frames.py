@@ -1,14 +1,14 @@
 """Checks a frame must pass before any model sees it.
 
-A decodable :class:`~shared.messages.RgbdFrame` already has a uint8 H x W x 3
+A decodable :class:`~ovamos.shared.messages.RgbdFrame` already has a uint8 H x W x 3
 image and a depth image of the same size (the bus drops, and counts, any
 other); :func:`frame_problem` adds what the models need on top: a usable size.
 """
 
 from __future__ import annotations
 
-from services.perception.config import FrameLimits
-from shared.messages import RgbdFrame
+from ovamos.services.perception.config import FrameLimits
+from ovamos.shared.messages import RgbdFrame
 
 
 def frame_problem(frame: RgbdFrame, limits: FrameLimits) -> str | None:

@@ -1,10 +1,10 @@
 """The perception service: frames in, one result per frame (same seq) out, for one robot or a fleet.
 
-Wiring (:data:`shared.topology.TOPOLOGY`, ``perception``): ``sensors/rgbd``
+Wiring (:data:`ovamos.shared.topology.TOPOLOGY`, ``perception``): ``sensors/rgbd``
 frames, ``task/current`` and ``task/events`` in, ``perception/result`` out, for
 each robot in ``robots`` (default: its own ``--robot-id``; ``["*"]``: every
 robot on the network), each result on its frame's robot's key. Everything runs
-on the service's one thread (:func:`shared.service.run_service`): Zenoh's
+on the service's one thread (:func:`ovamos.shared.service.run_service`): Zenoh's
 callbacks only enqueue on the bus's inbox, the handlers below and the model
 calls run one at a time, and :meth:`PerceptionService.info` is read by that
 thread too (the loop copies it for stats queries), so the state needs no lock.
@@ -56,17 +56,17 @@ from collections import defaultdict
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from services.perception.backend import Job, PerceptionBackend, Seen, load_backend
-from services.perception.config import PerceptionServiceConfig
-from services.perception.errors import FrameRejected
-from services.perception.fleet import FrameSlots, RobotTargets
-from services.perception.frames import frame_problem
-from services.perception.replicas import ReplicaSet
-from shared import keys
-from shared.bus import BusCore
-from shared.log import fields, sampled
-from shared.messages import PerceptionResult, RgbdFrame
-from shared.service import Service
+from ovamos.services.perception.backend import Job, PerceptionBackend, Seen, load_backend
+from ovamos.services.perception.config import PerceptionServiceConfig
+from ovamos.services.perception.errors import FrameRejected
+from ovamos.services.perception.fleet import FrameSlots, RobotTargets
+from ovamos.services.perception.frames import frame_problem
+from ovamos.services.perception.replicas import ReplicaSet
+from ovamos.shared import keys
+from ovamos.shared.bus import BusCore
+from ovamos.shared.log import fields, sampled
+from ovamos.shared.messages import PerceptionResult, RgbdFrame
+from ovamos.shared.service import Service
 
 
 class PerceptionService(Service):

@@ -7,7 +7,7 @@ this class, so the distributed system and the benchmark run the same method:
     ... execute step.action, get a new frame fused into the map ...
     agent.executed(step, moved_m, blocked)   # book-keeping: steps, found targets
 
-A decision (the POUCT step of :mod:`services.planner.decide`) picks a goal; the
+A decision (the POUCT step of :mod:`ovamos.services.planner.decide`) picks a goal; the
 navigator turns it into primitives. A candidate goal (the POMDP's macro
 action) is kept until it is reached; frontier and object goals are decided
 again every ``redecide_every`` commands (1 m of travel by default). Any goal
@@ -30,15 +30,14 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.planner.decide import (Decision, DecisionConfig, GoalKind, Policy, away, decide,
-                                     targets_to_search)
-from services.planner.navigator import NavigationConfig, NavMap, Navigator, Unreachable
-from services.planner.outcome import explain, target_misses
-from services.planner.plus import goal_budget, strict_objects
-from services.planner.task import SearchTask
-from shared.messages import MapSnapshot, ObjectInstance, TargetMiss, TaskStatus
-from shared.motion import Action, Pose
-from shared.robot import PRIMITIVES, ROBOT, Primitives
+from ovamos.services.planner.decide import Decision, DecisionConfig, GoalKind, Policy, away, decide, targets_to_search
+from ovamos.services.planner.navigator import NavigationConfig, Navigator, NavMap, Unreachable
+from ovamos.services.planner.outcome import explain, target_misses
+from ovamos.services.planner.plus import goal_budget, strict_objects
+from ovamos.services.planner.task import SearchTask
+from ovamos.shared.messages import MapSnapshot, ObjectInstance, TargetMiss, TaskStatus
+from ovamos.shared.motion import Action, Pose
+from ovamos.shared.robot import PRIMITIVES, ROBOT, Primitives
 
 log = logging.getLogger("ovamos.planner")
 

@@ -17,7 +17,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from sklearn.cluster import DBSCAN
 
-from shared.grid import GridGeometry
+from ovamos.shared.grid import GridGeometry
 
 
 class CandidateConfig(BaseModel):

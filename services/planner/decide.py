@@ -20,16 +20,21 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.mapping.layers import DECAY_KAPPA, DECAY_TAU, WHOLE, Window, value_map
-from services.planner.candidates import (CandidateConfig, Candidates, best_frontier, find_candidates,
-                                         frontier_scores)
-from services.planner.plus import ManyFrontierPOMDP, PlusConfig, detection_candidates, frontier_bonuses
-from services.planner.pomdp import POMDPConfig, SearchPOMDP, root_particles
-from services.planner.pouct import POUCT
-from shared.gridpaths import FreeSpaceGraph
-from shared.grid import GridGeometry, inflate
-from shared.messages import MapSnapshot, ObjectInstance, TraceOption
-from shared.robot import ROBOT
+from ovamos.services.mapping.layers import DECAY_KAPPA, DECAY_TAU, WHOLE, Window, value_map
+from ovamos.services.planner.candidates import (
+    CandidateConfig,
+    Candidates,
+    best_frontier,
+    find_candidates,
+    frontier_scores,
+)
+from ovamos.services.planner.plus import ManyFrontierPOMDP, PlusConfig, detection_candidates, frontier_bonuses
+from ovamos.services.planner.pomdp import POMDPConfig, SearchPOMDP, root_particles
+from ovamos.services.planner.pouct import POUCT
+from ovamos.shared.grid import GridGeometry, inflate
+from ovamos.shared.gridpaths import FreeSpaceGraph
+from ovamos.shared.messages import MapSnapshot, ObjectInstance, TraceOption
+from ovamos.shared.robot import ROBOT
 
 
 class Policy(str, Enum):
@@ -101,7 +106,7 @@ def targets_to_search(remaining: Sequence[str], policy: Policy) -> list[str]:
 
 def decision_values(snapshot: MapSnapshot, remaining: Sequence[str], config: DecisionConfig,
                     window: Window = WHOLE) -> np.ndarray | None:
-    """The value map ``config.policy`` decides on: :func:`services.mapping.layers.value_map`
+    """The value map ``config.policy`` decides on: :func:`ovamos.services.mapping.layers.value_map`
     of the remaining targets, decayed unless the policy is a no-decay one."""
     return value_map(snapshot, remaining, config.decay_tau, config.decay_kappa,
                      decayed=config.policy not in NO_DECAY, window=window)

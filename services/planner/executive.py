@@ -23,9 +23,9 @@ rules be tested message by message:
 * a command the driver is running that this planner did not send (it was
   restarted) is waited for, and new ids continue after it, so the driver
   never drops a new command as a duplicate of an old one;
-* one odometry session (:data:`shared.messages.OdomSession`): a decision only on a map of the
+* one odometry session (:data:`ovamos.shared.messages.OdomSession`): a decision only on a map of the
   driver's current session, else the task waits (naming both sessions);
-  the driver's session changes on evidence only (:mod:`shared.sessions`: a sustained stream of
+  the driver's session changes on evidence only (:mod:`ovamos.shared.sessions`: a sustained stream of
   driver states of the new one while the current one is quiet, or the first state after the
   robot was unreachable), so a forged driver state is counted and ignored; when it changes
   (the driver restarted: odometry starts again at its initial pose,
@@ -60,14 +60,26 @@ from dataclasses import dataclass
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.planner.agent import AgentConfig, Reason, SearchAgent, Step
-from services.planner.task import SearchTask, SearchTaskError
-from shared.log import sampled
-from shared.messages import (FINAL, CameraState, DecisionTrace, DriverMode, DriverState, JsonMessage,
-                             MapSnapshot, Odometry, Goal, PlanCommand, TaskEvent, TaskSpec, TaskStatus)
-from shared.motion import Pose
-from shared.sessions import SessionFollower, SessionSwitch
-
+from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
+from ovamos.services.planner.task import SearchTask, SearchTaskError
+from ovamos.shared.log import sampled
+from ovamos.shared.messages import (
+    FINAL,
+    CameraState,
+    DecisionTrace,
+    DriverMode,
+    DriverState,
+    Goal,
+    JsonMessage,
+    MapSnapshot,
+    Odometry,
+    PlanCommand,
+    TaskEvent,
+    TaskSpec,
+    TaskStatus,
+)
+from ovamos.shared.motion import Pose
+from ovamos.shared.sessions import SessionFollower, SessionSwitch
 
 log = logging.getLogger("ovamos.planner")
 

@@ -4,8 +4,8 @@ Paper: "path on the inflated obstacle map -> discrete commands MOVE_FORWARD 0.25
 TURN_LEFT 30 deg, TURN_RIGHT 30 deg, STOP". The executor asks, once per primitive, what the
 robot should do next to reach the chosen goal (:meth:`Navigator.next_command`).
 
-The grid searches are :mod:`shared.gridpaths` (8-connected without corner cutting).
-Obstacles are grown by the robot radius with :func:`shared.grid.inflate`, the function the
+The grid searches are :mod:`ovamos.shared.gridpaths` (8-connected without corner cutting).
+Obstacles are grown by the robot radius with :func:`ovamos.shared.grid.inflate`, the function the
 mapping service uses for its frontiers, so a frontier waypoint is a traversable cell here.
 
 Nothing here talks to Zenoh; the planner service wraps it.
@@ -22,11 +22,11 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from shared.grid import GridGeometry
-from shared.gridpaths import Window, auto_window, gather, shortest_paths, traversable
-from shared.messages import MapSnapshot
-from shared.motion import Action, Pose, wrap_angle
-from shared.robot import PRIMITIVES, ROBOT
+from ovamos.shared.grid import GridGeometry
+from ovamos.shared.gridpaths import Window, auto_window, gather, shortest_paths, traversable
+from ovamos.shared.messages import MapSnapshot
+from ovamos.shared.motion import Action, Pose, wrap_angle
+from ovamos.shared.robot import PRIMITIVES, ROBOT
 
 __all__ = ["Unreachable", "NavigationConfig", "NavMap", "segment_cells", "Navigator"]
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
-from shared.messages import Miss, ObjectInstance, TargetMiss
+from ovamos.shared.messages import Miss, ObjectInstance, TargetMiss
 
 
 def target_misses(remaining: Sequence[str], objects: Iterable[ObjectInstance]) -> tuple[TargetMiss, ...]:

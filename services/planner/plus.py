@@ -1,6 +1,6 @@
 """``ovamos-plus``: our planner beside the paper's, built from what the paper's loses episodes to.
 
-The paper's decision step (:mod:`services.planner.decide`) stays the reference. This one keeps
+The paper's decision step (:mod:`ovamos.services.planner.decide`) stays the reference. This one keeps
 its map, candidates, belief and POUCT, and changes these things, each a switch of
 :class:`PlusConfig` so that each has its ablation row in the search benchmark (the first two on
 by default):
@@ -60,10 +60,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.planner.candidates import Candidates
-from services.planner.pomdp import SearchPOMDP, State
-from shared.detections import often_detected
-from shared.messages import ObjectInstance
+from ovamos.services.planner.candidates import Candidates
+from ovamos.services.planner.pomdp import SearchPOMDP, State
+from ovamos.shared.detections import often_detected
+from ovamos.shared.messages import ObjectInstance
 
 
 class PlusConfig(BaseModel):

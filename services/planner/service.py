@@ -1,6 +1,6 @@
 """The planner service: task, driver state, odometry and maps in; commands and task events out.
 
-A thin adapter around :class:`services.planner.executive.Executive`, on the
+A thin adapter around :class:`ovamos.services.planner.executive.Executive`, on the
 service's one thread (handlers and ticks never overlap, so no lock). In
 lock-step mode a decision waits for a map that fused a frame taken after the
 last command; rather than wait for the mapping service's next periodic
@@ -32,15 +32,22 @@ from typing import Any
 
 from pydantic import BaseModel, Field, ValidationError
 
-from services.planner.executive import DRIVER_OFF, Executive, ExecutiveConfig
-from shared import keys
-from shared.bus import BusCore
-from shared.config import ServiceConfig
-from shared.messages import (DecisionTrace, DriverState, MapSnapshot, PlanCommand, ServiceStats, TaskEvent, TaskSpec,
-                             TaskStatus)
-from shared.service import Service
-from shared.topology import DRIVERS, TOPOLOGY
-
+from ovamos.services.planner.executive import DRIVER_OFF, Executive, ExecutiveConfig
+from ovamos.shared import keys
+from ovamos.shared.bus import BusCore
+from ovamos.shared.config import ServiceConfig
+from ovamos.shared.messages import (
+    DecisionTrace,
+    DriverState,
+    MapSnapshot,
+    PlanCommand,
+    ServiceStats,
+    TaskEvent,
+    TaskSpec,
+    TaskStatus,
+)
+from ovamos.shared.service import Service
+from ovamos.shared.topology import DRIVERS, TOPOLOGY
 
 _PORTS = {PlanCommand: "plan_command", TaskEvent: "task_events", DecisionTrace: "plan_trace"}
 """The output port of each message type :meth:`Executive.poll` returns."""

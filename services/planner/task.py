@@ -3,15 +3,15 @@
 The planner owns one task per robot. Targets may be added or removed while
 searching (a user changes their mind); finding the last remaining target ends
 the task, and so does running out of steps. The states and the found objects
-are the ones the planner reports (:class:`shared.messages.TaskStatus`,
-:class:`shared.messages.FoundObject`): one vocabulary from planner to user.
+are the ones the planner reports (:class:`ovamos.shared.messages.TaskStatus`,
+:class:`ovamos.shared.messages.FoundObject`): one vocabulary from planner to user.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from shared.messages import FoundObject, TaskSpec, TaskStatus
+from ovamos.shared.messages import FoundObject, TaskSpec, TaskStatus
 
 
 class SearchTaskError(RuntimeError):

@@ -1,10 +1,10 @@
 """The search as ROS 2 sees it, without ROS: cell values of ``nav_msgs/OccupancyGrid`` and the
 marks of the ``visualization_msgs/MarkerArray``, computed from our messages.
 
-The grid's layout is ours as it is (:mod:`shared.grid`: row index grows with y, column with x,
+The grid's layout is ours as it is (:mod:`ovamos.shared.grid`: row index grows with y, column with x,
 cell (0, 0) at ``origin``), which is ``OccupancyGrid``'s too. Occupancy: -1 never seen, 0 free,
 100 obstacle. A value layer: -1 never seen, else the value map the planner decides on for that
-target (:func:`services.mapping.render.value_image`, decayed and normalised) as 0-100.
+target (:func:`ovamos.services.mapping.render.value_image`, decayed and normalised) as 0-100.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from typing import Literal
 
 import numpy as np
 
-from services.mapping.render import value_image
-from shared.messages import DecisionTrace, MapSnapshot
+from ovamos.services.mapping.render import value_image
+from ovamos.shared.messages import DecisionTrace, MapSnapshot
 
 __all__ = ["Mark", "occupancy", "value_cells", "marks"]
 

@@ -25,12 +25,12 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
-from services.rosview.convert import Mark, marks, occupancy, value_cells
-from shared.bus import BusCore
-from shared.config import ServiceConfig
-from shared.messages import DecisionTrace, MapSnapshot, Odometry
-from shared.ros2 import NETWORK_FIELD, Network, Ros2Unavailable, node
-from shared.service import Service
+from ovamos.services.rosview.convert import Mark, marks, occupancy, value_cells
+from ovamos.shared.bus import BusCore
+from ovamos.shared.config import ServiceConfig
+from ovamos.shared.messages import DecisionTrace, MapSnapshot, Odometry
+from ovamos.shared.ros2 import NETWORK_FIELD, Network, Ros2Unavailable, node
+from ovamos.shared.service import Service
 
 COLOURS: dict[str, tuple[float, float, float]] = {
     "frontier": (0.2, 0.6, 1.0), "candidate": (1.0, 0.6, 0.0), "goal": (1.0, 0.0, 1.0),

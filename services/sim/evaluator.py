@@ -16,16 +16,23 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
-from services.sim.occupancy import (RESOLUTION, ROBOT_RADIUS, closest_point_on_box, distance_to_box,
-                                    grid_for, rasterize, rasterize_walls)
-from services.sim.world import Scene, SceneObject
-from shared.grid import inflate
-from shared.gridpaths import FreeSpaceGraph
+from ovamos.services.sim.occupancy import (
+    RESOLUTION,
+    ROBOT_RADIUS,
+    closest_point_on_box,
+    distance_to_box,
+    grid_for,
+    rasterize,
+    rasterize_walls,
+)
+from ovamos.services.sim.world import Scene, SceneObject
+from ovamos.shared.grid import inflate
+from ovamos.shared.gridpaths import FreeSpaceGraph
 
 SUCCESS_DISTANCE = 1.0
 SUPPORT_REACH_CELLS = 4  # beyond the robot radius: how far from its support an object is "reached"

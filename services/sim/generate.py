@@ -23,9 +23,9 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from services.sim.occupancy import box_corners
-from services.sim.prior import ObjectPrior
-from services.sim.world import Room, Scene, SceneObject, Wall
+from ovamos.services.sim.occupancy import box_corners
+from ovamos.services.sim.prior import ObjectPrior
+from ovamos.services.sim.world import Room, Scene, SceneObject, Wall
 
 SIDES = ("south", "north", "west", "east")
 # Room types besides the living room (the biggest) and a bathroom (the smallest), taken in

@@ -12,9 +12,10 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter, deque
-from services.sim.robot import SimRobot
-from shared.messages import DriverMode, DriverState, Odometry, Outcome, PlanCommand, new_odom_session
-from shared.motion import ActionIds
+
+from ovamos.services.sim.robot import SimRobot
+from ovamos.shared.messages import DriverMode, DriverState, Odometry, Outcome, PlanCommand, new_odom_session
+from ovamos.shared.motion import ActionIds
 
 
 class KinematicBase:

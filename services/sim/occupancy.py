@@ -7,12 +7,12 @@ import math
 import cv2
 import numpy as np
 
-from services.sim.world import WALL_THICKNESS, Scene, SceneObject
-from shared.grid import GridGeometry
-from shared.robot import ROBOT
+from ovamos.services.sim.world import WALL_THICKNESS, Scene, SceneObject
+from ovamos.shared.grid import GridGeometry
+from ovamos.shared.robot import ROBOT
 
 RESOLUTION = 0.05
-ROBOT_RADIUS = ROBOT.radius_m  # the robot's footprint as a disc (shared.robot)
+ROBOT_RADIUS = ROBOT.radius_m  # the robot's footprint as a disc (ovamos.shared.robot)
 MARGIN = 0.5  # the grid extends this far past the house so the outside is represented
 FLOOR_OBJECT_MAX_Z = 0.05  # objects whose bottom is lower than this block the robot
 

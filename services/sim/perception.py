@@ -24,16 +24,16 @@ from __future__ import annotations
 
 import math
 import zlib
-from dataclasses import dataclass
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.sim.prior import ObjectPrior
-from services.sim.world import Scene
-from shared.detections import Detection
-from shared.messages import RgbdFrame
+from ovamos.services.sim.prior import ObjectPrior
+from ovamos.services.sim.world import Scene
+from ovamos.shared.detections import Detection
+from ovamos.shared.messages import RgbdFrame
 
 
 class SimPerceptionConfig(BaseModel):

@@ -1,4 +1,4 @@
-"""Renders what the robot's camera sees in a :class:`~services.sim.world.Scene`: RGB, depth, ids.
+"""Renders what the robot's camera sees in a :class:`~ovamos.services.sim.world.Scene`: RGB, depth, ids.
 
 The scene becomes a static MuJoCo model once (a thin floor box per room, walls
 as boxes, every object as an oriented box); each :meth:`SceneRenderer.render`
@@ -9,7 +9,7 @@ offscreen OpenGL buffer (EGL, headless):
 * a segmentation pass (flat id colours, no anti-aliasing) whose colours give
   ``instance_ids`` and whose depth buffer gives ``depth``.
 
-The frame follows the shared camera model (:mod:`shared.camera`): square-pixel
+The frame follows the shared camera model (:mod:`ovamos.shared.camera`): square-pixel
 pinhole intrinsics from the horizontal field of view, ``camera_pose`` from the
 robot pose, image row 0 at the top, ``depth`` the metric z-depth along the
 optical axis (what an RGB-D sensor reports, not the ray length), 0 outside
@@ -30,9 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from services.sim.world import WALL_HEIGHT, WALL_THICKNESS, Scene
-from shared.camera import CAMERA_HEIGHT_M, DEPTH_RANGE_M, HFOV_DEG, camera_pose, pinhole
-from shared.messages import RgbdFrame
+from ovamos.services.sim.world import WALL_HEIGHT, WALL_THICKNESS, Scene
+from ovamos.shared.camera import CAMERA_HEIGHT_M, DEPTH_RANGE_M, HFOV_DEG, camera_pose, pinhole
+from ovamos.shared.messages import RgbdFrame
 
 # Floor colour per room type (RGBA); unknown types get FLOOR_DEFAULT.
 FLOOR_RGBA: dict[str, tuple[float, float, float, float]] = {
@@ -163,7 +163,7 @@ class SceneRenderer:
             self._gl = mj.GLContext(width, height)
             self._gl.make_current()
             self._con = mj.MjrContext(self.model, mj.mjtFontScale.mjFONTSCALE_50.value)
-        except Exception as exc:  # noqa: BLE001 - the backends raise many kinds
+        except Exception as exc:
             self.close()
             raise RuntimeError(
                 f"cannot create an OpenGL context (MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}): "
@@ -285,5 +285,5 @@ class SceneRenderer:
     def __del__(self) -> None:
         try:
             self.close()
-        except Exception:  # noqa: BLE001 - interpreter shutdown may have torn GL down
+        except Exception:
             pass

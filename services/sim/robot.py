@@ -9,17 +9,17 @@ blocked motion leaves the robot where it was (a primitive) or where it touched
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from shared.motion import Action, Pose, wrap_angle
-from shared.robot import PRIMITIVES, ROBOT, Primitives
+from ovamos.shared.motion import Action, Pose, wrap_angle
+from ovamos.shared.robot import PRIMITIVES, ROBOT, Primitives
 
 
 class MotionConfig(BaseModel):
-    """Primitive sizes and the base's wheel geometry (defaults: :mod:`shared.robot`)."""
+    """Primitive sizes and the base's wheel geometry (defaults: :mod:`ovamos.shared.robot`)."""
 
     model_config = ConfigDict(extra="forbid")
     forward_m: float = Field(default=PRIMITIVES.forward_m, gt=0)

@@ -14,7 +14,7 @@ leaves the robot where it touched and says so on ``bump`` (``std_msgs/Bool``, as
 Create 3's hazard detection would: the driver ends the move blocked). Odometry is the true pose in the
 scene's frame, so the map and the simulated perception agree on where things are.
 
-One process, one ROS node (:func:`shared.ros2.node`), loopback-only DDS unless told otherwise. The
+One process, one ROS node (:func:`ovamos.shared.ros2.node`), loopback-only DDS unless told otherwise. The
 renderer owns an OpenGL context, so the loop that moves the robot and renders runs on the main
 thread; ROS callbacks only hand the newest command over under a lock.
 """
@@ -33,15 +33,15 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
-from services.base_driver.kinematics import Geometry
-from services.base_driver.ros2 import Ros2BaseConfig
-from services.camera.ros2 import Ros2CameraConfig
-from services.sim.episodes import make_episode
-from services.sim.render import SceneRenderer
-from services.sim.robot import SimRobot
-from shared.config import StrictModel
-from shared.motion import Pose
-from shared.ros2 import node
+from ovamos.services.base_driver.kinematics import Geometry
+from ovamos.services.base_driver.ros2 import Ros2BaseConfig
+from ovamos.services.camera.ros2 import Ros2CameraConfig
+from ovamos.services.sim.episodes import make_episode
+from ovamos.services.sim.render import SceneRenderer
+from ovamos.services.sim.robot import SimRobot
+from ovamos.shared.config import StrictModel
+from ovamos.shared.motion import Pose
+from ovamos.shared.ros2 import node
 
 __all__ = ["INSTANCE_IDS_TOPIC", "Ros2SimRobotConfig", "Ros2SimRobot"]
 
@@ -78,7 +78,7 @@ class Ros2SimRobotConfig(StrictModel):
 
 
 class Ros2SimRobot:
-    """The loop of :mod:`services.sim.ros2_robot`: built on the main thread, :meth:`run` until
+    """The loop of :mod:`ovamos.services.sim.ros2_robot`: built on the main thread, :meth:`run` until
     :meth:`stop`."""
 
     def __init__(self, config: Ros2SimRobotConfig) -> None:

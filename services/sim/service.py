@@ -40,18 +40,16 @@ from typing import Any
 
 from pydantic import Field, model_validator
 
-from services.base_driver.config import DriverConfig
-from services.base_driver.odrive_sim import SimAxisConfig
-from services.base_driver.service import Base, BaseDriverService, PublishingConfig
-from services.sim.kinematic import KinematicBase
-from services.sim.render import SceneRenderer
-from services.sim.robot import MotionConfig, SimRobot
-from services.sim.wheels import Motion, SerialSimRobot, WheeledSimRobot, base_motion, wheeled
-from shared.bus import BusCore
-from shared.messages import RgbdFrame
-from shared.motion import Pose
-
-
+from ovamos.services.base_driver.config import DriverConfig
+from ovamos.services.base_driver.odrive_sim import SimAxisConfig
+from ovamos.services.base_driver.service import Base, BaseDriverService, PublishingConfig
+from ovamos.services.sim.kinematic import KinematicBase
+from ovamos.services.sim.render import SceneRenderer
+from ovamos.services.sim.robot import MotionConfig, SimRobot
+from ovamos.services.sim.wheels import Motion, SerialSimRobot, WheeledSimRobot, base_motion, wheeled
+from ovamos.shared.bus import BusCore
+from ovamos.shared.messages import RgbdFrame
+from ovamos.shared.motion import Pose
 
 
 class SimServiceConfig(PublishingConfig):
@@ -93,12 +91,12 @@ class SimRobotService(BaseDriverService):
     def make_base(self) -> Base:
         c = self.config
         if c.scene_file is not None:
-            from services.sim.evaluator import GroundTruth
-            from services.sim.world import Scene
+            from ovamos.services.sim.evaluator import GroundTruth
+            from ovamos.services.sim.world import Scene
             scene = Scene.load(c.scene_file)
             truth, start = GroundTruth(scene), c.start
         else:
-            from services.sim.episodes import make_episode
+            from ovamos.services.sim.episodes import make_episode
             spec, scene, truth = make_episode(c.episode_seed, c.episode_index)
             start = c.start or spec.start
         assert start is not None

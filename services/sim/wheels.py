@@ -9,9 +9,9 @@ true pose follows what the motors did, and the driver's odometry comes from the
 encoders, as on the robot. A blocked move stalls the wheels and trips the
 driver's bumper input.
 
-Given a :class:`~shared.simtime.SimClock`, the same parts run in simulated time (the search
+Given a :class:`~ovamos.shared.simtime.SimClock`, the same parts run in simulated time (the search
 benchmark's ``--base``): no thread of their own, the serial bases on a
-:class:`~shared.simtime.MemoryLine` in place of the pty, the clock running the device's loop at
+:class:`~ovamos.shared.simtime.MemoryLine` in place of the pty, the clock running the device's loop at
 its period and the controller's tick at ``control_hz``, and :meth:`_WheelDriven.run_command`
 running the clock until a command completes.
 """
@@ -26,18 +26,18 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from typing import Literal
 
-from services.base_driver.config import CanConfig, DriverConfig
-from services.base_driver.controller import BaseDriver
-from services.base_driver.kobuki import KobukiHardware
-from services.base_driver.kobuki_sim import SimKobuki
-from services.base_driver.odrive_can import ODriveCanHardware
-from services.base_driver.odrive_sim import SimAxisConfig, SimODrives
-from services.base_driver.opencr import OpenCRHardware
-from services.base_driver.opencr_sim import SimOpenCR, line_port_handler
-from services.sim.robot import MotionConfig, SimRobot
-from shared.messages import DriverMode, PlanCommand
-from shared.motion import Pose
-from shared.simtime import SimClock
+from ovamos.services.base_driver.config import CanConfig, DriverConfig
+from ovamos.services.base_driver.controller import BaseDriver
+from ovamos.services.base_driver.kobuki import KobukiHardware
+from ovamos.services.base_driver.kobuki_sim import SimKobuki
+from ovamos.services.base_driver.odrive_can import ODriveCanHardware
+from ovamos.services.base_driver.odrive_sim import SimAxisConfig, SimODrives
+from ovamos.services.base_driver.opencr import OpenCRHardware
+from ovamos.services.base_driver.opencr_sim import SimOpenCR, line_port_handler
+from ovamos.services.sim.robot import MotionConfig, SimRobot
+from ovamos.shared.messages import DriverMode, PlanCommand
+from ovamos.shared.motion import Pose
+from ovamos.shared.simtime import SimClock
 
 Motion = Literal["kinematic", "odrive", "kobuki", "opencr"]
 """How the simulated robot moves (the sim service's docstring)."""
@@ -112,7 +112,7 @@ class _WheelDriven(ABC):
 
 class WheeledSimRobot(_WheelDriven):
     """Owns the simulated axes and the driver for ``robot``; geometry and primitive sizes come
-    from the robot's :class:`~services.sim.robot.MotionConfig` so both agree."""
+    from the robot's :class:`~ovamos.services.sim.robot.MotionConfig` so both agree."""
 
     def __init__(self, robot: SimRobot, driver: DriverConfig | None = None,
                  axes: SimAxisConfig | None = None, clock: SimClock | None = None) -> None:

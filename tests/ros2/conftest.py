@@ -1,10 +1,10 @@
 """Tests that load DDS (rclpy). They run only inside a loopback-only network namespace with the
-loopback Fast DDS profile (``make test`` runs them with ``python -m shared.dds -- pytest tests/ros2``);
+loopback Fast DDS profile (``make test`` runs them with ``python -m ovamos.shared.dds -- pytest tests/ros2``);
 anywhere else they are not even imported, so no DDS process starts in the host's namespace."""
 
 from __future__ import annotations
 
-from shared.dds import DdsNetworkError, check_loopback_only
+from ovamos.shared.dds import DdsNetworkError, check_loopback_only
 
 try:
     check_loopback_only()

@@ -13,13 +13,13 @@ from pathlib import Path
 
 import pytest
 
-from services.base_driver.config import DriverConfig
-from services.base_driver.controller import BaseController
-from shared.messages import DriverMode
-from shared.motion import Action
+from ovamos.bench.ros2_peers.nodes import MockNode
+from ovamos.services.base_driver.config import DriverConfig
+from ovamos.services.base_driver.controller import BaseController
+from ovamos.shared.messages import DriverMode
+from ovamos.shared.motion import Action
 from tests.base_driver_helpers import command, run, wait_for_mode
 from tests.polling import wait_for
-from bench.ros2_peers.nodes import MockNode
 
 START = (2.0, -1.0, math.radians(45))
 
@@ -108,9 +108,9 @@ def test_a_ros_e_stop_engages_the_same_latch_and_only_the_laptop_clears_it(
 
 DRIVE = """
 import sys, time
-from services.base_driver.config import DriverConfig
-from services.base_driver.controller import BaseController
-from shared.messages import DriverMode, PlanCommand
+from ovamos.services.base_driver.config import DriverConfig
+from ovamos.services.base_driver.controller import BaseController
+from ovamos.shared.messages import DriverMode, PlanCommand
 driver = BaseController(DriverConfig(hardware="ros2", ros2={"stamped": False})).start()
 while driver.state().mode is not DriverMode.READY:
     time.sleep(0.05)

@@ -11,9 +11,9 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from services.camera.capture import CameraError, CapturedFrame
-from services.camera.ros2 import Ros2Backend, Ros2CameraConfig
-from bench.ros2_peers.nodes import MockNode
+from ovamos.bench.ros2_peers.nodes import MockNode
+from ovamos.services.camera.capture import CameraError, CapturedFrame
+from ovamos.services.camera.ros2 import Ros2Backend, Ros2CameraConfig
 
 
 def read_frame(backend: Ros2Backend, timeout_s: float = 20.0) -> CapturedFrame:
@@ -92,12 +92,12 @@ def test_through_the_camera_service_frames_reach_sensors_rgbd_posed_from_odometr
     """The camera service with this backend, on the fake bus (an in-process stand-in for Zenoh):
     the mock camera's frames come out on ``sensors/rgbd`` with its intrinsics and depths, posed
     from odometry (a robot standing at POSE) with the default mount."""
-    from services.camera.config import CameraConfig
-    from services.camera.service import CameraService
-    from shared import keys
-    from shared.camera import camera_pose
-    from shared.fake_bus import FakeNetwork
-    from shared.messages import Odometry, RgbdFrame
+    from ovamos.services.camera.config import CameraConfig
+    from ovamos.services.camera.service import CameraService
+    from ovamos.shared import keys
+    from ovamos.shared.camera import camera_pose
+    from ovamos.shared.fake_bus import FakeNetwork
+    from ovamos.shared.messages import Odometry, RgbdFrame
 
     pose = (1.5, 2.0, 0.3)
     node = MockNode("fake_camera.py")

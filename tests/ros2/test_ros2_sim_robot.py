@@ -9,23 +9,22 @@ import json
 import math
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from services.base_driver.config import DriverConfig
-from services.base_driver.controller import BaseController
-from services.base_driver.ros2 import Ros2BaseConfig, Ros2Hardware
-from services.camera.ros2 import Ros2Backend
-from services.sim.episodes import make_episode
-from services.sim.render import SceneRenderer
-from services.sim.ros2_robot import CAMERA
-from shared.messages import DriverMode
-from shared.motion import Action
-from shared.procs import stop
+from ovamos.services.base_driver.config import DriverConfig
+from ovamos.services.base_driver.controller import BaseController
+from ovamos.services.base_driver.ros2 import Ros2BaseConfig, Ros2Hardware
+from ovamos.services.camera.ros2 import Ros2Backend
+from ovamos.services.sim.episodes import make_episode
+from ovamos.services.sim.render import SceneRenderer
+from ovamos.services.sim.ros2_robot import CAMERA
+from ovamos.shared.messages import DriverMode
+from ovamos.shared.motion import Action
+from ovamos.shared.procs import stop
 from tests.base_driver_helpers import command, run, turns_to_nearest_wall, wait_for_mode
 from tests.polling import wait_for
 from tests.ros2.test_ros2_camera import read_frame

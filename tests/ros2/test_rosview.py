@@ -9,11 +9,11 @@ import time
 import numpy as np
 import pytest
 
-from services.rosview.service import RosViewConfig, RosViewService
-from shared import keys
-from shared.fake_bus import FakeNetwork
-from shared.messages import DecisionTrace, Goal, MapSnapshot, ObjectInstance, Odometry, TraceOption
-from bench.ros2_peers.nodes import MockNode
+from ovamos.bench.ros2_peers.nodes import MockNode
+from ovamos.services.rosview.service import RosViewConfig, RosViewService
+from ovamos.shared import keys
+from ovamos.shared.fake_bus import FakeNetwork
+from ovamos.shared.messages import DecisionTrace, Goal, MapSnapshot, ObjectInstance, Odometry, TraceOption
 
 H, W = 40, 60
 

@@ -6,13 +6,21 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from services.perception.backend import Job, Outcome, Seen
-from services.perception.config import HfBackendConfig
-from services.perception.hf.loading import (DETECTOR, ITM, SEGMENTER, Loaded, ModelFilesError, Placement,
-                                            load_model, model_type)
-from services.perception.hf.models import Box, GroundingDetector, ItmScorer, SamSegmenter
-from shared.detections import Detection
-from shared.messages import RgbdFrame
+from ovamos.services.perception.backend import Job, Outcome, Seen
+from ovamos.services.perception.config import HfBackendConfig
+from ovamos.services.perception.hf.loading import (
+    DETECTOR,
+    ITM,
+    SEGMENTER,
+    Loaded,
+    ModelFilesError,
+    Placement,
+    load_model,
+    model_type,
+)
+from ovamos.services.perception.hf.models import Box, GroundingDetector, ItmScorer, SamSegmenter
+from ovamos.shared.detections import Detection
+from ovamos.shared.messages import RgbdFrame
 
 
 class HfBackend:

@@ -14,7 +14,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from services.perception.errors import BackendError
+from ovamos.services.perception.errors import BackendError
 
 _INSTALL_HINT = "pip install 'ovamos[perception]' (install torch==2.13.0 first for the CPU build)"
 _WEIGHTS = ("model.safetensors", "pytorch_model.bin")

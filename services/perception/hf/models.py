@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from services.perception.hf.loading import Loaded, Placement, torch_and_transformers
+from ovamos.services.perception.hf.loading import Loaded, Placement, torch_and_transformers
 
 
 def _to(batch: Any, placement: Placement) -> dict[str, Any]:

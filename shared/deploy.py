@@ -1,0 +1,13 @@
+"""Where the deployment files are: the ``deploy/`` folder of a checkout, or the same files inside an
+installed wheel (package ``ovamos.deploy``), so ``ovamos demo`` and ``ovamos up`` run from either."""
+
+from __future__ import annotations
+
+from importlib.resources import files
+from pathlib import Path
+
+__all__ = ["DEPLOY_DIR"]
+
+#: the folder holding ``profiles/``, ``services/``, ``zenoh/``, ``ros2/`` and ``foxglove/`` (a real folder:
+#: the profiles name their files by relative paths, and DDS and Zenoh read files by path)
+DEPLOY_DIR = Path(str(files("ovamos.deploy")))
