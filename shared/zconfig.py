@@ -1,6 +1,6 @@
 """Zenoh session configuration with this project's safe defaults.
 
-Defaults follow what was measured for this deployment (../DESIGN.md section 4):
+Defaults follow what was measured for this deployment (docs/design.md, "Deployment and Zenoh"):
 services are clients of a router on loopback, wait for it forever and reconnect
 quickly after a router restart, and notice a hung peer within ~3 s. Multicast
 scouting is always off: on a shared network it would make a robot join

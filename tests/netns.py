@@ -1,7 +1,7 @@
 """Hosts as Linux network namespaces for the laptop + robot tests (real TCP between two stacks).
 
 Three namespaces, ``laptop``, ``robot`` and ``intruder``, joined pairwise by veth pairs whose ends
-have addresses in 127.0.0.0/8 with ``route_localnet`` on (DESIGN.md section 4: no address outside
+have addresses in 127.0.0.0/8 with ``route_localnet`` on (docs/design.md, "Deployment and Zenoh": no address outside
 the loopback range is ever used). Each namespace also has its own ``lo``, so both hosts' routers
 keep their shipped loopback ports. :meth:`Hosts.cut` / :meth:`Hosts.restore` take the laptop-robot
 link down and up (``ip link set``). Everything is removed by :meth:`Hosts.destroy`, which the

@@ -1,7 +1,7 @@
 """The robot camera's core: captured frames in, posed and gated :class:`RgbdFrame` s out.
 
 No Zenoh and no SDK here: the service adapter feeds the core from its one thread
-(DESIGN.md section 3) and publishes what :meth:`CameraCore.poll` returns; a backend
+(docs/design.md, "One thread per service") and publishes what :meth:`CameraCore.poll` returns; a backend
 (:mod:`ovamos.services.camera.capture`) only delivers :class:`CapturedFrame` s. So every
 backend is timed, posed, gated and health-checked the same way, and all of it is
 tested without a device.

@@ -8,7 +8,7 @@ otherwise it starts a new one. The planner stops at an instance only once it is
 *confirmed*: seen ``confirm_hits`` times with a best score of at least
 ``decision_threshold`` (one lucky frame is not enough).
 
-Decisions (DESIGN.md section 2, "Object map"):
+Decisions (docs/design.md, "The object map"):
 
 * Detections scoring below ``decision_threshold`` are ignored entirely: they do
   not create instances and do not count as hits, so the detector's low-score
