@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import foxglove
@@ -13,6 +12,7 @@ from ovamos.record.channels import META_VERSION, RawChannel, UnknownKeyError, fr
 from ovamos.record.recorder import Recorder, RecorderConfig, RecordingExistsError, part_path
 from ovamos.record.replay import RawMessage, ReadReport, paced, read_raw
 from ovamos.shared.messages import Odometry, TaskSpec
+from tests.polling import wait_for
 
 
 def _odom(seq: int) -> bytes:
@@ -42,8 +42,10 @@ def test_split_files_each_close_with_an_index_and_hold_every_message_once(tmp_pa
     for i in range(12):  # ~4 kB each: the targets are long names
         spec = TaskSpec(task_id=f"t{i}", targets=tuple(f"{i}-{'x' * 240}-{k}" for k in range(16)), stamp=float(i))
         sent.append(bytes(spec.to_bytes()))
+        before = (len(rec.files), rec.files[-1].stat().st_size)
         assert rec.offer("task_current", sent[-1])
-        time.sleep(0.08)  # past a flush: the size check sees the file grow
+        # past a flush (the file grew, or a new part began): the size check has seen this message
+        wait_for(lambda: (len(rec.files), rec.files[-1].stat().st_size) != before, 10, f"message {i} flushed")
     rec.close()
     assert len(rec.files) >= 3 and rec.files[1] == part_path(path, 1) == tmp_path / "run.1.mcap"
     got = []
@@ -97,10 +99,8 @@ def test_a_writer_that_cannot_go_on_stops_taking_and_says_why(tmp_path: Path) ->
     config = RecorderConfig(split_bytes=1, flush_s=0.05, views=False, overwrite=True)
     rec = Recorder(path, select(["odom"]), "r1", config)
     assert rec.offer("odom", _odom(1))
-    deadline = time.monotonic() + 10
-    while not rec.failed and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert rec.failed and not rec.offer("odom", _odom(2))
+    wait_for(lambda: rec.failed, 10, "the split to fail")
+    assert not rec.offer("odom", _odom(2))
     rec.close()
     stats = rec.stats()
     assert stats["written"] == {"odom": 1} and stats["dropped"] == {"odom": 1} and stats["failed"] == rec.failed
