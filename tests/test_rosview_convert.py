@@ -43,7 +43,7 @@ def test_marks_are_the_frontiers_objects_candidates_and_goal() -> None:
 def test_the_shipped_rviz_config_shows_what_rosview_publishes() -> None:
     import yaml
 
-    from ovamos.services.rosview.service import RosViewConfig
+    from ovamos.services.rosview.config import RosViewConfig
     layout = yaml.safe_load((Path(__file__).resolve().parent.parent / "deploy" / "ros2" / "ovamos.rviz").read_text())
     manager = layout["Visualization Manager"]
     assert manager["Global Options"]["Fixed Frame"] == RosViewConfig().frame_id

@@ -6,22 +6,13 @@ import dataclasses
 import time
 from typing import Any
 
-from pydantic import Field
-
+from ovamos.services.diag.config import MonitorConfig, TestPatternConfig
 from ovamos.services.diag.monitor import TrafficStats
 from ovamos.services.diag.testpattern import pattern_frame
 from ovamos.shared import keys
 from ovamos.shared.bus import BusCore
-from ovamos.shared.config import ServiceConfig
 from ovamos.shared.messages import RgbdFrame
 from ovamos.shared.service import Service
-
-
-class TestPatternConfig(ServiceConfig):
-    rate_hz: float = Field(default=10.0, gt=0, le=200)
-    width: int = Field(default=640, ge=8, le=4096)
-    height: int = Field(default=480, ge=8, le=4096)
-    seed: int = 0
 
 
 class TestPatternService(Service):
@@ -48,11 +39,6 @@ class TestPatternService(Service):
 
     def info(self) -> dict[str, Any]:
         return {"frames_sent": self.seq}
-
-
-class MonitorConfig(ServiceConfig):
-    window_s: float = Field(default=5.0, gt=0)
-    report_s: float = Field(default=5.0, gt=0, description="seconds between log lines")
 
 
 class MonitorService(Service):

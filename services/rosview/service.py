@@ -23,28 +23,18 @@ from collections import deque
 from typing import Any
 
 import numpy as np
-from pydantic import Field
 
+from ovamos.services.rosview.config import RosViewConfig
 from ovamos.services.rosview.convert import Mark, marks, occupancy, value_cells
 from ovamos.shared.bus import BusCore
-from ovamos.shared.config import ServiceConfig
 from ovamos.shared.messages import DecisionTrace, MapSnapshot, Odometry
-from ovamos.shared.ros2 import NETWORK_FIELD, Network, Ros2Unavailable, node
+from ovamos.shared.ros2 import Ros2Unavailable, node
 from ovamos.shared.service import Service
 
 COLOURS: dict[str, tuple[float, float, float]] = {
     "frontier": (0.2, 0.6, 1.0), "candidate": (1.0, 0.6, 0.0), "goal": (1.0, 0.0, 1.0),
     "object": (0.9, 0.9, 0.2), "confirmed": (0.1, 0.9, 0.2)}
 """Marker colours (RGB 0-1): close to the operator page's."""
-
-
-class RosViewConfig(ServiceConfig):
-    prefix: str = Field(default="/ovamos", description="topic prefix ('/robot1/ovamos' for a fleet robot)")
-    frame_id: str = Field(default="odom", description="the frame everything is in (our odometry's)")
-    publish_hz: float = Field(default=2.0, gt=0, description="how often what changed is published")
-    path_step_m: float = Field(default=0.05, gt=0, description="a path pose every this far")
-    path_poses: int = Field(default=5000, ge=2, description="the path keeps this many poses at most")
-    network: Network = NETWORK_FIELD
 
 
 class RosViewService(Service):

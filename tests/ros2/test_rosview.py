@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from ovamos.bench.ros2_peers.nodes import MockNode
-from ovamos.services.rosview.service import RosViewConfig, RosViewService
+from ovamos.services.rosview.config import RosViewConfig
+from ovamos.services.rosview.service import RosViewService
 from ovamos.shared import keys
 from ovamos.shared.fake_bus import FakeNetwork
 from ovamos.shared.messages import DecisionTrace, Goal, MapSnapshot, ObjectInstance, Odometry, TraceOption
