@@ -9,21 +9,13 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING
 
+from ovamos.shared.topology import TOPOLOGY
+
 if TYPE_CHECKING:  # importing ovamos.shared.service loads Zenoh; profiles only need the names
     from ovamos.shared.service import Service
 
-SERVICES: dict[str, str] = {
-    "testpattern": "ovamos.services.diag.service:TestPatternService",
-    "monitor": "ovamos.services.diag.service:MonitorService",
-    "mapping": "ovamos.services.mapping.service:MappingService",
-    "planner": "ovamos.services.planner.service:PlannerService",
-    "gateway": "ovamos.services.gateway.service:GatewayService",
-    "perception": "ovamos.services.perception.service:PerceptionService",
-    "sim": "ovamos.services.sim.service:SimRobotService",
-    "base_driver": "ovamos.services.base_driver.service:BaseDriverService",
-    "camera": "ovamos.services.camera.service:CameraService",
-    "rosview": "ovamos.services.rosview.service:RosViewService",
-}
+#: every service ``ovamos run`` can start: its adapter, as the topology declares it
+SERVICES: dict[str, str] = {name: node.adapter for name, node in TOPOLOGY.items()}
 
 
 class UnknownServiceError(LookupError):

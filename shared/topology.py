@@ -56,8 +56,10 @@ class Port:
 
 @dataclass(frozen=True)
 class Node:
-    """A service's ports: subscriptions, publications, queryables it answers, keys it queries."""
+    """A service: its adapter (``module:Class``, what ``ovamos run`` starts, imported only then) and its
+    ports: subscriptions, publications, queryables it answers, keys it queries."""
 
+    adapter: str
     inputs: tuple[Port, ...] = ()
     outputs: tuple[Port, ...] = ()
     answers: tuple[Port, ...] = ()
@@ -70,35 +72,43 @@ class Node:
         raise KeyError(f"no {kind[:-1]} {name!r} declared")
 
 
-_DRIVER = Node(inputs=(Port("plan_command", PlanCommand), Port("estop", EStop), Port("estop_clear", EStop)),
-               outputs=(Port("odom", Odometry), Port("driver_state", DriverState)))
+_DRIVER_IN = (Port("plan_command", PlanCommand), Port("estop", EStop), Port("estop_clear", EStop))
+_DRIVER_OUT = (Port("odom", Odometry), Port("driver_state", DriverState))
+_AT = "ovamos.services."
 
 TOPOLOGY: dict[str, Node] = {
-    "sim": Node(inputs=_DRIVER.inputs, outputs=(*_DRIVER.outputs, Port("rgbd", RgbdFrame))),
-    "base_driver": _DRIVER,
-    "camera": Node(inputs=(Port("odom", Odometry), Port("driver_state", DriverState)),
+    "sim": Node(_AT + "sim.service:SimRobotService",
+                inputs=_DRIVER_IN, outputs=(*_DRIVER_OUT, Port("rgbd", RgbdFrame))),
+    "base_driver": Node(_AT + "base_driver.service:BaseDriverService", inputs=_DRIVER_IN, outputs=_DRIVER_OUT),
+    "camera": Node(_AT + "camera.service:CameraService",
+                   inputs=(Port("odom", Odometry), Port("driver_state", DriverState)),
                    outputs=(Port("rgbd", RgbdFrame), Port("camera_state", CameraState))),
-    "perception": Node(inputs=(Port("task_current", TaskSpec), Port("task_events", TaskEvent),
+    "perception": Node(_AT + "perception.service:PerceptionService",
+                       inputs=(Port("task_current", TaskSpec), Port("task_events", TaskEvent),
                                Port("rgbd", RgbdFrame, keep=1)),
                        outputs=(Port("perception_result", PerceptionResult),)),
-    "mapping": Node(inputs=(Port("rgbd", RgbdFrame, keep=1), Port("perception_result", PerceptionResult),
+    "mapping": Node(_AT + "mapping.service:MappingService",
+                    inputs=(Port("rgbd", RgbdFrame, keep=1), Port("perception_result", PerceptionResult),
                             Port("odom", Odometry, keep=1)),
                     outputs=(Port("map_snapshot", MapSnapshot),),
                     answers=(Port("map_snapshot", MapSnapshot),)),
-    "planner": Node(inputs=(Port("task_current", TaskSpec), Port("driver_state", DriverState),
+    "planner": Node(_AT + "planner.service:PlannerService",
+                    inputs=(Port("task_current", TaskSpec), Port("driver_state", DriverState),
                             Port("camera_state", CameraState),
                             Port("odom", Odometry, keep=1), Port("map_snapshot", MapSnapshot, keep=1)),
                     outputs=(Port("plan_command", PlanCommand), Port("task_events", TaskEvent),
                              Port("plan_trace", DecisionTrace)),
                     queries=(Port("map_snapshot", MapSnapshot),)),
-    "gateway": Node(inputs=(Port("task_events", TaskEvent), Port("driver_state", DriverState),
+    "gateway": Node(_AT + "gateway.service:GatewayService",
+                    inputs=(Port("task_events", TaskEvent), Port("driver_state", DriverState),
                             Port("odom", Odometry, keep=1)),
                     outputs=(Port("task_current", TaskSpec), Port("estop", EStop), Port("estop_clear", EStop)),
                     queries=(Port("map_snapshot", MapSnapshot),)),
-    "rosview": Node(inputs=(Port("map_snapshot", MapSnapshot, keep=1), Port("odom", Odometry, keep=1),
+    "rosview": Node(_AT + "rosview.service:RosViewService",
+                    inputs=(Port("map_snapshot", MapSnapshot, keep=1), Port("odom", Odometry, keep=1),
                             Port("plan_trace", DecisionTrace))),
-    "testpattern": Node(outputs=(Port("rgbd", RgbdFrame),)),
-    "monitor": Node(inputs=(Port("robot_all", None),)),
+    "testpattern": Node(_AT + "diag.service:TestPatternService", outputs=(Port("rgbd", RgbdFrame),)),
+    "monitor": Node(_AT + "diag.service:MonitorService", inputs=(Port("robot_all", None),)),
 }
 
 DRIVERS = tuple(name for name, node in TOPOLOGY.items() if any(p.name == "driver_state" for p in node.outputs))
