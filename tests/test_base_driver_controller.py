@@ -9,7 +9,7 @@ import pytest
 
 from ovamos.services.base_driver.config import DriverConfig
 from ovamos.services.base_driver.controller import BaseController, make_hardware
-from ovamos.services.base_driver.odrive_can import ODriveCanHardware
+from ovamos.services.base_driver.odrive.client import ODriveCanHardware
 from ovamos.shared.messages import DriverMode
 from ovamos.shared.motion import Action, Pose
 from tests.base_driver_helpers import FakeHardware, FakeOdometryBase, command

@@ -8,7 +8,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from ovamos.services.base_driver.protocol import AxisState, ControlMode, InputMode
+from ovamos.services.base_driver.odrive.protocol import AxisState, ControlMode, InputMode
 from ovamos.services.sim.wheels import WheeledSimRobot
 from ovamos.shared.messages import DriverMode
 from ovamos.shared.motion import Action

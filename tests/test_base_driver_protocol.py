@@ -10,7 +10,7 @@ from pathlib import Path
 import can
 import pytest
 
-from ovamos.services.base_driver.protocol import (
+from ovamos.services.base_driver.odrive.protocol import (
     DBC_PATH,
     AxisState,
     CanSimple,

@@ -17,8 +17,8 @@ import pytest
 
 from ovamos.services.base_driver.config import CanConfig, DriverConfig, ODriveConfig
 from ovamos.services.base_driver.controller import BaseDriver
-from ovamos.services.base_driver.odrive_sim import SimAxisConfig, SimODrives
-from ovamos.services.base_driver.protocol import AxisState, CanSimple, Cmd, ControlMode, InputMode, ODriveError
+from ovamos.services.base_driver.odrive.protocol import AxisState, CanSimple, Cmd, ControlMode, InputMode, ODriveError
+from ovamos.services.base_driver.odrive.sim import SimAxisConfig, SimODrives
 from ovamos.services.sim.wheels import WheeledSimRobot
 from ovamos.shared.messages import DriverMode
 from ovamos.shared.motion import Action

@@ -14,12 +14,12 @@ import pytest
 
 from ovamos.services.base_driver.config import DriverConfig
 from ovamos.services.base_driver.controller import BaseController
-from ovamos.services.base_driver.kobuki import KobukiConfig
-from ovamos.services.base_driver.kobuki_protocol import WHEEL_BASE_M, WHEEL_RADIUS_M
-from ovamos.services.base_driver.kobuki_sim import SimKobuki
-from ovamos.services.base_driver.opencr import OpenCRConfig
-from ovamos.services.base_driver.opencr_sim import SimOpenCR
-from ovamos.services.base_driver.opencr_table import MODELS
+from ovamos.services.base_driver.kobuki.client import KobukiConfig
+from ovamos.services.base_driver.kobuki.protocol import WHEEL_BASE_M, WHEEL_RADIUS_M
+from ovamos.services.base_driver.kobuki.sim import SimKobuki
+from ovamos.services.base_driver.opencr.client import OpenCRConfig
+from ovamos.services.base_driver.opencr.sim import SimOpenCR
+from ovamos.services.base_driver.opencr.table import MODELS
 from ovamos.services.sim.robot import MotionConfig, SimRobot
 from ovamos.services.sim.wheels import SerialSimRobot
 from ovamos.shared.messages import DriverMode

@@ -1,7 +1,7 @@
 """The Kobuki (TurtleBot 2) hardware interface: known bytes, the decoder under garbage, and the
 real pyserial client against a simulated Kobuki on a pseudo-terminal (no mocks).
 
-Sources for the expected values (see services/base_driver/kobuki_protocol.py):
+Sources for the expected values (see services/base_driver/kobuki/protocol.py):
 [SPEC] Kobuki protocol specification, kobuki_driver "Appendix: Protocol Specification"
 (yujinrobot/kobuki_core kobuki_driver/doxygen/english/en_appendix_protocol.dox): packet
 ``AA 55 | length | payload | XOR(length + payload)``, LSB first; Base Control = id 1, length 4,
@@ -22,8 +22,8 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from ovamos.services.base_driver.hardware import HardwareError
-from ovamos.services.base_driver.kobuki import KobukiConfig, KobukiHardware
-from ovamos.services.base_driver.kobuki_protocol import (
+from ovamos.services.base_driver.kobuki.client import KobukiConfig, KobukiHardware
+from ovamos.services.base_driver.kobuki.protocol import (
     TICK_TO_RAD,
     TICKS_PER_REV,
     WHEEL_BASE_M,
@@ -40,7 +40,7 @@ from ovamos.services.base_driver.kobuki_protocol import (
     speed_radius_to_wheels,
     split_sub_payloads,
 )
-from ovamos.services.base_driver.kobuki_sim import SimKobuki
+from ovamos.services.base_driver.kobuki.sim import SimKobuki
 from tests.polling import wait_for
 
 R = WHEEL_RADIUS_M

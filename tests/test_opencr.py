@@ -16,11 +16,11 @@ import pytest
 
 dxl = pytest.importorskip("dynamixel_sdk")
 
-from ovamos.services.base_driver import opencr_table as T  # noqa: E402
-from ovamos.services.base_driver.dynamixel2 import Decoder, Inst, crc16, instruction_packet, status_packet  # noqa: E402
 from ovamos.services.base_driver.hardware import HardwareError  # noqa: E402
-from ovamos.services.base_driver.opencr import OpenCRConfig, OpenCRHardware  # noqa: E402
-from ovamos.services.base_driver.opencr_sim import SimOpenCR, body_from_wheels  # noqa: E402
+from ovamos.services.base_driver.opencr import table as T  # noqa: E402
+from ovamos.services.base_driver.opencr.client import OpenCRConfig, OpenCRHardware  # noqa: E402
+from ovamos.services.base_driver.opencr.protocol import Decoder, Inst, crc16, instruction_packet, status_packet  # noqa: E402
+from ovamos.services.base_driver.opencr.sim import SimOpenCR, body_from_wheels  # noqa: E402
 
 # e-manual Protocol 2.0 worked examples (ID 1, XM430-W210)
 PING = bytes.fromhex("FF FF FD 00 01 03 00 01 19 4E")

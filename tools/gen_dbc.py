@@ -1,4 +1,4 @@
-"""Generate ``services/base_driver/odrive_cansimple.dbc``, the CANSimple messages the base driver uses.
+"""Generate ``services/base_driver/odrive/odrive_cansimple.dbc``, the CANSimple messages the base driver uses.
 
 The DBC is committed (cantools and any CAN tool read it); this script is how it
 was made, so a new message or node is a one-line change here and a rerun, not
@@ -21,7 +21,7 @@ from cantools.database.can import Message, Signal
 from cantools.database.conversion import BaseConversion
 
 NODE_IDS = range(8)  # enough for two wheels plus spares; the driver checks its configured ids
-OUT = Path(__file__).resolve().parent.parent / "services" / "base_driver" / "odrive_cansimple.dbc"
+OUT = Path(__file__).resolve().parent.parent / "services" / "base_driver" / "odrive" / "odrive_cansimple.dbc"
 
 AXIS_STATES = {0: "UNDEFINED", 1: "IDLE", 2: "STARTUP_SEQUENCE", 3: "FULL_CALIBRATION_SEQUENCE",
                4: "MOTOR_CALIBRATION", 6: "ENCODER_INDEX_SEARCH", 7: "ENCODER_OFFSET_CALIBRATION",

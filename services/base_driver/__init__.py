@@ -1,1 +1,1 @@
-"""The base driver: ODrive CANSimple motor controllers over python-can, odometry, primitives, safety."""
+"""The base driver: one controller over a hardware interface, and a subpackage per base it drives."""

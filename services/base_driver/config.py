@@ -15,11 +15,11 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
-from ovamos.services.base_driver.kobuki import KobukiConfig
-from ovamos.services.base_driver.kobuki_protocol import WHEEL_RADIUS_M as KOBUKI_WHEEL_RADIUS_M
-from ovamos.services.base_driver.opencr import OpenCRConfig
-from ovamos.services.base_driver.opencr_table import MODELS as TB3_MODELS
-from ovamos.services.base_driver.ros2 import Ros2BaseConfig
+from ovamos.services.base_driver.kobuki.client import KobukiConfig
+from ovamos.services.base_driver.kobuki.protocol import WHEEL_RADIUS_M as KOBUKI_WHEEL_RADIUS_M
+from ovamos.services.base_driver.opencr.client import OpenCRConfig
+from ovamos.services.base_driver.opencr.table import MODELS as TB3_MODELS
+from ovamos.services.base_driver.ros2.client import Ros2BaseConfig
 from ovamos.shared.config import StrictModel
 from ovamos.shared.motion import Pose
 from ovamos.shared.robot import PRIMITIVES, ROBOT, Primitives

@@ -70,16 +70,16 @@ STALL_FRACTION = 0.25   # of the commanded travel: less progress than this is a 
 def make_hardware(config: DriverConfig, clock: Callable[[], float] = time.monotonic) -> BaseHardware:
     """The hardware interface ``config.hardware`` names (its module imported only when used)."""
     if config.hardware == "odrive_can":
-        from ovamos.services.base_driver.odrive_can import ODriveCanHardware
+        from ovamos.services.base_driver.odrive.client import ODriveCanHardware
         return ODriveCanHardware(config, clock=clock)
     if config.hardware == "kobuki":
-        from ovamos.services.base_driver.kobuki import KobukiHardware
+        from ovamos.services.base_driver.kobuki.client import KobukiHardware
         return KobukiHardware(config.kobuki)
     if config.hardware == "opencr":
-        from ovamos.services.base_driver.opencr import OpenCRHardware
+        from ovamos.services.base_driver.opencr.client import OpenCRHardware
         return OpenCRHardware(config.opencr)
     if config.hardware == "ros2":
-        from ovamos.services.base_driver.ros2 import Ros2Hardware
+        from ovamos.services.base_driver.ros2.client import Ros2Hardware
         return Ros2Hardware(config.ros2, clock=clock)
     raise ValueError(f"unknown base hardware {config.hardware!r}")
 

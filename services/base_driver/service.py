@@ -34,8 +34,8 @@ from pydantic import Field, model_validator
 
 from ovamos.services.base_driver.config import DriverConfig
 from ovamos.services.base_driver.controller import BaseController
-from ovamos.services.base_driver.odrive_can import ODriveCanHardware
-from ovamos.services.base_driver.odrive_sim import SimAxisConfig, SimODrives
+from ovamos.services.base_driver.odrive.client import ODriveCanHardware
+from ovamos.services.base_driver.odrive.sim import SimAxisConfig, SimODrives
 from ovamos.shared import keys
 from ovamos.shared.bus import BusCore
 from ovamos.shared.config import ServiceConfig

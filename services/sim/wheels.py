@@ -28,12 +28,12 @@ from typing import Literal
 
 from ovamos.services.base_driver.config import CanConfig, DriverConfig
 from ovamos.services.base_driver.controller import BaseDriver
-from ovamos.services.base_driver.kobuki import KobukiHardware
-from ovamos.services.base_driver.kobuki_sim import SimKobuki
-from ovamos.services.base_driver.odrive_can import ODriveCanHardware
-from ovamos.services.base_driver.odrive_sim import SimAxisConfig, SimODrives
-from ovamos.services.base_driver.opencr import OpenCRHardware
-from ovamos.services.base_driver.opencr_sim import SimOpenCR, line_port_handler
+from ovamos.services.base_driver.kobuki.client import KobukiHardware
+from ovamos.services.base_driver.kobuki.sim import SimKobuki
+from ovamos.services.base_driver.odrive.client import ODriveCanHardware
+from ovamos.services.base_driver.odrive.sim import SimAxisConfig, SimODrives
+from ovamos.services.base_driver.opencr.client import OpenCRHardware
+from ovamos.services.base_driver.opencr.sim import SimOpenCR, line_port_handler
 from ovamos.services.sim.robot import MotionConfig, SimRobot
 from ovamos.shared.messages import DriverMode, PlanCommand
 from ovamos.shared.motion import Pose

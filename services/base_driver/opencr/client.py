@@ -6,7 +6,7 @@ reports the two wheel motors' positions and velocities; it drives the wheels
 itself. This interface therefore sends body velocities (in the firmware's
 0.01 m/s and 0.01 rad/s units) and reads the encoders, exactly as ROBOTIS'
 ``turtlebot3_node`` does; all figures and their sources are in
-:mod:`opencr_table`.
+:mod:`table`.
 
 Choices, and why:
 
@@ -44,8 +44,8 @@ from typing import Any, Literal
 import serial
 from pydantic import Field
 
-from ovamos.services.base_driver import opencr_table as T
 from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
+from ovamos.services.base_driver.opencr import table as T
 from ovamos.shared.config import StrictModel
 
 __all__ = ["OpenCRConfig", "OpenCRHardware"]

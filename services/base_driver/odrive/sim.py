@@ -34,7 +34,7 @@ from can.interfaces.virtual import VirtualBus
 from pydantic import BaseModel, ConfigDict, Field
 
 from ovamos.services.base_driver.kinematics import toward
-from ovamos.services.base_driver.protocol import (
+from ovamos.services.base_driver.odrive.protocol import (
     AxisState,
     CanSimple,
     Cmd,

@@ -42,7 +42,7 @@ import can
 from ovamos.services.base_driver.config import AxisConfig, DriverConfig
 from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
 from ovamos.services.base_driver.kinematics import Geometry
-from ovamos.services.base_driver.protocol import (
+from ovamos.services.base_driver.odrive.protocol import (
     AxisState,
     CanSimple,
     Cmd,

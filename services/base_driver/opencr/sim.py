@@ -3,8 +3,8 @@
 The client under test (``OpenCRHardware`` through ROBOTIS' ``dynamixel-sdk``)
 opens the pty's slave path exactly as it opens ``/dev/ttyACM0`` on a robot, so
 the real SDK code runs: packet building, timeouts, CRC checks. The simulator
-decodes instruction packets with its own decoder (:mod:`dynamixel2`), answers
-as device id 200 with the firmware's control table (:mod:`opencr_table`), and
+decodes instruction packets with its own decoder (this package's :mod:`protocol`),
+answers as device id 200 with the firmware's control table (:mod:`table`), and
 models what a client relies on: the write protection, the heartbeat timeout
 (500 ms without a changing heartbeat zeroes the command, as the firmware
 does), torque enable, the 0.01-unit velocity commands clamped to the model's
@@ -35,8 +35,8 @@ import tty
 from collections.abc import Callable
 from pathlib import Path
 
-from ovamos.services.base_driver import opencr_table as T
-from ovamos.services.base_driver.dynamixel2 import Decoder, Err, Inst, Packet, status_packet
+from ovamos.services.base_driver.opencr import table as T
+from ovamos.services.base_driver.opencr.protocol import Decoder, Err, Inst, Packet, status_packet
 from ovamos.shared.simtime import MemoryLine
 
 log = logging.getLogger("ovamos.opencr_sim")

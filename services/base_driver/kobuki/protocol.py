@@ -1,8 +1,8 @@
 """The Kobuki (TurtleBot 2) serial protocol: packets, Base Control, Basic Sensor Data.
 
 Everything here is pure bytes and numbers (no port, no thread), so the host's
-:mod:`ovamos.services.base_driver.kobuki` and the simulated robot in
-:mod:`ovamos.services.base_driver.kobuki_sim` share one codec and the tests can check
+:mod:`ovamos.services.base_driver.kobuki.client` and the simulated robot in
+:mod:`ovamos.services.base_driver.kobuki.sim` share one codec and the tests can check
 it byte for byte.
 
 Sources (public; cited by the figures they give):

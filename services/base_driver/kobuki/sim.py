@@ -30,7 +30,7 @@ import time
 import tty
 from collections.abc import Callable
 
-from ovamos.services.base_driver.kobuki_protocol import (
+from ovamos.services.base_driver.kobuki.protocol import (
     BASE_CONTROL_ID,
     BUMPER_BITS,
     CLIFF_BITS,

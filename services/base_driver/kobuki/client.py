@@ -5,7 +5,7 @@ the base through its USB serial adapter (FTDI; kobuki_ftdi's udev rule names it
 ``/dev/kobuki``, otherwise ``/dev/ttyUSB0``). The base streams Basic Sensor Data
 at 50 Hz whether or not anyone listens, and takes Base Control (speed, radius)
 commands. Packet layouts and unit conversions are in
-:mod:`ovamos.services.base_driver.kobuki_protocol`, with their sources.
+:mod:`ovamos.services.base_driver.kobuki.protocol`, with their sources.
 
 Threads: one reader thread owns the port's input. It decodes packets and keeps
 the newest :class:`WheelFeedback` under a lock; the controller's thread writes
@@ -35,7 +35,7 @@ import serial
 from pydantic import Field
 
 from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
-from ovamos.services.base_driver.kobuki_protocol import (
+from ovamos.services.base_driver.kobuki.protocol import (
     BASIC_SENSOR_DATA_ID,
     BAUDRATE,
     BUMPER_BITS,
