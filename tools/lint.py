@@ -39,7 +39,7 @@ def ruff() -> int:
 
 
 def contracts(site: Path) -> int:
-    return subprocess.run([str(BIN / "lint-imports"), "--config", str(CONFIG)], cwd=site,
+    return subprocess.run([str(BIN / "lint-imports"), str(CONFIG)], cwd=site,
                           env={**os.environ, "PYTHONPATH": str(site)}).returncode
 
 
