@@ -12,7 +12,8 @@ import pytest
 import zenoh
 
 from ovamos.services.mapping.checkpoint import load_checkpoint
-from ovamos.services.mapping.service import MappingService, MappingServiceConfig
+from ovamos.services.mapping.config import MappingServiceConfig
+from ovamos.services.mapping.service import MappingService
 from ovamos.services.sim.render import SceneRenderer
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus

@@ -39,7 +39,7 @@ from ovamos.record.replay import RecordingError, read_raw
 from ovamos.record.views import TOPICS
 from ovamos.services.gateway.client import GatewayClient
 from ovamos.services.mapping.checkpoint import load_checkpoint
-from ovamos.services.mapping.service import MappingServiceConfig
+from ovamos.services.mapping.config import MappingServiceConfig
 from ovamos.services.sim.episodes import make_episode
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus

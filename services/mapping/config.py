@@ -1,12 +1,23 @@
-"""Every parameter of the mapping module (paper values as defaults)."""
+"""Every parameter of the mapping module (paper values as defaults).
+
+:class:`MappingConfig` is the map's own (grid, projection, fusion, objects): the benchmark and
+the tools build maps with it and no service. :class:`MappingServiceConfig` adds what the
+service needs around the map: its rates, how frames wait for their results, its checkpoint and
+when it follows a new odometry session.
+"""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 from pydantic import Field
 
 from ovamos.shared.config import ServiceConfig
 from ovamos.shared.messages import MAX_MAP_SIDE
 from ovamos.shared.robot import ROBOT
+from ovamos.shared.sessions import SessionSwitch
+
+__all__ = ["MappingConfig", "MappingServiceConfig"]
 
 
 class MappingConfig(ServiceConfig):
@@ -37,3 +48,23 @@ class MappingConfig(ServiceConfig):
         default=16, ge=1,
         description="the newest fused frames whose targets are remembered: such a frame arriving "
                     "again adds no update counts, a second result for it only new targets' values")
+
+
+class MappingServiceConfig(MappingConfig):
+    publish_hz: float = Field(default=2.0, gt=0, description="snapshot publication rate")
+    match_timeout_s: float = Field(default=1.0, gt=0, description="wait this long for a frame's result")
+    max_pending: int = Field(default=16, ge=1, description="frames or results waiting for their pair, "
+                                                           "and fused frames kept for a second result")
+    checkpoint_path: Path | None = Field(
+        default=None, description="'{robot_id}' in it is replaced: one map per robot, never another's")
+    checkpoint_every_s: float = Field(default=5.0, gt=0)
+    session_switch: SessionSwitch = Field(
+        default_factory=SessionSwitch, description="when odometry or frames of a new odometry "
+        "session start a fresh map (the driver restarted)")
+
+    def for_robot(self, robot_id: str) -> MappingServiceConfig:
+        """This config with ``{robot_id}`` in ``checkpoint_path`` replaced by ``robot_id``."""
+        if self.checkpoint_path is None:
+            return self
+        return self.model_copy(update={"checkpoint_path": Path(
+            str(self.checkpoint_path).replace("{robot_id}", robot_id))})

@@ -1,63 +1,24 @@
 """The mapping service: frames + perception results in, map snapshots out.
 
-Frames and perception results arrive on separate keys and are matched by
-frame seq. A frame whose result has not come within ``match_timeout_s`` is
-fused without values (obstacles, explored area, frontiers still grow), so a
-slow or absent perception service never stalls the map. The value layers
-follow the target list of the newest perception result. A frame counts once
-(:class:`MapState`): the same frame again (re-published while the robot stands
-still) is not fused again, and a second result for a fused frame (perception
-re-scores its latest frame when targets are added) adds only the values of the
-targets the frame was not fused for; the newest fused frames are kept for that.
-
-One map per odometry session. The driver's current session changes only on the
-evidence of a restart (:mod:`ovamos.shared.sessions`: a sustained stream of the new
-session, on odometry or on frames, while the current one is quiet), so one
-forged or replayed message cannot take the map away from the driver: it is
-counted (``sessions.stray``) and ignored. A session once left is never followed
-again (a session id is never used twice). A new session starts a fresh map: the map of the
-earlier one is kept on disk beside the checkpoint under its session id
-(:func:`~ovamos.services.mapping.checkpoint.session_path`) and never fused into again,
-and frames and results of a session left behind are dropped and counted. The
-checkpoint found at start is held until the current session is known and
-resumed only when it is that session's (a mapping service restarted while the
-driver runs); else it is kept under its session id, a session left behind.
-
-Everything runs on the service's one thread (fusing, snapshots for the
-periodic put and for queries, checkpoints), so the map needs no lock and a
-snapshot is always of one consistent state (:meth:`MapState.snapshot` copies).
+A thin adapter over :class:`ovamos.services.mapping.core.MappingCore` (how frames meet their
+results, one map per odometry session, checkpoints): it wires the declared inputs to the core,
+puts the snapshot :meth:`~MappingCore.poll` returns every ``1 / publish_hz`` s, and answers
+snapshot queries, all on the service's one thread.
 """
 
 from __future__ import annotations
 
 import time
-from collections import Counter
-from pathlib import Path
 from typing import Any
 
-from pydantic import Field
-
-from ovamos.services.mapping.checkpoint import CheckpointError, load_checkpoint, save_checkpoint, session_path
-from ovamos.services.mapping.config import MappingConfig
+from ovamos.services.mapping.config import MappingServiceConfig
+from ovamos.services.mapping.core import MappingCore
 from ovamos.services.mapping.state import MapState
 from ovamos.shared.bus import BusCore
-from ovamos.shared.log import sampled
-from ovamos.shared.messages import MapSnapshot, Odometry, PerceptionResult, RgbdFrame
+from ovamos.shared.messages import Odometry, RgbdFrame
 from ovamos.shared.service import Service
-from ovamos.shared.sessions import SessionFollower, SessionSwitch
 
-
-class MappingServiceConfig(MappingConfig):
-    publish_hz: float = Field(default=2.0, gt=0, description="snapshot publication rate")
-    match_timeout_s: float = Field(default=1.0, gt=0, description="wait this long for a frame's result")
-    max_pending: int = Field(default=16, ge=1, description="frames or results waiting for their pair, "
-                                                           "and fused frames kept for a second result")
-    checkpoint_path: Path | None = Field(
-        default=None, description="'{robot_id}' in it is replaced: one map per robot, never another's")
-    checkpoint_every_s: float = Field(default=5.0, gt=0)
-    session_switch: SessionSwitch = Field(
-        default_factory=SessionSwitch, description="when odometry or frames of a new odometry "
-        "session start a fresh map (the driver restarted)")
+__all__ = ["MappingService"]
 
 
 class MappingService(Service):
@@ -66,177 +27,33 @@ class MappingService(Service):
     config: MappingServiceConfig
 
     def __init__(self, bus: BusCore, config: MappingServiceConfig) -> None:
-        if config.checkpoint_path is not None:
-            config = config.model_copy(update={"checkpoint_path": Path(
-                str(config.checkpoint_path).replace("{robot_id}", bus.robot_id))})
+        config = config.for_robot(bus.robot_id)
         super().__init__(bus, config)
         self.tick_hz = config.publish_hz
-        self._frames: dict[int, tuple[RgbdFrame, float]] = {}
-        self._results: dict[int, PerceptionResult] = {}
-        self._fused: dict[int, RgbdFrame] = {}  # the newest fused frames, for a second result
-        self._changed = True
-        self._last_checkpoint = time.monotonic()
-        self._session: str | None = None   # the driver's current odometry session, once known
-        self._held = self._load_checkpoint()  # resumed once the session is known to be its own
-        self._sessions = SessionFollower(config.session_switch,
-                                         None if self._held is None else self._held.odom_session)
-        self.state = MapState(config)
-        self.other_session: Counter[str] = Counter()  # frames / results of another session: dropped
-        self.repeated = 0                    # frames that came again after they were fused
+        self.core = MappingCore(config, bus.log, time.monotonic())
 
-    def _load_checkpoint(self) -> MapState | None:
-        path = self.config.checkpoint_path
-        if path is not None and path.exists():
-            try:
-                return load_checkpoint(path, self.config)
-            except CheckpointError as exc:
-                self.log.error("%s; starting a fresh map", exc)
-        return None
+    @property
+    def state(self) -> MapState:
+        """The current map (the core replaces it when the odometry session changes)."""
+        return self.core.state
 
     def start(self) -> None:
-        self.wire({"rgbd": self._on_frame, "perception_result": self._on_result, "odom": self._on_odom},
-                  answers={"map_snapshot": self.snapshot})
+        self.wire({"rgbd": self._on_frame, "perception_result": self.core.on_result, "odom": self._on_odom},
+                  answers={"map_snapshot": self.core.snapshot})
 
-    # -- the odometry session --------------------------------------------------------------------
-    def _on_odom(self, odom: Odometry) -> None:
-        self._admit("odom", odom.seq, odom.odom_session)
-
-    def _admit(self, kind: str, seq: int, session: str) -> bool:
-        """Whether odometry or a frame is of the current session, following a new one when the
-        message completes the evidence of a restart; others are counted (and sampled in the log)."""
-        if self._left_behind(kind, seq, session):
-            return False
-        if not self._sessions.observe(kind, session, seq):
-            if sampled(self._sessions.stray[kind]):
-                self.log.warning("ignored %s %d of odometry session %r: the driver's is %r, and no "
-                                 "sustained stream of %r says it restarted", kind, seq, session,
-                                 self._sessions.current, session)
-            return False
-        if self._sessions.current != self._session:
-            evidence = self._sessions.switched_on
-            if self._session is not None and evidence is not None:
-                self.log.warning("the driver restarted: odometry session %r follows %r (%s of it)",
-                                 evidence.session, self._session, evidence.describe())
-            self._follow(session)
-        return True
-
-    def _follow(self, session: str) -> None:
-        """Make ``session`` the current one, with its own map: the held checkpoint when it is that
-        session's, else a fresh map (a map of another session is kept on disk, see the module)."""
-        if session == self._session:
-            return
-        self._session, held, self._held = session, self._held, None
-        self._frames = {s: p for s, p in self._frames.items() if p[0].odom_session == session}
-        self._results = {s: r for s, r in self._results.items() if r.odom_session == session}
-        if held is not None and held.odom_session == session:
-            self.state, self._changed = held, True
-            self.log.info("resumed the map from %s (odometry session %r, last frame seq %d)",
-                          self.config.checkpoint_path, session, held.seq)
-            return
-        if held is not None:
-            self._keep(held, "the checkpoint's map")
-        if self.state.odom_session != session:
-            if self.state.seq >= 0:
-                self._keep(self.state, "the map")
-            self.state, self._fused, self._changed = MapState(self.config, odom_session=session), {}, True
-            self.log.info("odometry session %r: a fresh map", session)
-        if self.config.checkpoint_path is not None:
-            self._checkpoint()  # the checkpoint file is the current session's from now on
-
-    def _keep(self, state: MapState, what: str) -> None:
-        path = self.config.checkpoint_path
-        if path is None:
-            self.log.warning("%s of odometry session %r is dropped: the odometry session is now %r "
-                             "(no checkpoint_path to keep it)", what, state.odom_session, self._session)
-            return
-        kept = session_path(path, state.odom_session)
-        save_checkpoint(state, kept, time.time())
-        self.log.warning("%s of odometry session %r is not fused into any more: the odometry session "
-                         "is now %r; kept as %s", what, state.odom_session, self._session, kept)
-
-    def _left_behind(self, kind: str, seq: int, session: str) -> bool:
-        """Whether a message is of a session left behind (then it is counted)."""
-        if session not in self._sessions.left:  # were current, or the held checkpoint's
-            return False
-        self.other_session[kind] += 1
-        if kind != "odom" and sampled(self.other_session[kind]):
-            self.log.warning("dropped %s %d of odometry session %r: the map is of session %r",
-                             kind, seq, session, self._session)
-        return True
-
-    # -- inputs --------------------------------------------------------------------------------
     def _on_frame(self, frame: RgbdFrame) -> None:
-        if not self._admit("frame", frame.seq, frame.odom_session):
-            return  # a new session's frames count as evidence: they may come before its odometry
-        if self.state.has_fused(frame):
-            self.repeated += 1  # re-published: its result, if one comes again, is matched below
-            return
-        result = self._results.pop(frame.seq, None)
-        if result is None:
-            self._frames.setdefault(frame.seq, (frame, time.monotonic()))  # a repeat keeps its wait
-            _trim(self._frames, self.config.max_pending)
-            return
-        self._fuse(frame, result)
+        self.core.on_frame(frame, time.monotonic())
 
-    def _on_result(self, result: PerceptionResult) -> None:
-        if self._left_behind("result", result.seq, result.odom_session):
-            return
-        pending = self._frames.pop(result.seq, None)
-        fused = self._fused.get(result.seq)
-        if pending is not None and pending[0].odom_session != result.odom_session:
-            self._frames[result.seq] = pending  # of a newer session: its frame has yet to come
-            pending = None
-        if pending is not None:
-            self._fuse(pending[0], result)
-        elif fused is not None and fused.stamp == result.stamp and fused.odom_session == result.odom_session:
-            self._fuse(fused, result)  # a second result (re-scored): new targets' values only
-        else:
-            self._results[result.seq] = result
-            _trim(self._results, self.config.max_pending)
+    def _on_odom(self, odom: Odometry) -> None:
+        self.core.on_odom(odom, time.monotonic())
 
-    def _fuse(self, frame: RgbdFrame, result: PerceptionResult | None) -> None:
-        layers = self.state.layers
-        fused = self.state.apply(frame, result)
-        self._fused[frame.seq] = frame
-        _trim(self._fused, self.config.max_pending)
-        self._changed = self._changed or fused or self.state.layers != layers
-
-    # -- periodic work -------------------------------------------------------------------------
     def tick(self) -> None:
-        now = time.monotonic()
-        expired = sorted(s for s, (_, t) in self._frames.items() if now - t > self.config.match_timeout_s)
-        for seq in expired:
-            self._fuse(self._frames.pop(seq)[0], None)
-        if self._changed and self._session is not None:
-            self.out["map_snapshot"].put(self.snapshot())
-            self._changed = False
-        if self.config.checkpoint_path and now - self._last_checkpoint >= self.config.checkpoint_every_s:
-            self._checkpoint()
-
-    def snapshot(self) -> MapSnapshot:
-        return self.state.snapshot(time.time(), with_confidence=False)
-
-    def _checkpoint(self) -> None:
-        assert self.config.checkpoint_path is not None
-        if self._session is not None:  # before, the file holds the checkpoint not yet resumed
-            save_checkpoint(self.state, self.config.checkpoint_path, time.time())
-        self._last_checkpoint = time.monotonic()
+        snapshot = self.core.poll(time.monotonic())
+        if snapshot is not None:
+            self.out["map_snapshot"].put(snapshot)
 
     def info(self) -> dict[str, Any]:
-        return {"seq": self.state.seq, "after_action": self.state.after_action,
-                "odom_session": self.state.odom_session, "layers": list(self.state.layers),
-                "explored_m2": round(float(self.state.explored.sum()) * self.config.resolution ** 2, 2),
-                "objects": len(self.state.objects.instances()),
-                "pending_frames": len(self._frames), "pending_results": len(self._results),
-                "other_session_dropped": dict(self.other_session), "repeated_frames": self.repeated,
-                "sessions": self._sessions.info()}
+        return self.core.info()
 
     def stop(self) -> None:
-        if self.config.checkpoint_path:
-            self._checkpoint()
-
-
-def _trim(pending: dict[int, Any], limit: int) -> None:
-    """Drop the oldest (lowest seq) entries beyond ``limit``."""
-    for seq in sorted(pending)[:max(0, len(pending) - limit)]:
-        del pending[seq]
+        self.core.close()
