@@ -15,8 +15,9 @@ import can
 import numpy as np
 import pytest
 
-from ovamos.services.base_driver.config import CanConfig, DriverConfig, ODriveConfig
+from ovamos.services.base_driver.config import DriverConfig
 from ovamos.services.base_driver.controller import BaseDriver
+from ovamos.services.base_driver.odrive.config import CanConfig, ODriveConfig
 from ovamos.services.base_driver.odrive.protocol import AxisState, CanSimple, Cmd, ControlMode, InputMode, ODriveError
 from ovamos.services.base_driver.odrive.sim import SimAxisConfig, SimODrives
 from ovamos.services.sim.wheels import WheeledSimRobot

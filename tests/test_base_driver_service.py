@@ -7,8 +7,9 @@ from collections.abc import Iterator
 
 import pytest
 
-from ovamos.services.base_driver.config import CanConfig, DriverConfig, ODriveConfig
-from ovamos.services.base_driver.service import BaseDriverService, BaseDriverServiceConfig
+from ovamos.services.base_driver.config import BaseDriverServiceConfig, DriverConfig
+from ovamos.services.base_driver.odrive.config import CanConfig, ODriveConfig
+from ovamos.services.base_driver.service import BaseDriverService
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
 from ovamos.shared.messages import DriverMode, EStop, PlanCommand

@@ -14,10 +14,10 @@ import pytest
 
 from ovamos.services.base_driver.config import DriverConfig
 from ovamos.services.base_driver.controller import BaseController
-from ovamos.services.base_driver.kobuki.client import KobukiConfig
+from ovamos.services.base_driver.kobuki.config import KobukiConfig
 from ovamos.services.base_driver.kobuki.protocol import WHEEL_BASE_M, WHEEL_RADIUS_M
 from ovamos.services.base_driver.kobuki.sim import SimKobuki
-from ovamos.services.base_driver.opencr.client import OpenCRConfig
+from ovamos.services.base_driver.opencr.config import OpenCRConfig
 from ovamos.services.base_driver.opencr.sim import SimOpenCR
 from ovamos.services.base_driver.opencr.table import MODELS
 from ovamos.services.sim.robot import MotionConfig, SimRobot

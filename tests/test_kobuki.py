@@ -22,7 +22,8 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from ovamos.services.base_driver.hardware import HardwareError
-from ovamos.services.base_driver.kobuki.client import KobukiConfig, KobukiHardware
+from ovamos.services.base_driver.kobuki.client import KobukiHardware
+from ovamos.services.base_driver.kobuki.config import KobukiConfig
 from ovamos.services.base_driver.kobuki.protocol import (
     TICK_TO_RAD,
     TICKS_PER_REV,

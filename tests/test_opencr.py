@@ -18,7 +18,8 @@ dxl = pytest.importorskip("dynamixel_sdk")
 
 from ovamos.services.base_driver.hardware import HardwareError  # noqa: E402
 from ovamos.services.base_driver.opencr import table as T  # noqa: E402
-from ovamos.services.base_driver.opencr.client import OpenCRConfig, OpenCRHardware  # noqa: E402
+from ovamos.services.base_driver.opencr.client import OpenCRHardware  # noqa: E402
+from ovamos.services.base_driver.opencr.config import OpenCRConfig  # noqa: E402
 from ovamos.services.base_driver.opencr.protocol import Decoder, Inst, crc16, instruction_packet, status_packet  # noqa: E402
 from ovamos.services.base_driver.opencr.sim import SimOpenCR, body_from_wheels  # noqa: E402
 

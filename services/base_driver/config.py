@@ -1,64 +1,30 @@
 """Every setting of the base driver (unknown keys are errors, as for every service).
 
-:class:`DriverConfig` holds the controller's settings (geometry, limits, timing, primitives:
-whatever the base) and names the hardware interface (``hardware``) with its own section
-(``odrive``: the CAN bus and the axes). Defaults are a TurtleBot3 Waffle-like base: 0.26 m/s
-and 1.82 rad/s top speeds, the wheel geometry and primitive sizes of :mod:`ovamos.shared.robot`.
-``odrive.can`` is python-can's standard bus configuration, passed to ``can.Bus(**can)``
-unchanged, so a real robot uses e.g. ``interface = "socketcan", channel = "can0", bitrate = 250000``.
+:class:`BaseDriverServiceConfig` is the service's: how often its outputs go out
+(:class:`PublishingConfig`, which the simulated robot shares), the driver, and the simulated ODrives
+of a dry run. :class:`DriverConfig` holds the controller's settings (geometry, limits, timing,
+primitives: whatever the base) and names the hardware interface (``hardware``); each base's own
+section (``odrive``, ``kobuki``, ``opencr``, ``ros2``) is defined in its subpackage's ``config.py``.
+Defaults are a TurtleBot3 Waffle-like base: 0.26 m/s and 1.82 rad/s top speeds, the wheel geometry
+and primitive sizes of :mod:`ovamos.shared.robot`.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import Field, model_validator
 
-from ovamos.services.base_driver.kobuki.client import KobukiConfig
+from ovamos.services.base_driver.kobuki.config import KobukiConfig
 from ovamos.services.base_driver.kobuki.protocol import WHEEL_RADIUS_M as KOBUKI_WHEEL_RADIUS_M
-from ovamos.services.base_driver.opencr.client import OpenCRConfig
+from ovamos.services.base_driver.odrive.config import ODriveConfig, SimAxisConfig
+from ovamos.services.base_driver.opencr.config import OpenCRConfig
 from ovamos.services.base_driver.opencr.table import MODELS as TB3_MODELS
-from ovamos.services.base_driver.ros2.client import Ros2BaseConfig
-from ovamos.shared.config import StrictModel
+from ovamos.services.base_driver.ros2.config import Ros2BaseConfig
+from ovamos.shared.config import ServiceConfig, StrictModel
 from ovamos.shared.motion import Pose
 from ovamos.shared.robot import PRIMITIVES, ROBOT, Primitives
-
-
-class CanConfig(StrictModel):
-    """python-can bus settings (``can.Bus(interface=..., channel=..., bitrate=...)``)."""
-
-    interface: str = Field(default="virtual", description="socketcan, pcan, slcan, virtual, ...")
-    channel: str = Field(default="ovamos-base", description="can0 for socketcan")
-    bitrate: int | None = Field(default=None, gt=0, description="e.g. 250000; None = the interface's")
-
-    def bus_kwargs(self) -> dict[str, Any]:
-        kwargs: dict[str, Any] = {"interface": self.interface, "channel": self.channel}
-        if self.bitrate is not None:
-            kwargs["bitrate"] = self.bitrate
-        return kwargs
-
-
-class AxisConfig(StrictModel):
-    """One wheel's ODrive axis. ``direction`` -1 for a motor mounted mirrored."""
-
-    node_id: int = Field(ge=0, le=63)
-    direction: Literal[1, -1] = 1
-
-
-class ODriveConfig(StrictModel):
-    """The ``odrive_can`` hardware: two ODrive axes over CANSimple."""
-
-    can: CanConfig = Field(default_factory=CanConfig)
-    left: AxisConfig = Field(default_factory=lambda: AxisConfig(node_id=0))
-    right: AxisConfig = Field(default_factory=lambda: AxisConfig(node_id=1))
-    current_limit_a: float = Field(default=10.0, gt=0, description="sent with Set_Limits")
-
-    @model_validator(mode="after")
-    def _distinct_nodes(self) -> ODriveConfig:
-        if self.left.node_id == self.right.node_id:
-            raise ValueError("left and right axes need different node ids")
-        return self
 
 
 class DriverConfig(StrictModel):
@@ -150,3 +116,25 @@ class DriverConfig(StrictModel):
     def max_wheel_rev_s(self) -> float:
         """The fastest a wheel may turn: the top linear speed (rev/s)."""
         return self.max_linear_m_s / (2 * math.pi * self.wheel_radius_m)
+
+
+class PublishingConfig(ServiceConfig):
+    """How often the driver's outputs go out (shared by the real and the simulated base)."""
+
+    odom_hz: float = Field(default=20.0, gt=0)
+    state_hz: float = Field(default=5.0, gt=0, description="also published on every change")
+    tick_hz: float = Field(default=50.0, gt=0, description="how often changes are looked for")
+
+
+class BaseDriverServiceConfig(PublishingConfig):
+    driver: DriverConfig = Field(default_factory=DriverConfig)
+    simulated_axes: bool = Field(default=False, description="simulated ODrives on the virtual bus")
+    sim_axes: SimAxisConfig = Field(default_factory=SimAxisConfig)
+
+    @model_validator(mode="after")
+    def _virtual_for_sim(self) -> BaseDriverServiceConfig:
+        if self.simulated_axes and (self.driver.hardware != "odrive_can"
+                                    or self.driver.odrive.can.interface != "virtual"):
+            raise ValueError("simulated_axes needs driver.hardware = 'odrive_can' and "
+                             "driver.odrive.can.interface = 'virtual'")
+        return self

@@ -30,15 +30,13 @@ from __future__ import annotations
 import time
 from typing import Any, Protocol
 
-from pydantic import Field, model_validator
-
-from ovamos.services.base_driver.config import DriverConfig
+from ovamos.services.base_driver.config import BaseDriverServiceConfig, DriverConfig, PublishingConfig
 from ovamos.services.base_driver.controller import BaseController
 from ovamos.services.base_driver.odrive.client import ODriveCanHardware
-from ovamos.services.base_driver.odrive.sim import SimAxisConfig, SimODrives
+from ovamos.services.base_driver.odrive.config import SimAxisConfig
+from ovamos.services.base_driver.odrive.sim import SimODrives
 from ovamos.shared import keys
 from ovamos.shared.bus import BusCore
-from ovamos.shared.config import ServiceConfig
 from ovamos.shared.messages import DriverMode, DriverState, EStop, Odometry, PlanCommand
 from ovamos.shared.service import Service
 
@@ -57,28 +55,6 @@ class Base(Protocol):
     def odometry(self) -> Odometry: ...
     def info(self) -> dict[str, object]: ...
     def stop(self) -> None: ...
-
-
-class PublishingConfig(ServiceConfig):
-    """How often the driver's outputs go out (shared by the real and the simulated base)."""
-
-    odom_hz: float = Field(default=20.0, gt=0)
-    state_hz: float = Field(default=5.0, gt=0, description="also published on every change")
-    tick_hz: float = Field(default=50.0, gt=0, description="how often changes are looked for")
-
-
-class BaseDriverServiceConfig(PublishingConfig):
-    driver: DriverConfig = Field(default_factory=DriverConfig)
-    simulated_axes: bool = Field(default=False, description="simulated ODrives on the virtual bus")
-    sim_axes: SimAxisConfig = Field(default_factory=SimAxisConfig)
-
-    @model_validator(mode="after")
-    def _virtual_for_sim(self) -> BaseDriverServiceConfig:
-        if self.simulated_axes and (self.driver.hardware != "odrive_can"
-                                    or self.driver.odrive.can.interface != "virtual"):
-            raise ValueError("simulated_axes needs driver.hardware = 'odrive_can' and "
-                             "driver.odrive.can.interface = 'virtual'")
-        return self
 
 
 class _SimulatedAxesDriver(BaseController):

@@ -34,7 +34,7 @@ import numpy as np
 from pydantic import Field
 
 from ovamos.services.base_driver.kinematics import Geometry
-from ovamos.services.base_driver.ros2.client import Ros2BaseConfig
+from ovamos.services.base_driver.ros2.config import Ros2BaseConfig
 from ovamos.services.camera.ros2 import Ros2CameraConfig
 from ovamos.services.sim.episodes import make_episode
 from ovamos.services.sim.render import SceneRenderer

@@ -40,9 +40,9 @@ from typing import Any
 
 from pydantic import Field, model_validator
 
-from ovamos.services.base_driver.config import DriverConfig
-from ovamos.services.base_driver.odrive.sim import SimAxisConfig
-from ovamos.services.base_driver.service import Base, BaseDriverService, PublishingConfig
+from ovamos.services.base_driver.config import DriverConfig, PublishingConfig
+from ovamos.services.base_driver.odrive.config import SimAxisConfig
+from ovamos.services.base_driver.service import Base, BaseDriverService
 from ovamos.services.sim.kinematic import KinematicBase
 from ovamos.services.sim.render import SceneRenderer
 from ovamos.services.sim.robot import MotionConfig, SimRobot

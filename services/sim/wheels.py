@@ -26,12 +26,13 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from typing import Literal
 
-from ovamos.services.base_driver.config import CanConfig, DriverConfig
+from ovamos.services.base_driver.config import DriverConfig
 from ovamos.services.base_driver.controller import BaseDriver
 from ovamos.services.base_driver.kobuki.client import KobukiHardware
 from ovamos.services.base_driver.kobuki.sim import SimKobuki
 from ovamos.services.base_driver.odrive.client import ODriveCanHardware
-from ovamos.services.base_driver.odrive.sim import SimAxisConfig, SimODrives
+from ovamos.services.base_driver.odrive.config import CanConfig, SimAxisConfig
+from ovamos.services.base_driver.odrive.sim import SimODrives
 from ovamos.services.base_driver.opencr.client import OpenCRHardware
 from ovamos.services.base_driver.opencr.sim import SimOpenCR, line_port_handler
 from ovamos.services.sim.robot import MotionConfig, SimRobot

@@ -17,7 +17,8 @@ import pytest
 
 from ovamos.services.base_driver.config import DriverConfig
 from ovamos.services.base_driver.controller import BaseController
-from ovamos.services.base_driver.ros2.client import Ros2BaseConfig, Ros2Hardware
+from ovamos.services.base_driver.ros2.client import Ros2Hardware
+from ovamos.services.base_driver.ros2.config import Ros2BaseConfig
 from ovamos.services.camera.ros2 import Ros2Backend
 from ovamos.services.sim.episodes import make_episode
 from ovamos.services.sim.render import SceneRenderer

@@ -39,9 +39,10 @@ from dataclasses import dataclass, field
 
 import can
 
-from ovamos.services.base_driver.config import AxisConfig, DriverConfig
+from ovamos.services.base_driver.config import DriverConfig
 from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
 from ovamos.services.base_driver.kinematics import Geometry
+from ovamos.services.base_driver.odrive.config import AxisConfig
 from ovamos.services.base_driver.odrive.protocol import (
     AxisState,
     CanSimple,

@@ -31,9 +31,9 @@ from typing import Any
 
 import can
 from can.interfaces.virtual import VirtualBus
-from pydantic import BaseModel, ConfigDict, Field
 
 from ovamos.services.base_driver.kinematics import toward
+from ovamos.services.base_driver.odrive.config import SimAxisConfig
 from ovamos.services.base_driver.odrive.protocol import (
     AxisState,
     CanSimple,
@@ -49,18 +49,6 @@ log = logging.getLogger("ovamos.odrive_sim")
 
 #: physics(dt_s, {node_id: position change in rev}) -> False when the robot is blocked
 Physics = Callable[[float, dict[int, float]], bool]
-
-
-class SimAxisConfig(BaseModel):
-    """What the simulated ODrives are configured with (on hardware: the ODrive's own config)."""
-
-    model_config = ConfigDict(extra="forbid")
-    vel_ramp_rate_rev_s2: float = Field(default=20.0, gt=0, description="VEL_RAMP input mode")
-    idle_decel_rev_s2: float = Field(default=20.0, gt=0, description="a disarmed wheel coasts to rest")
-    watchdog_timeout_s: float = Field(default=0.3, ge=0, description="0 disables the watchdog")
-    heartbeat_period_s: float = Field(default=0.1, gt=0)
-    encoder_period_s: float = Field(default=0.01, gt=0)
-    vel_limit_rev_s: float = Field(default=2.0, gt=0, description="until Set_Limits changes it")
 
 
 class BusFaults:
