@@ -212,14 +212,14 @@ class BaseController:
             self._feedback = fb
         elif fb is not None:
             left, right = fb.left_pos_rad / _TWO_PI, fb.right_pos_rad / _TWO_PI
-            prev = self._feedback
+            last = self._feedback
             self._odom.update(left, right)
             if fb.left_vel_rad_s is not None and fb.right_vel_rad_s is not None:
                 self._wheels = (fb.left_vel_rad_s / _TWO_PI, fb.right_vel_rad_s / _TWO_PI)
-            elif prev is not None and fb.stamp > prev.stamp:
-                dt = fb.stamp - prev.stamp
-                self._wheels = ((fb.left_pos_rad - prev.left_pos_rad) / _TWO_PI / dt,
-                                (fb.right_pos_rad - prev.right_pos_rad) / _TWO_PI / dt)
+            elif last is not None and fb.stamp > last.stamp:
+                dt = fb.stamp - last.stamp
+                self._wheels = ((fb.left_pos_rad - last.left_pos_rad) / _TWO_PI / dt,
+                                (fb.right_pos_rad - last.right_pos_rad) / _TWO_PI / dt)
             self._feedback = fb
         return fb
 
@@ -247,7 +247,8 @@ class BaseController:
                 self._complete_id(command.action_id, "rejected")
                 return "rejected"
             if self._active is not None:  # the newest command wins
-                superseded = "done" if self._active.tracker is None and self._active.started else "aborted"
+                superseded: Literal["done", "aborted"] = ("done" if self._active.tracker is None
+                                                          and self._active.started else "aborted")
                 self._finish(superseded)
             self._active = _Active(command, now)
             self._last_command_at = now
