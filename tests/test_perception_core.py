@@ -1,15 +1,19 @@
-"""Perception pieces that need neither Zenoh nor torch: replicas, checks, sim backend, config, errors."""
+"""Perception without Zenoh or torch: the core driven message by message, replicas, checks, sim backend,
+config, errors."""
 
 from __future__ import annotations
 
 import json
+import logging
+from collections.abc import Sequence
 
 import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from ovamos.services.perception.backend import load_backend
+from ovamos.services.perception.backend import Job, Seen, load_backend
 from ovamos.services.perception.config import FrameLimits, HfBackendConfig, PerceptionServiceConfig, SimBackendConfig
+from ovamos.services.perception.core import PerceptionCore
 from ovamos.services.perception.errors import BackendError, FrameRejected
 from ovamos.services.perception.frames import frame_problem
 from ovamos.services.perception.hf.backend import HfBackend
@@ -17,6 +21,7 @@ from ovamos.services.perception.hf.loading import ModelFilesError
 from ovamos.services.perception.hf.models import caption, pixel_boxes
 from ovamos.services.perception.replicas import ReplicaSet
 from ovamos.services.perception.sim_backend import SimBackend
+from ovamos.shared.messages import PerceptionResult, RgbdFrame, TaskSpec
 from tests.perception_helpers import render_frames
 from tests.sim_scenes import two_rooms
 
@@ -133,3 +138,102 @@ def test_normalised_boxes_become_pixel_boxes_inside_the_image() -> None:
     normalised = np.array([[0.5, 0.5, 0.5, 0.5], [0.0, 1.0, 0.4, 0.4], [0.5, 0.5, 0.0, 0.0]])
     boxes = pixel_boxes(normalised, 160, 120)
     assert boxes.tolist() == [[40, 30, 120, 90], [0, 96, 32, 120], [80, 60, 81, 61]]
+
+
+class Recording:
+    """An open-vocabulary backend (mock) that scores every target 0.5 and records its calls."""
+
+    name = "recording"
+
+    def __init__(self) -> None:
+        self.calls: list[list[tuple[str, int, tuple[str, ...]]]] = []
+
+    def score(self, frame: RgbdFrame, targets: Sequence[str]) -> dict[str, float]:
+        return {t: 0.5 for t in targets}
+
+    def detect(self, frame: RgbdFrame, targets: Sequence[str]) -> list:
+        return []
+
+    def process(self, jobs: Sequence[Job], detect: bool) -> list[Seen]:
+        self.calls.append([(job.robot_id, job.frame.seq, job.targets) for job in jobs])
+        return [Seen(self.score(job.frame, job.targets)) for job in jobs]
+
+
+def core(backend: Recording, robots: Sequence[str] = ("r1",), instance: str = "0",
+         rejected: list[str] | None = None, **config: object) -> PerceptionCore:
+    return PerceptionCore(PerceptionServiceConfig(**config), backend, robots, instance,
+                          logging.getLogger("test"), (rejected if rejected is not None else []).append)
+
+
+def sent(results: list[tuple[str, PerceptionResult]]) -> list[tuple[str, int, tuple[str, ...]]]:
+    return [(robot, r.seq, r.targets) for robot, r in results]
+
+
+def test_without_a_task_a_frame_gets_an_empty_result_and_no_model_runs(frame) -> None:
+    backend = Recording()
+    perception = core(backend)
+    perception.on_frame("r1", frame.model_copy(update={"seq": 4, "odom_session": "S"}), 0.0)
+    [(robot, result)] = perception.poll(0.0)
+    assert (robot, result.seq, result.targets, result.scores, result.labels) == ("r1", 4, (), (), ())
+    assert result.odom_session == "S" and result.stamp == frame.stamp
+    assert backend.calls == [] and perception.poll(0.0) == []  # answered once
+    perception.on_task("r1", TaskSpec(task_id="t", targets=("cup",), stamp=0.0), 1.0)
+    perception.poll(1.0)
+    perception.on_task("r1", TaskSpec(task_id="t", targets=("cup",), stamp=0.0, cancelled=True), 2.0)
+    perception.on_frame("r1", frame.model_copy(update={"seq": 5}), 2.0)
+    assert sent(perception.poll(2.0)) == [("r1", 5, ())] and len(backend.calls) == 1
+
+
+def test_a_batch_of_two_robots_runs_once_full_or_once_its_oldest_frame_waited(frame) -> None:
+    backend = Recording()
+    perception = core(backend, ["r1", "r2"], batch_size=2, batch_wait_ms=500)
+    task = TaskSpec(task_id="t", targets=("cup",), stamp=0.0)
+    for robot in ("r1", "r2"):
+        perception.on_task(robot, task, 0.0)
+    perception.on_frame("r1", frame.model_copy(update={"seq": 7}), 10.0)
+    assert perception.poll(10.4) == [] and len(perception.slots) == 1  # waits for r2's frame
+    perception.on_frame("r2", frame.model_copy(update={"seq": 3}), 10.4)
+    assert sent(perception.poll(10.4)) == [("r1", 7, ("cup",)), ("r2", 3, ("cup",))]
+    assert backend.calls == [[("r1", 7, ("cup",)), ("r2", 3, ("cup",))]]  # one model call
+    assert perception.info()["batches"] == 1 and perception.info()["last_batch"] == 2
+    perception.on_frame("r2", frame.model_copy(update={"seq": 4}), 20.0)
+    assert perception.poll(20.499) == []
+    assert sent(perception.poll(20.5)) == [("r2", 4, ("cup",))]  # alone, after batch_wait_ms
+
+
+def test_targets_added_re_score_the_latest_frame_once(frame) -> None:
+    backend = Recording()
+    perception = core(backend, ["r1", "r2"])
+    perception.on_frame("r1", frame.model_copy(update={"seq": 5}), 0.0)
+    perception.on_frame("r2", frame.model_copy(update={"seq": 9}), 0.0)
+    assert sent(perception.poll(0.0)) == [("r1", 5, ()), ("r2", 9, ())]
+    task = TaskSpec(task_id="a", targets=("fridge",), stamp=0.0)
+    perception.on_task("r1", task, 1.0)
+    assert sent(perception.poll(1.0)) == [("r1", 5, ("fridge",))]  # r2's frame is not touched
+    perception.on_task("r1", task, 2.0)  # re-sent: nothing new to score
+    assert perception.poll(2.0) == []
+    perception.on_task("r1", task.model_copy(update={"targets": ("fridge", "cup")}), 3.0)
+    assert sent(perception.poll(3.0)) == [("r1", 5, ("fridge", "cup"))]
+    assert perception.info()["rescored"] == 2
+
+
+def test_a_rejected_frame_is_handed_to_the_callable_and_gets_no_result(frame) -> None:
+    rejected: list[str] = []
+    perception = core(Recording(), rejected=rejected, frames=FrameLimits(min_side=200))
+    perception.on_frame("r1", frame, 0.0)
+    assert perception.poll(0.0) == [] and rejected == ["r1"]
+    info = perception.info()
+    assert info["rejected"] == 1 and "within 200..4096" in info["last_rejection"] and info["processed"] == 0
+
+
+def test_a_replica_takes_only_the_frames_it_owns(frame) -> None:
+    perception = core(Recording(), instance="a")
+    perception.on_replica("b", True)
+    for seq in range(4):
+        perception.on_frame("r1", frame.model_copy(update={"seq": seq}), 0.0)
+        perception.poll(0.0)
+    assert perception.info()["processed"] == 2 and perception.info()["last_seq"] == 2
+    assert perception.info()["replicas"] == ["a", "b"] and perception.info()["replica_index"] == 0
+    perception.on_replica("b", False)
+    perception.on_frame("r1", frame.model_copy(update={"seq": 3}), 0.0)
+    assert sent(perception.poll(0.0)) == [("r1", 3, ())]

@@ -78,7 +78,7 @@ def test_frames_of_several_robots_wait_for_a_batch_and_go_together(frames, backe
     network.pump()
     r1.frames.put(frames[0].model_copy(update={"seq": 7}))
     network.pump()
-    assert r1.results == [] and len(service.slots) == 1  # waits for a second robot's frame
+    assert r1.results == [] and len(service.core.slots) == 1  # waits for a second robot's frame
     r2.frames.put(frames[1].model_copy(update={"seq": 3}))
     network.pump()
     assert [r.seq for r in r1.results] == [7] and [r.seq for r in r2.results] == [3]

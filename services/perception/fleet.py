@@ -1,6 +1,6 @@
 """One perception service for several robots: each robot's targets, and fair batches of frames.
 
-Plain state, no Zenoh: the service (:mod:`.service`) feeds it on its one thread.
+Plain state, no Zenoh: the core (:mod:`.core`) feeds it on the service's one thread.
 
 Fairness: each robot has one slot holding its newest frame not yet taken (a
 newer frame replaces it, counted per robot), and batches are filled round robin:

@@ -22,8 +22,8 @@ minute for real weights), and counting a loading replica would lose its share
 of the frames all that time. A stopping replica withdraws its ``ready`` token
 first, before its session closes.
 
-A :class:`ReplicaSet` is plain state: the service changes and reads it on its
-one thread (membership changes arrive as inbox events like messages).
+A :class:`ReplicaSet` is plain state: the core (:mod:`.core`) changes and reads it on the
+service's one thread (membership changes arrive as inbox events like messages).
 """
 
 from __future__ import annotations
