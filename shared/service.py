@@ -28,7 +28,8 @@ from ovamos.shared.bus import Bus, BusCore, Publisher
 from ovamos.shared.config import ServiceConfig, ServiceConfigError, read_config
 from ovamos.shared.topology import TOPOLOGY, Node
 
-__all__ = ["Service", "ServiceConfig", "ServiceConfigError", "load_config", "run_loop", "run_service"]
+__all__ = ["Service", "ServiceConfig", "ServiceConfigError", "load_config", "run_loop", "run_service",
+           "subscribe_robots"]
 
 log = logging.getLogger("ovamos.service")
 
@@ -60,7 +61,7 @@ class Service:
         declared keep-latest depth (a config setting); ``answers`` serves the
         declared queryables.
         """
-        node = self._declared_inputs(handlers)
+        node = _declared_inputs(self.name, handlers)
         if set(answers or {}) != {p.name for p in node.answers}:
             raise ValueError(f"{self.name}: answers {sorted(answers or {})} but the topology declares "
                              f"{sorted(p.name for p in node.answers)}")
@@ -81,13 +82,7 @@ class Service:
         """:meth:`wire` for a service that serves several robots (``robots``; ``["*"]``: every
         robot): ``handlers[name](robot_id, msg)`` gets each robot's inputs, and ``keep`` applies per
         robot. Outputs go to each robot's own key through :meth:`output`."""
-        node = self._declared_inputs(handlers)
-        for robot in robots:
-            for port in node.inputs:
-                handler = handlers[port.name]
-                self.bus.subscribe_keyed(port.key(robot), port.message,
-                                         lambda key, msg, handler=handler: handler(keys.robot_of(key), msg),
-                                         keep=(keep or {}).get(port.name, port.keep))
+        subscribe_robots(self.bus, self.name, robots, handlers, keep=keep)
 
     def output(self, name: str, robot_id: str) -> Publisher[Any]:
         """The publisher of declared output ``name`` on ``robot_id``'s key (declared on first use)."""
@@ -96,16 +91,6 @@ class Service:
             port = TOPOLOGY[self.name].port("outputs", name)
             self.out[entry] = self.bus.publisher(port.key(robot_id), port.message)
         return self.out[entry]
-
-    def _declared_inputs(self, handlers: dict[str, Any]) -> Node:
-        """This service's node, once ``handlers`` cover its declared inputs exactly (a service cannot
-        listen to a key the graph does not show)."""
-        node = TOPOLOGY[self.name]
-        declared = {p.name for p in node.inputs}
-        if set(handlers) != declared:
-            raise ValueError(f"{self.name}: handlers for {sorted(handlers)} but the topology declares "
-                             f"inputs {sorted(declared)}")
-        return node
 
     def tick(self) -> None:
         """Periodic work, called ``tick_hz`` times a second on the service's thread."""
@@ -116,6 +101,32 @@ class Service:
 
     def stop(self) -> None:
         """Release what :meth:`start` acquired beyond the bus (files, devices)."""
+
+
+def subscribe_robots(bus: BusCore, name: str, robots: Sequence[str],
+                     handlers: dict[str, Callable[[str, Any], None]], *, keep: dict[str, int] | None = None
+                     ) -> None:
+    """:meth:`Service.wire_robots`'s subscriptions for service ``name`` on any bus, for a program
+    that wires one without a :class:`Service` around it (the gateway's app, which may be given a
+    bus of its own)."""
+    node = _declared_inputs(name, handlers)
+    for robot in robots:
+        for port in node.inputs:
+            handler = handlers[port.name]
+            bus.subscribe_keyed(port.key(robot), port.message,
+                                lambda key, msg, handler=handler: handler(keys.robot_of(key), msg),
+                                keep=(keep or {}).get(port.name, port.keep))
+
+
+def _declared_inputs(name: str, handlers: dict[str, Any]) -> Node:
+    """Service ``name``'s node, once ``handlers`` cover its declared inputs exactly (a service cannot
+    listen to a key the graph does not show)."""
+    node = TOPOLOGY[name]
+    declared = {p.name for p in node.inputs}
+    if set(handlers) != declared:
+        raise ValueError(f"{name}: handlers for {sorted(handlers)} but the topology declares "
+                         f"inputs {sorted(declared)}")
+    return node
 
 
 def load_config(cls: type[Service], path: str | Path | None, overrides: dict[str, Any] | None = None

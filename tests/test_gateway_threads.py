@@ -17,11 +17,11 @@ from typing import Any
 import httpx
 import pytest
 
-from ovamos.services.gateway import app as gateway_app
+from ovamos.services.gateway import service as gateway_service
 from ovamos.services.gateway.client import GatewayClient
 from ovamos.services.gateway.config import GatewayConfig
 from ovamos.services.gateway.store import TaskRecord, TaskStore
-from ovamos.services.gateway.tasks import GatewayBusy, TaskManager
+from ovamos.services.gateway.tasks import GatewayBusy
 from ovamos.shared import keys
 from ovamos.shared.fake_bus import FakeNetwork
 from ovamos.shared.messages import TaskEvent, TaskSpec, TaskStatus
@@ -40,9 +40,8 @@ class Wired:
         self.store = TaskStore(tmp_path / "tasks.sqlite3")
         self.notified: list[tuple[int, TaskRecord]] = []  # (thread, record)
         config = GatewayConfig(state_dir=tmp_path, robots=[ROBOT, OTHER], cancel_linger_s=5.0)
-        self.manager = TaskManager(self.bus, self.store, config,
-                                   lambda record: self.notified.append((threading.get_ident(), record)))
-        self.manager.start()
+        self.manager, _ = gateway_service.wire(self.bus, config, self.store,
+                                               lambda record: self.notified.append((threading.get_ident(), record)))
         planner = self.net.bus(ROBOT, "planner")
         self.specs: list[TaskSpec] = []
         planner.subscribe(keys.task_current(ROBOT), TaskSpec, self.specs.append)
@@ -168,7 +167,7 @@ def test_a_slow_commit_holds_up_no_request_that_does_not_need_it(
         stores.append(SlowCommits(path))
         return stores[-1]
 
-    monkeypatch.setattr(gateway_app, "TaskStore", make_store)
+    monkeypatch.setattr(gateway_service, "TaskStore", make_store)
     running = RunningGateway(inproc_router, gateway_config(tmp_path, robots=[ROBOT, OTHER],
                                                            sse_heartbeat_s=0.1))
     try:

@@ -12,7 +12,7 @@ from collections.abc import Iterator
 import pytest
 from fastapi.testclient import TestClient
 
-from ovamos.services.gateway.app import create_app
+from ovamos.services.gateway.service import create_app
 from ovamos.shared.bus import Bus
 from ovamos.shared.zconfig import build_config
 from tests.gateway_mocks import ROBOT, gateway_config

@@ -1,30 +1,15 @@
-"""The FastAPI application: ``create_app(config, bus_source)``.
+"""The HTTP surface of the gateway: ``http_app(config, lifespan)``, its routes, guards and errors.
 
-Nothing touches Zenoh at import: the bus is acquired in the lifespan (from
-``bus_source``, in a worker thread since opening may wait for a router), so
-the module can be imported by a process that forks later, and one process
-can build several apps (tests restart the gateway on the same state file).
-
-Threads (see :mod:`ovamos.services.gateway.tasks` for the one that owns the tasks):
-- the asyncio event loop (uvicorn's thread) runs the middleware, the error
-  handlers, the event streams and the re-publish timer; it never touches the
-  store or Zenoh and takes no lock that anything holds across I/O (the
-  counters' lock only), so a slow commit cannot stall HTTP or the streams;
-- FastAPI's worker threads run the routes that read the store or query Zenoh
-  (plain ``def``), and wait there for the owner thread on submit / cancel;
-- the bus's inbox taker owns the tasks: planner events, submits, cancels and
-  re-publish rounds run there, and it notifies the streams through
-  ``loop.call_soon_threadsafe``.
-The bus given by ``bus_source`` must have its inbox taken (``ovamos run
-gateway``'s main loop, or a bus opened with ``dispatch="thread"``).
+The lifespan (:func:`ovamos.services.gateway.service.create_app`'s) puts the
+:class:`~ovamos.services.gateway.routes.Gateway` the routes use in ``app.state.gateway``;
+this module adds what every request goes through: the bearer token, the Host guard, the
+body limit, the security headers, and one readable error shape for every 4xx.
 """
 
 from __future__ import annotations
 
-import asyncio
-import logging
-from collections.abc import AsyncIterator, Callable
-from contextlib import AbstractContextManager, ExitStack, asynccontextmanager
+from collections.abc import Callable
+from contextlib import AbstractAsyncContextManager
 
 from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -36,17 +21,10 @@ from ovamos.services.gateway.auth import DOCS_REALM, AuthFailures, bearer_guard
 from ovamos.services.gateway.config import GatewayConfig
 from ovamos.services.gateway.page import mount_page
 from ovamos.services.gateway.robot_routes import router as robot_router
-from ovamos.services.gateway.robots import RobotMonitor
-from ovamos.services.gateway.routes import Gateway, router
+from ovamos.services.gateway.routes import router
 from ovamos.services.gateway.security import HostGuard, SecurityHeaders, mount_docs
-from ovamos.services.gateway.sse import TaskWatchers
-from ovamos.services.gateway.store import TaskRecord, TaskStore
-from ovamos.services.gateway.tasks import TaskManager
-from ovamos.shared.bus import Bus
 
-log = logging.getLogger("ovamos.gateway")
-
-BusSource = Callable[[], AbstractContextManager[Bus]]
+Lifespan = Callable[[FastAPI], AbstractAsyncContextManager[None]]
 
 DESCRIPTION = """Submit multi-object search tasks to a robot and follow them.
 
@@ -60,38 +38,8 @@ must come from the gateway's own page (else 403).
 """
 
 
-def create_app(config: GatewayConfig, bus_source: BusSource) -> FastAPI:
-    """An app serving ``config``; ``bus_source()`` gives the Zenoh bus as a context manager."""
-
-    @asynccontextmanager
-    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        loop = asyncio.get_running_loop()
-        with ExitStack() as stack:
-            store = TaskStore(config.db_path)
-            stack.callback(store.close)
-            bus = stack.enter_context(await asyncio.to_thread(bus_source))  # closed before the store
-            watchers = TaskWatchers(loop)
-            gateway: Gateway | None = None
-
-            def notify(record: TaskRecord) -> None:
-                if gateway is not None and watchers.watched(record.id):
-                    watchers.publish(gateway.view(record))
-
-            manager = TaskManager(bus, store, config, notify)
-            stack.callback(manager.close)  # first: requests still waiting get a 503
-            monitor = RobotMonitor(bus, config)
-            gateway = Gateway(config, bus, store, manager, watchers, monitor)
-            await asyncio.to_thread(manager.start)
-            await asyncio.to_thread(monitor.start)
-            app.state.gateway = gateway
-            republisher = asyncio.create_task(_republish(manager, config.republish_s))
-            log.info("gateway serving robots %s, tasks in %s", ", ".join(config.robots), config.db_path)
-            try:
-                yield
-            finally:
-                republisher.cancel()
-                watchers.close()
-
+def http_app(config: GatewayConfig, lifespan: Lifespan) -> FastAPI:
+    """The routes serving ``config``, guarded; ``lifespan`` sets ``app.state.gateway`` up."""
     app = FastAPI(title="OVAMOS gateway", version="1", description=DESCRIPTION, lifespan=lifespan,
                   docs_url=None, redoc_url=None, openapi_url=None)  # mount_docs serves them
     failures = AuthFailures(config.auth_failures_max, config.auth_failure_window_s)
@@ -143,14 +91,6 @@ class BodyLimit:
 
     def _message(self) -> str:
         return f"request body too large or of unknown length: at most {self.limit} bytes"
-
-
-async def _republish(manager: TaskManager, period_s: float) -> None:
-    """Every ``period_s`` (the loop's monotonic clock), queue a re-publish round for the owner
-    thread; queueing never blocks, and a failed round is logged and counted there."""
-    while True:
-        await asyncio.sleep(period_s)
-        manager.request_republish()
 
 
 def _where(loc: tuple[object, ...]) -> str:

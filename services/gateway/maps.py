@@ -2,8 +2,8 @@
 raster plus vector layers the operator's page draws (:func:`map_view`).
 
 The gateway keeps no map of its own: it queries ``map/snapshot`` when a
-picture is requested, so it never holds megabytes per robot nor shows a map
-staler than the mapping service's. The robot's path (the positions its
+picture is requested (:func:`ovamos.services.gateway.service.fetch_snapshot`), so it never
+holds megabytes per robot nor shows a map staler than the mapping service's. The robot's path (the positions its
 latest task reported) is drawn over the map; the PNG carries a legend and, given the task, draws
 as its detections only the objects of its targets (:func:`map_png`).
 """
@@ -21,26 +21,12 @@ from ovamos.services.gateway.store import TaskRecord
 from ovamos.services.mapping.render import crop_box, map_raster, render_map, value_image
 from ovamos.services.planner.candidates import find_candidates
 from ovamos.services.planner.decide import DecisionConfig, decision_values, explored_window
-from ovamos.shared.bus import Bus
 from ovamos.shared.messages import Goal, MapSnapshot
 from ovamos.shared.robot import ROBOT
-from ovamos.shared.topology import TOPOLOGY
-
-MAP_SNAPSHOT = TOPOLOGY["gateway"].port("queries", "map_snapshot")
 
 
 class NoMap(LookupError):
     """No mapping service answered for the robot."""
-
-
-def fetch_snapshot(bus: Bus, robot_id: str, timeout_s: float) -> MapSnapshot:
-    """The first valid snapshot a mapping service answers; NoMap when none does (a malformed
-    answer is counted by the bus and treated as none). Blocks: for HTTP worker threads."""
-    snapshot = bus.get(MAP_SNAPSHOT.key(robot_id), MapSnapshot, timeout_s)
-    if snapshot is None:
-        raise NoMap(f"no map for robot {robot_id!r}: no mapping service answered with a valid map "
-                    f"within {timeout_s} s")
-    return snapshot
 
 
 def _png(image: np.ndarray) -> bytes:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, HTTPException, status
 
-from ovamos.services.gateway.maps import NoMap, fetch_snapshot, map_view
+from ovamos.services.gateway.maps import NoMap, map_view
 from ovamos.services.gateway.models import EStopClear, EStopRequest, MapView, Problem, RobotState
 from ovamos.services.gateway.robots import EStopUnconfirmed
 from ovamos.services.gateway.routes import GW, Gateway, robot_pose
@@ -75,7 +75,7 @@ def robot_map_view(robot_id: str, gw: GW, layer: str | None = None) -> MapView:
     path and found objects, the robot's pose, the planner's goal), for the operator's page."""
     _known(gw, robot_id)
     try:
-        snapshot = fetch_snapshot(gw.bus, robot_id, gw.config.map_timeout_s)
+        snapshot = gw.fetch_map(robot_id)
     except NoMap as exc:
         raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc)) from None
     latest = gw.store.list(robot_id, limit=1)

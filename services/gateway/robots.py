@@ -3,6 +3,9 @@
 The operator's page shows the driver state next to the E-STOP button and the robot's pose on
 the map whether or not a task runs, so the gateway follows ``driver/state`` and ``odom`` of
 every robot it serves (:data:`ovamos.shared.topology.TOPOLOGY`) and keeps the latest of each.
+No Zenoh and no bus here: the gateway's adapter (:mod:`ovamos.services.gateway.service`)
+feeds :meth:`RobotMonitor.on_driver_state` and :meth:`RobotMonitor.on_odom`, and hands the
+monitor what it sends e-stop requests with.
 
 The e-stop is a safety function, so a request is not answered "sent" but "confirmed": the
 gateway publishes on ``driver/estop`` (a clear on ``driver/estop/clear``) and re-sends every ``estop_resend_s`` (a single Zenoh put
@@ -10,31 +13,29 @@ can be lost) until a driver state received after the first send shows the latch 
 for at most ``estop_confirm_s``. A driver that never confirms is an error the person must
 see (the robot may still be moving), never a silent success.
 
-Threads: the subscriptions' handlers run on the bus's inbox taker (the gateway's owner
-thread); HTTP worker threads read, and wait for a confirmation, under one condition
-variable that is held for no I/O.
+Threads: the ``on_*`` inputs run on the bus's inbox taker (the gateway's owner thread); HTTP
+worker threads read, and wait for a confirmation, under one condition variable that is held
+for no I/O.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
 from ovamos.services.gateway.config import GatewayConfig
-from ovamos.shared.bus import BusCore, Publisher
 from ovamos.shared.messages import DriverState, EStop, Odometry
-from ovamos.shared.topology import TOPOLOGY
 
-PORTS = TOPOLOGY["gateway"]
-DRIVER_STATE = PORTS.port("inputs", "driver_state")
-ODOM = PORTS.port("inputs", "odom")
-ESTOP = PORTS.port("outputs", "estop")
-ESTOP_CLEAR = PORTS.port("outputs", "estop_clear")
+__all__ = ["RobotMonitor", "Latest", "EStopUnconfirmed"]
+
 ESTOP_SOURCE = "gateway"
 
 M = TypeVar("M")
+Send = Callable[[str, EStop], None]
+"""Send an e-stop request to a robot (``send(robot_id, request)``)."""
 
 
 @dataclass(frozen=True)
@@ -57,25 +58,20 @@ class EStopUnconfirmed(RuntimeError):
 class RobotMonitor:
     """The latest driver state and odometry of each robot, and its e-stop requests."""
 
-    def __init__(self, bus: BusCore, config: GatewayConfig) -> None:
-        self.bus, self.config = bus, config
+    def __init__(self, config: GatewayConfig, *, estop: Send, estop_clear: Send) -> None:
+        """``estop`` sends on the robot's ``driver/estop``, ``estop_clear`` on ``driver/estop/clear``."""
+        self.config = config
+        self._send_estop, self._send_clear = estop, estop_clear
         self._changed = threading.Condition()
         self._driver: dict[str, Latest[DriverState]] = {}
         self._odom: dict[str, Latest[Odometry]] = {}
-        self._estop: dict[str, Publisher[EStop]] = {}
-        self._clear: dict[str, Publisher[EStop]] = {}
 
-    def start(self) -> None:
-        """Declare the e-stop publishers and follow each robot's driver (on the owner thread)."""
-        for robot in self.config.robots:
-            self._estop[robot] = self.bus.publisher(ESTOP.key(robot), ESTOP.message)
-            self._clear[robot] = self.bus.publisher(ESTOP_CLEAR.key(robot), ESTOP_CLEAR.message)
-            self.bus.subscribe(DRIVER_STATE.key(robot), DRIVER_STATE.message,
-                               lambda state, robot=robot: self._keep(self._driver, robot, state),
-                               keep=DRIVER_STATE.keep)
-            self.bus.subscribe(ODOM.key(robot), ODOM.message,
-                               lambda odom, robot=robot: self._keep(self._odom, robot, odom),
-                               keep=ODOM.keep)
+    # -- inputs (the owner thread) ----------------------------------------------------------------
+    def on_driver_state(self, robot: str, state: DriverState) -> None:
+        self._keep(self._driver, robot, state)
+
+    def on_odom(self, robot: str, odom: Odometry) -> None:
+        self._keep(self._odom, robot, odom)
 
     def _keep(self, table: dict[str, Latest[M]], robot: str, message: M) -> None:
         with self._changed:
@@ -95,23 +91,23 @@ class RobotMonitor:
     def engage_estop(self, robot: str, reason: str) -> DriverState:
         """Latch the robot's e-stop; the driver state that confirms it. EStopUnconfirmed when the
         driver did not report it latched within ``estop_confirm_s``."""
-        return self._estop_until(self._estop[robot], robot,
+        return self._estop_until(self._send_estop, robot,
                                  EStop(engage=True, source=ESTOP_SOURCE, reason=reason, stamp=time.time()))
 
     def clear_estop(self, robot: str) -> DriverState:
         """Release the robot's e-stop latch; the driver state that confirms it (EStopUnconfirmed
         as for :meth:`engage_estop`)."""
-        return self._estop_until(self._clear[robot], robot,
+        return self._estop_until(self._send_clear, robot,
                                  EStop(engage=False, source=ESTOP_SOURCE, stamp=time.time()))
 
-    def _estop_until(self, publisher: Publisher[EStop], robot: str, request: EStop) -> DriverState:
+    def _estop_until(self, send: Send, robot: str, request: EStop) -> DriverState:
         deadline = time.monotonic() + self.config.estop_confirm_s
         with self._changed:
             first = self._driver.get(robot)
         after = 0 if first is None else first.count  # only a state received after the first send
         sends = 0
         while True:
-            publisher.put(request.model_copy(update={"stamp": time.time()}))
+            send(robot, request.model_copy(update={"stamp": time.time()}))
             sends += 1
             resend_at = min(time.monotonic() + self.config.estop_resend_s, deadline)
             with self._changed:

@@ -1,7 +1,8 @@
 """The ``/v1`` HTTP endpoints.
 
-Handlers that touch Zenoh or SQLite are plain ``def``: FastAPI runs them on
-worker threads, so a slow query never blocks the event loop; the one ``async``
+Handlers that query Zenoh (through the callables the adapter put in :class:`Gateway`) or
+SQLite are plain ``def``: FastAPI runs them on worker threads, so a slow query never blocks
+the event loop; the one ``async``
 handler (the event stream) reads through ``asyncio.to_thread``. Reads go
 straight to the store (they never wait for a commit); submit and cancel are
 run by the TaskManager's owner thread while the worker thread waits (503 when
@@ -10,7 +11,7 @@ it cannot take them in time, with nothing changed)."""
 from __future__ import annotations
 
 import asyncio
-from collections import defaultdict
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Annotated
 
@@ -18,7 +19,7 @@ from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response,
 from fastapi.responses import StreamingResponse
 
 from ovamos.services.gateway.config import GatewayConfig
-from ovamos.services.gateway.maps import NoMap, fetch_snapshot, map_png
+from ovamos.services.gateway.maps import NoMap, map_png
 from ovamos.services.gateway.models import (
     Health,
     Pose,
@@ -36,22 +37,24 @@ from ovamos.services.gateway.robots import RobotMonitor
 from ovamos.services.gateway.sse import TaskWatchers, task_stream
 from ovamos.services.gateway.store import TaskRecord, TaskStore
 from ovamos.services.gateway.tasks import GatewayBusy, TaskConflict, TaskManager
-from ovamos.shared import keys
-from ovamos.shared.bus import Bus
-from ovamos.shared.messages import TaskStatus
-from ovamos.shared.status import live_services
+from ovamos.shared.messages import MapSnapshot, TaskStatus
 
 
 @dataclass
 class Gateway:
-    """What the handlers need, created in the app's lifespan."""
+    """What the handlers need, created in the app's lifespan.
+
+    ``fetch_map(robot_id)``: the robot's current map from its mapping service, NoMap when none
+    answers; ``alive()``: the service instances alive on each robot. Both ask Zenoh and block
+    (worker threads only)."""
 
     config: GatewayConfig
-    bus: Bus
     store: TaskStore
     manager: TaskManager
     watchers: TaskWatchers
     monitor: RobotMonitor
+    fetch_map: Callable[[str], MapSnapshot]
+    alive: Callable[[], Mapping[str, list[ServiceEntry]]]
 
     def view(self, record: TaskRecord) -> TaskView:
         return task_view(record, self.store.queue_position(record))
@@ -140,10 +143,7 @@ async def task_events(task_id: str, gw: GW) -> StreamingResponse:
 @router.get("/health", response_model=Health)
 def health(gw: GW) -> Health:
     """Services alive per robot (Zenoh liveliness), each robot's queue, event counters."""
-    alive: dict[str, list[ServiceEntry]] = defaultdict(list)
-    for s in live_services(gw.bus.session, keys.ANY, gw.config.health_timeout_s):
-        alive[s.robot_id].append(ServiceEntry(service=s.service, instance=s.instance,
-                                              pid=s.stats.pid if s.stats else None))
+    alive = gw.alive()
     robots = {}
     for robot in gw.config.robots:
         active = gw.store.active(robot)
@@ -168,7 +168,7 @@ def robot_map(robot_id: str, gw: GW, layer: str | None = None) -> Response:
     if robot_id not in gw.config.robots:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"unknown robot {robot_id!r}")
     try:
-        snapshot = fetch_snapshot(gw.bus, robot_id, gw.config.map_timeout_s)
+        snapshot = gw.fetch_map(robot_id)
     except NoMap as exc:
         raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, str(exc)) from None
     latest = gw.store.list(robot_id, limit=1)

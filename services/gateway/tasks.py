@@ -1,4 +1,8 @@
-"""The task life cycle on the gateway's side, and its Zenoh wiring (``task/current``, ``task/events``).
+"""The task life cycle on the gateway's side: requests and planner events in, TaskSpecs out.
+
+No Zenoh and no bus here: the gateway's adapter (:mod:`ovamos.services.gateway.service`)
+feeds planner events to :meth:`TaskManager.on_event` and hands the manager what it sends
+with (``publish``, one robot's ``task/current``) and the inbox whose taker owns it.
 
 Per robot: tasks wait in a queue (``queued``), one at a time is ``searching``,
 and it ends ``done`` / ``failed`` (reported by the planner) or ``cancelled``
@@ -32,6 +36,7 @@ stamps what is stored or shown.
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections import Counter
@@ -41,16 +46,16 @@ from typing import Any, TypeVar
 
 from ovamos.services.gateway.config import GatewayConfig
 from ovamos.services.gateway.store import TaskRecord, TaskStore
-from ovamos.shared.bus import BusCore, Publisher
+from ovamos.shared.inbox import Inbox
 from ovamos.shared.messages import FINAL, Goal, TaskEvent, TaskSpec, TaskStatus
-from ovamos.shared.topology import TOPOLOGY
+
+__all__ = ["TaskManager", "TaskConflict", "GatewayBusy"]
 
 Notify = Callable[[TaskRecord], None]
+Publish = Callable[[str, TaskSpec], None]
+"""Send a robot's TaskSpec (``publish(robot_id, spec)``) on its ``task/current``."""
 T = TypeVar("T")
 
-PORTS = TOPOLOGY["gateway"]
-TASK_CURRENT = PORTS.port("outputs", "task_current")
-TASK_EVENTS = PORTS.port("inputs", "task_events")
 REPUBLISH_CHANNEL = "gateway:republish"  # an inbox channel, not a key: rounds not yet run collapse
 OWNER_WAIT_S = 30.0  # an HTTP request waits this long for the owner thread before a 503
 
@@ -69,13 +74,18 @@ class TaskManager:
 
     wait_s = OWNER_WAIT_S
 
-    def __init__(self, bus: BusCore, store: TaskStore, config: GatewayConfig,
-                 notify: Notify = lambda _record: None) -> None:
-        self.bus, self.store, self.config = bus, store, config
+    def __init__(self, store: TaskStore, config: GatewayConfig, *, inbox: Inbox, publish: Publish,
+                 notify: Notify, log: logging.Logger, record_failure: Callable[[str], None],
+                 malformed_events: Callable[[], int]) -> None:
+        """``inbox``: its taker is the owner thread. ``record_failure(what)`` logs and counts the
+        exception being handled; ``malformed_events()`` counts the planner events the bus could not
+        decode (both the bus's, which keeps those counters)."""
+        self.store, self.config = store, config
+        self._inbox, self._publish, self._log = inbox, publish, log
+        self._record_failure, self._malformed_events = record_failure, malformed_events
         self._notify = notify  # called on the owner thread after each committed change
         self._counters_lock = threading.Lock()
         self._counters: Counter[str] = Counter()
-        self._publishers: dict[str, Publisher[TaskSpec]] = {}
         # robot -> (cancelled spec, re-send until on time.monotonic())
         self._cancelled: dict[str, tuple[TaskSpec, float]] = {}
         self._waiting_lock = threading.Lock()
@@ -87,16 +97,9 @@ class TaskManager:
         self._live: dict[str, tuple[str, Goal | None]] = {}
 
     def start(self) -> None:
-        """Declare the gateway's ports (:data:`ovamos.shared.topology.TOPOLOGY`) for every robot it
-        serves, and queue the resume (queued tasks start where no task is active) ahead of
-        every event and request."""
-        for robot in self.config.robots:
-            self._publishers[robot] = self.bus.publisher(TASK_CURRENT.key(robot), TASK_CURRENT.message)
-        self.bus.inbox.put(self._guarded(self._resume, "resume"), None)
-        for robot in self.config.robots:
-            self.bus.subscribe(TASK_EVENTS.key(robot), TASK_EVENTS.message,
-                               lambda event, robot=robot: self.on_event(robot, event),
-                               keep=TASK_EVENTS.keep)
+        """Queue the resume (queued tasks start where no task is active); called before planner
+        events are subscribed to, so it runs ahead of every event and request."""
+        self._inbox.put(self._guarded(self._resume, "resume"), None)
 
     def close(self) -> None:
         """Refuse further requests and release those still waiting for the owner thread (they
@@ -124,8 +127,8 @@ class TaskManager:
     def request_republish(self) -> None:
         """Queue a re-publish round (any thread, never blocks; rounds the owner has not reached
         yet collapse into one)."""
-        self.bus.inbox.put(self._guarded(self.republish, "republish"), None,
-                           channel=REPUBLISH_CHANNEL, keep=1)
+        self._inbox.put(self._guarded(self.republish, "republish"), None,
+                        channel=REPUBLISH_CHANNEL, keep=1)
 
     def _on_owner(self, fn: Callable[..., T], *args: Any) -> T:
         """``fn(*args)`` run on the owner thread; its result or exception, once it ran.
@@ -133,7 +136,7 @@ class TaskManager:
         GatewayBusy when the owner did not take it within ``wait_s`` or the gateway
         stops first; then it never runs, so the caller may safely say nothing changed.
         """
-        if threading.get_ident() == self.bus.inbox.owner:
+        if threading.get_ident() == self._inbox.owner:
             return fn(*args)  # already on the owner: waiting for ourselves would never end
         future: Future[T] = Future()
 
@@ -146,11 +149,11 @@ class TaskManager:
                 future.set_exception(exc)
 
         with self._waiting_lock:
-            if self._closed or self.bus.inbox.closed:
+            if self._closed or self._inbox.closed:
                 raise GatewayBusy("the gateway is shutting down")
             self._waiting.add(future)
         try:
-            self.bus.inbox.put(run, None, on_drop=future.cancel)
+            self._inbox.put(run, None, on_drop=future.cancel)
             try:
                 return future.result(self.wait_s)
             except TimeoutError:
@@ -181,7 +184,7 @@ class TaskManager:
         if record.status is TaskStatus.SEARCHING:
             spec = _spec(record, cancelled=True)
             self._cancelled[record.robot_id] = (spec, time.monotonic() + self.config.cancel_linger_s)
-            self._publishers[record.robot_id].put(spec)
+            self._publish(record.robot_id, spec)
         self._changed(task_id)
         if record.status is TaskStatus.SEARCHING:
             self._start_next(record.robot_id)
@@ -189,7 +192,7 @@ class TaskManager:
             self._notify_queue(record.robot_id)
         return self._get(task_id)
 
-    # -- planner events (owner thread, from the bus) --------------------------------------------
+    # -- planner events (owner thread) ----------------------------------------------------------
     def on_event(self, robot_id: str, event: TaskEvent) -> None:
         """Apply a planner report to the robot's active task (others are counted and ignored)."""
         record = self.store.get(event.task_id)
@@ -224,16 +227,16 @@ class TaskManager:
     def republish(self) -> None:
         """Re-send each robot's current TaskSpec (and a recently cancelled one)."""
         now = time.monotonic()
-        for robot, publisher in self._publishers.items():
+        for robot in self.config.robots:
             if robot in self._cancelled:
                 spec, until = self._cancelled[robot]
                 if now <= until:
-                    publisher.put(spec.model_copy(update={"stamp": time.time()}))
+                    self._publish(robot, spec.model_copy(update={"stamp": time.time()}))
                 else:
                     del self._cancelled[robot]
             active = self.store.active(robot)
             if active is not None:
-                publisher.put(_spec(active))
+                self._publish(robot, _spec(active))
 
     # -- counters (any thread, the event loop included: the lock is held for no I/O) -----------
     def count_rejected_request(self, status_code: int) -> None:
@@ -250,19 +253,17 @@ class TaskManager:
             out = {name: self._counters[name] for name in
                    ("events_applied", "events_unknown_task", "events_finished_task", "events_not_active")}
             out.update(sorted((k, n) for k, n in self._counters.items() if k.startswith("http_")))
-        bus_counters = self.bus.counters.snapshot()
-        event_keys = {TASK_EVENTS.key(r) for r in self.config.robots}
-        out["events_malformed"] = sum(c.malformed for k, c in bus_counters.items() if k in event_keys)
+        out["events_malformed"] = self._malformed_events()
         return out
 
     # -- internals (owner thread) --------------------------------------------------------------
     def _guarded(self, fn: Callable[[], None], what: str) -> Callable[[object], None]:
-        """``fn`` as an inbox handler whose failure is logged and counted by the bus."""
+        """``fn`` as an inbox handler whose failure is logged and counted (``record_failure``)."""
         def run(_: object) -> None:
             try:
                 fn()
             except Exception:
-                self.bus.record_failure(what)
+                self._record_failure(what)
         return run
 
     def _start_next(self, robot_id: str) -> None:
@@ -270,8 +271,8 @@ class TaskManager:
         if record is not None:
             self.store.start(record.id)
             record = self._get(record.id)
-            self._publishers[robot_id].put(_spec(record))
-            self.bus.log.info("task %s started on %s: %s", record.id, robot_id, ", ".join(record.targets))
+            self._publish(robot_id, _spec(record))
+            self._log.info("task %s started on %s: %s", record.id, robot_id, ", ".join(record.targets))
             self._notify(record)
         self._notify_queue(robot_id)
 
