@@ -17,13 +17,15 @@ from types import SimpleNamespace
 import pytest
 
 import ovamos.services.sim.kinematic
-from ovamos.services.mapping.service import MappingService, MappingServiceConfig
+from ovamos.services.mapping.config import MappingServiceConfig
+from ovamos.services.mapping.service import MappingService
 from ovamos.services.perception.config import PerceptionServiceConfig
 from ovamos.services.perception.service import PerceptionService
 from ovamos.services.perception.sim_backend import SimBackend
 from ovamos.services.planner.agent import AgentConfig
 from ovamos.services.planner.service import PlannerService, PlannerServiceConfig
-from ovamos.services.sim.service import SimRobotService, SimServiceConfig
+from ovamos.services.sim.config import SimServiceConfig
+from ovamos.services.sim.service import SimRobotService
 from ovamos.shared import keys
 from ovamos.shared.fake_bus import FakeNetwork, key_matches
 from ovamos.shared.messages import PlanCommand, TaskEvent, TaskSpec, TaskStatus

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from ovamos.services.sim.service import SimRobotService, SimServiceConfig
+from ovamos.services.sim.config import SimServiceConfig
+from ovamos.services.sim.service import SimRobotService
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
 from ovamos.shared.messages import DriverMode, PlanCommand, RgbdFrame

@@ -35,44 +35,17 @@ service's main thread (``start`` and ``tick``).
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import Any
 
-from pydantic import Field, model_validator
-
-from ovamos.services.base_driver.config import DriverConfig, PublishingConfig
-from ovamos.services.base_driver.odrive.config import SimAxisConfig
 from ovamos.services.base_driver.service import Base, BaseDriverService
+from ovamos.services.sim.config import SimServiceConfig
 from ovamos.services.sim.kinematic import KinematicBase
 from ovamos.services.sim.render import SceneRenderer
-from ovamos.services.sim.robot import MotionConfig, SimRobot
-from ovamos.services.sim.wheels import Motion, SerialSimRobot, WheeledSimRobot, base_motion, wheeled
+from ovamos.services.sim.robot import SimRobot
+from ovamos.services.sim.wheels import SerialSimRobot, WheeledSimRobot, base_motion, wheeled
 from ovamos.shared.bus import BusCore
 from ovamos.shared.messages import RgbdFrame
 from ovamos.shared.motion import Pose
-
-
-class SimServiceConfig(PublishingConfig):
-    scene_file: Path | None = Field(default=None, description="else the episode's scene")
-    episode_seed: int = 0
-    episode_index: int = Field(default=0, ge=0)
-    start: Pose | None = Field(default=None, description="required with scene_file; else the episode's")
-    motion: Motion = "kinematic"
-    robot: MotionConfig = Field(default_factory=MotionConfig, description="primitive sizes, wheel geometry")
-    driver: DriverConfig = Field(default_factory=DriverConfig,
-                                 description="odrive mode; geometry and primitive sizes come from robot")
-    odrive: SimAxisConfig = Field(default_factory=SimAxisConfig)
-    lock_step: bool = True
-    frame_hz: float = Field(default=2.0, gt=0, description="free-running frame rate")
-    republish_s: float = Field(default=1.0, gt=0, description="lock-step: re-publish the latest frame")
-    width: int = Field(default=640, ge=16)
-    height: int = Field(default=480, ge=16)
-
-    @model_validator(mode="after")
-    def _start_with_scene(self) -> SimServiceConfig:
-        if self.scene_file is not None and self.start is None:
-            raise ValueError("a scene_file needs a start pose (start = {x = ..., y = ..., yaw = ...})")
-        return self
 
 
 class SimRobotService(BaseDriverService):
