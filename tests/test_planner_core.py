@@ -43,6 +43,16 @@ def test_cells_further_apart_than_eps_are_separate_candidates() -> None:
     assert sorted(cands.values.tolist()) == pytest.approx([0.6, 0.7])
 
 
+def test_min_samples_above_one_cluster_with_sklearns_dbscan_like_the_grid_path() -> None:
+    vm = np.zeros(GRID.shape, np.float32)
+    blob(vm, 1.0, 1.0, 0.8)
+    blob(vm, 3.5, 4.0, 0.4)
+    grid_path = find_candidates(vm, GRID, CandidateConfig())
+    sklearn_path = find_candidates(vm, GRID, CandidateConfig(dbscan_min_samples=2))
+    assert sklearn_path.points == pytest.approx(grid_path.points)
+    assert sklearn_path.belief == pytest.approx(grid_path.belief)
+
+
 def test_no_value_no_candidates() -> None:
     cands = find_candidates(np.zeros(GRID.shape, np.float32), GRID, CandidateConfig())
     assert cands.points.shape == (0, 2) and cands.belief.size == 0

@@ -15,7 +15,6 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from sklearn.cluster import DBSCAN
 
 from ovamos.shared.grid import GridGeometry
 
@@ -74,6 +73,8 @@ def find_candidates(value_map: np.ndarray, grid: GridGeometry, config: Candidate
     if config.dbscan_min_samples == 1:
         labels = grid_clusters(rows, cols, config.dbscan_eps_m / grid.resolution)
     else:
+        from sklearn.cluster import DBSCAN  # not at the top: ~1 s of every planner start, for a non-default path
+
         labels = DBSCAN(eps=config.dbscan_eps_m, min_samples=config.dbscan_min_samples).fit_predict(
             np.stack([xs, ys], axis=1))
     values = value_map[rows, cols]
