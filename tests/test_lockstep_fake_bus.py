@@ -23,7 +23,8 @@ from ovamos.services.perception.config import PerceptionServiceConfig
 from ovamos.services.perception.service import PerceptionService
 from ovamos.services.perception.sim_backend import SimBackend
 from ovamos.services.planner.agent import AgentConfig
-from ovamos.services.planner.service import PlannerService, PlannerServiceConfig
+from ovamos.services.planner.config import PlannerServiceConfig
+from ovamos.services.planner.service import PlannerService
 from ovamos.services.sim.config import SimServiceConfig
 from ovamos.services.sim.service import SimRobotService
 from ovamos.shared import keys

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from ovamos.services.perception.config import PerceptionServiceConfig, SimBackendConfig
-from ovamos.services.planner.service import PlannerService, PlannerServiceConfig
+from ovamos.services.planner.config import PlannerServiceConfig
+from ovamos.services.planner.service import PlannerService
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
 from ovamos.shared.messages import (

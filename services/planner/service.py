@@ -30,12 +30,12 @@ import math
 import time
 from typing import Any
 
-from pydantic import BaseModel, Field, ValidationError
+from pydantic import BaseModel, ValidationError
 
+from ovamos.services.planner.config import PlannerServiceConfig
 from ovamos.services.planner.executive import DRIVER_OFF, Executive, ExecutiveConfig
 from ovamos.shared import keys
 from ovamos.shared.bus import BusCore
-from ovamos.shared.config import ServiceConfig
 from ovamos.shared.messages import (
     DecisionTrace,
     DriverState,
@@ -58,17 +58,6 @@ class _UnknownTargets(BaseModel):
 
     targets: tuple[str, ...]
     reason: str
-
-
-class PlannerServiceConfig(ServiceConfig, ExecutiveConfig):
-    tick_hz: float = Field(default=20.0, gt=0, description="how often the protocol is polled")
-    query_timeout_s: float = Field(default=0.5, gt=0, description="wait this long for a map on request")
-    off_grace_s: float = Field(
-        default=0.5, gt=0, description="after a driver's token goes, wait this long for its word that it "
-                                       "shut down before saying the robot is unreachable")
-    perception_check_s: float = Field(
-        default=2.0, gt=0, description="while the map has no values of a target, ask perception this "
-                                       "often whether it can see that target at all")
 
 
 class PlannerService(Service):
