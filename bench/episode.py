@@ -25,15 +25,15 @@ import math
 import time
 from collections.abc import Callable
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from ovamos.bench.funnel import FunnelRecorder, StopRecord, TargetFunnel
-from ovamos.bench.policies import base_policy
+from ovamos.bench.policies import planner_policy
 from ovamos.services.base_driver.config import DriverConfig
 from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.state import MapState
 from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
-from ovamos.services.planner.decide import Policy
+from ovamos.services.planner.policies import OVAMOS
 from ovamos.services.planner.task import SearchTask
 from ovamos.services.sim.episodes import EpisodeSpec
 from ovamos.services.sim.evaluator import GroundTruth, spl
@@ -54,9 +54,8 @@ class EpisodeConfig(BaseModel):
     """Everything an episode's outcome depends on besides the episode itself."""
 
     model_config = ConfigDict(extra="forbid")
-    policy: Policy = Policy.OVAMOS
-    name: str = Field(default="", description="the benchmark's name of the policy, when an ablation's "
-                                               "(bench/policies.py); results carry it")
+    policy: str = Field(default=OVAMOS.name, description="the benchmark's name of the policy: a planner "
+                        "policy or an ablation of ovamos-plus (bench/policies.py); results carry it")
     width: int = Field(default=320, ge=16, description="camera image width (pixels)")
     height: int = Field(default=240, ge=16)
     agent: AgentConfig = Field(default_factory=AgentConfig)
@@ -65,6 +64,12 @@ class EpisodeConfig(BaseModel):
     motion: MotionConfig = Field(default_factory=MotionConfig)
     base: Motion = Field(default="kinematic", description="kinematic: a primitive lands exactly; odrive, "
                          "kobuki, opencr: the base controller on that simulated base, in simulated time")
+
+    @field_validator("policy")
+    @classmethod
+    def _known_policy(cls, name: str) -> str:
+        planner_policy(name)
+        return name
 
 
 class EpisodeResult(BaseModel):
@@ -99,17 +104,15 @@ def scene_mapping(scene: Scene, base: MappingConfig | None = None) -> MappingCon
                                    "grid_cells": int(math.ceil(side / base.resolution))})
 
 
-def episode_config(policy: Policy | str, base: EpisodeConfig | None = None) -> EpisodeConfig:
-    """``base`` with the policy set where the agent reads it; a benchmark ablation's name
-    (:data:`ovamos.bench.policies.PLUS_ABLATIONS`) sets its planner policy and switches."""
+def episode_config(policy: str, base: EpisodeConfig | None = None) -> EpisodeConfig:
+    """``base`` with the benchmark's policy ``policy`` set where the agent reads it: a planner
+    policy, or an ablation (:data:`ovamos.bench.policies.ABLATIONS`): its planner policy and switches."""
     base = base or EpisodeConfig()
-    name = policy.value if isinstance(policy, Policy) else policy
-    planner, changes = base_policy(name)
+    planner, changes = planner_policy(policy)
     decision = base.agent.decision.model_copy(update={
-        "policy": Policy(planner), "plus": base.agent.decision.plus.model_copy(update=changes)})
+        "policy": planner.name, "plus": base.agent.decision.plus.model_copy(update=changes)})
     agent = base.agent.model_copy(update={"decision": decision})
-    return base.model_copy(update={"policy": Policy(planner), "agent": agent,
-                                   "name": name if changes else ""})
+    return base.model_copy(update={"policy": policy, "agent": agent})
 
 
 class EpisodeWorld:
@@ -165,7 +168,7 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
                 prior: ObjectPrior | None = None,
                 on_step: Callable[[int, Step], None] | None = None) -> EpisodeResult:
     """One episode: a fresh world (robot at ``spec.start``, empty map) and one task on it."""
-    config = episode_config(config.name or config.policy, config)
+    config = episode_config(config.policy, config)
     world = EpisodeWorld(scene, truth, config, spec.start, prior)
     try:
         return run_task(world, spec, on_step)
@@ -218,7 +221,7 @@ def run_task(world: EpisodeWorld, spec: EpisodeSpec,
     success = set(found) >= set(spec.targets)
     shortest = truth.shortest_tour((spec.start.x, spec.start.y), spec.targets)
     return EpisodeResult(
-        episode_id=spec.episode_id, policy=config.name or config.policy.value, scene_seed=spec.scene_seed,
+        episode_id=spec.episode_id, policy=config.policy, scene_seed=spec.scene_seed,
         targets=spec.targets, success=success, spl=spl(success, shortest, robot.distance - distance0),
         found=found, steps=task.steps, path_m=round(robot.distance - distance0, 4), shortest_m=round(shortest, 4),
         state=task.state.value, reason=task.reason, decisions=agent.decisions, blocked=world.blocked - blocked0,

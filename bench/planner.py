@@ -21,7 +21,8 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from ovamos.services.planner.decide import ActionDistances, DecisionConfig, Policy, decide
+from ovamos.services.planner.decide import ActionDistances, DecisionConfig, decide
+from ovamos.services.planner.policies import OVAMOS_PLUS
 from ovamos.services.planner.pomdp import SearchPOMDP, root_particles
 from ovamos.services.planner.pouct import POUCT
 from ovamos.shared.messages import MapSnapshot
@@ -146,7 +147,7 @@ def run_benchmark(runs: int = 5, sims: int = 500, progress: Console | None = Non
     result: dict[str, Any] = {"runs": runs, "num_sims": sims, "max_depth": config.pomdp.max_depth,
                               "decision_ms": {}, "plus_decision_ms": {}}
     for key, policy_config in (("decision_ms", config), ("plus_decision_ms",
-                                                          DecisionConfig(policy=Policy.OVAMOS_PLUS))):
+                                                          DecisionConfig(policy=OVAMOS_PLUS.name))):
         for k in CANDIDATE_COUNTS:
             times = []
             for run in range(runs):
@@ -156,7 +157,7 @@ def run_benchmark(runs: int = 5, sims: int = 500, progress: Console | None = Non
                 times.append((time.perf_counter() - start) * 1e3)
             result[key][str(k)] = round(statistics.median(times), 2)
             if progress:
-                progress.print(f"{policy_config.policy.value}, {k} candidates: {result[key][str(k)]:.1f} ms "
+                progress.print(f"{policy_config.policy}, {k} candidates: {result[key][str(k)]:.1f} ms "
                                "per decision")
     model, particles = _search_pomdp(20, config)
     result["sims_per_s"] = round(statistics.median(

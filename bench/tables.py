@@ -8,14 +8,14 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from ovamos.bench.policies import LABELS, PAPER
+from ovamos.bench.policies import ABLATIONS, LABELS, PAPER
+from ovamos.services.planner.policies import FINDER, GREEDY, NO_DECAY, OVAMOS, OVAMOS_PLUS, RANDOM, VLFM
 from ovamos.shared.messages import Miss
 
-TABLE_I = ("random", "vlfm", "finder", "ovamos")
-TABLE_II = ("ovamos-greedy", "ovamos-nodecay", "ovamos")
+TABLE_I = (RANDOM.name, VLFM.name, FINDER.name, OVAMOS.name)
+TABLE_II = (GREEDY.name, NO_DECAY.name, OVAMOS.name)
 #: Ours: the planner of services/planner/plus.py, its ablations, and the paper's best three to beat.
-TABLE_PLUS = ("finder", "ovamos-greedy", "ovamos", "ovamos-plus-1frontier", "ovamos-plus-noverify",
-              "ovamos-plus-strictstop", "ovamos-plus-look", "ovamos-plus-budget", "ovamos-plus")
+TABLE_PLUS = (FINDER.name, GREEDY.name, OVAMOS.name, *ABLATIONS, OVAMOS_PLUS.name)
 
 
 def print_table(console: Console, result: dict[str, Any]) -> None:
@@ -27,7 +27,7 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
     for title, rows in (("Table I: comparison with baselines", TABLE_I),
                         ("Table II: ablations", TABLE_II), ("Ours: OVAMOS-plus and its ablations", TABLE_PLUS)):
         present = [p for p in rows if p in scores]
-        if not present or (rows is TABLE_PLUS and "ovamos-plus" not in scores):
+        if not present or (rows is TABLE_PLUS and OVAMOS_PLUS.name not in scores):
             continue
         table = Table("method", "episodes", "SR", "MSPL", "targets found", "wrong STOPs", "steps", "paper SR",
                       "paper MSPL", title=f"{title} (seed {result['seed']}{limit})")
@@ -35,7 +35,7 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
             s = scores[policy]
             paper_sr, paper_mspl = (f"{PAPER[policy][0]:.1f}%", f"{PAPER[policy][1]:.3f}") if policy in PAPER \
                 else ("", "")
-            label = "OVAMOS (full)" if rows is TABLE_II and policy == "ovamos" else LABELS[policy]
+            label = "OVAMOS (full)" if rows is TABLE_II and policy == OVAMOS.name else LABELS[policy]
             table.add_row(label, str(s["episodes"]), f"{s['sr']:.1f}%", f"{s['mspl']:.3f}",
                           f"{s['targets_found']:.1f}%", str(s.get("wrong_stops", "")), f"{s.get('steps', 0):.0f}",
                           paper_sr, paper_mspl)

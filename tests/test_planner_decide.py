@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ovamos.services.planner.decide import ActionDistances, DecisionConfig, GoalKind, Policy, decide
+from ovamos.services.planner.decide import ActionDistances, DecisionConfig, GoalKind, decide
 from ovamos.shared.messages import ObjectInstance
 from tests.planner_maps import snapshot
 
@@ -21,7 +21,7 @@ def test_weak_scattered_candidates_lose_to_a_near_frontier_but_not_for_greedy() 
     snap = snapshot(weak, [(5.6, 5.0)])
     full = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig())
     assert full.kind is GoalKind.FRONTIER
-    greedy = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig(policy=Policy.GREEDY))
+    greedy = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig(policy="ovamos-greedy"))
     assert greedy.kind is GoalKind.CANDIDATE and (greedy.x, greedy.y) == pytest.approx((9.0, 9.0), abs=0.1)
 
 
@@ -86,18 +86,18 @@ def test_decisions_are_deterministic_for_a_seed() -> None:
 
 def test_baselines_go_to_frontiers_and_vlfm_reads_one_target() -> None:
     snap = snapshot({(6.0, 5.0): 0.9}, [(9.5, 9.5), (1.0, 1.0)])
-    for policy in (Policy.FINDER, Policy.VLFM):
+    for policy in ("finder", "vlfm"):
         d = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig(policy=policy))
         assert d.kind is GoalKind.FRONTIER
-    assert decide(snap, (5.0, 5.0), ["cup"], DecisionConfig(policy=Policy.RANDOM)) is None
+    assert decide(snap, (5.0, 5.0), ["cup"], DecisionConfig(policy="random")) is None
     # value only near the (1, 1) frontier, in the cup layer: vlfm searching for "bed" first
     # (no layer) has no preference, finder (all targets) goes to (1, 1)
     near = snapshot({(1.2, 1.2): 0.9}, [(9.5, 9.5), (1.0, 1.0)])
-    assert (decide(near, (5.0, 5.0), ["bed", "cup"], DecisionConfig(policy=Policy.FINDER)).x
+    assert (decide(near, (5.0, 5.0), ["bed", "cup"], DecisionConfig(policy="finder")).x
             == pytest.approx(1.0))
-    assert (decide(near, (5.0, 5.0), ["bed", "cup"], DecisionConfig(policy=Policy.VLFM)).x
+    assert (decide(near, (5.0, 5.0), ["bed", "cup"], DecisionConfig(policy="vlfm")).x
             == pytest.approx(9.5))
-    assert (decide(near, (5.0, 5.0), ["cup", "bed"], DecisionConfig(policy=Policy.VLFM)).x
+    assert (decide(near, (5.0, 5.0), ["cup", "bed"], DecisionConfig(policy="vlfm")).x
             == pytest.approx(1.0))
 
 
@@ -106,10 +106,10 @@ def test_vlfm_goes_only_to_objects_of_its_current_target() -> None:
     waits its turn, where finder (multi-object) goes to it at once."""
     cup = ObjectInstance(label="cup", x=2.0, y=3.0, score=0.8, hits=3, confirmed=True)
     snap = snapshot({}, [(9.5, 9.5)], objects=[cup])
-    assert decide(snap, (5.0, 5.0), ["bed", "cup"], DecisionConfig(policy=Policy.FINDER)).kind is GoalKind.OBJECT
-    vlfm = decide(snap, (5.0, 5.0), ["bed", "cup"], DecisionConfig(policy=Policy.VLFM))
+    assert decide(snap, (5.0, 5.0), ["bed", "cup"], DecisionConfig(policy="finder")).kind is GoalKind.OBJECT
+    vlfm = decide(snap, (5.0, 5.0), ["bed", "cup"], DecisionConfig(policy="vlfm"))
     assert vlfm.kind is GoalKind.FRONTIER
-    assert decide(snap, (5.0, 5.0), ["cup", "bed"], DecisionConfig(policy=Policy.VLFM)).kind is GoalKind.OBJECT
+    assert decide(snap, (5.0, 5.0), ["cup", "bed"], DecisionConfig(policy="vlfm")).kind is GoalKind.OBJECT
 
 
 def test_the_trace_holds_every_option_with_belief_path_and_pouct_statistics() -> None:
@@ -125,5 +125,5 @@ def test_the_trace_holds_every_option_with_belief_path_and_pouct_statistics() ->
     visited = [o for o in d.options if o.visits]
     assert chosen.q == max(o.q for o in visited) and sum(o.visits for o in d.options) > 0
     assert d.reason.startswith("POUCT")
-    greedy = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig(policy=Policy.GREEDY))
+    greedy = decide(snap, (5.0, 5.0), ["cup"], DecisionConfig(policy="ovamos-greedy"))
     assert greedy.reason and all(o.q is None and o.path_m is None for o in greedy.options)

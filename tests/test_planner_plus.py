@@ -9,7 +9,7 @@ import pytest
 
 from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
 from ovamos.services.planner.candidates import Candidates
-from ovamos.services.planner.decide import DecisionConfig, GoalKind, Policy, decide
+from ovamos.services.planner.decide import DecisionConfig, GoalKind, decide
 from ovamos.services.planner.plus import ManyFrontierPOMDP, PlusConfig, frontier_bonuses, goal_budget
 from ovamos.services.planner.pomdp import POMDPConfig
 from ovamos.services.planner.task import SearchTask
@@ -17,7 +17,7 @@ from ovamos.shared.messages import ObjectInstance
 from ovamos.shared.motion import Action, Pose
 from tests.planner_maps import snapshot
 
-PLUS = DecisionConfig(policy=Policy.OVAMOS_PLUS)
+PLUS = DecisionConfig(policy="ovamos-plus")
 
 
 def plus(**changes: object) -> DecisionConfig:

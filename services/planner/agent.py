@@ -30,10 +30,11 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from ovamos.services.planner.decide import Decision, DecisionConfig, GoalKind, Policy, away, decide, targets_to_search
+from ovamos.services.planner.decide import Decision, DecisionConfig, GoalKind, away, decide
 from ovamos.services.planner.navigator import NavigationConfig, Navigator, NavMap, Unreachable
 from ovamos.services.planner.outcome import explain, target_misses
 from ovamos.services.planner.plus import goal_budget, strict_objects
+from ovamos.services.planner.policies import POLICIES
 from ovamos.services.planner.task import SearchTask
 from ovamos.shared.messages import MapSnapshot, ObjectInstance, TargetMiss, TaskStatus
 from ovamos.shared.motion import Action, Pose
@@ -144,6 +145,7 @@ class SearchAgent:
     def __init__(self, task: SearchTask, config: AgentConfig | None = None) -> None:
         self.task = task
         self.config = config or AgentConfig()
+        self.policy = POLICIES[self.config.decision.policy]
         self.navigator = Navigator(self.config.navigation)
         self.goal: Decision | None = None
         self.decisions = 0
@@ -157,7 +159,6 @@ class SearchAgent:
         self._goal_budget: int | None = None    # ovamos-plus: commands before the goal is given up
         self._blocked = 0
         self._idle = 0
-        self._random_walk = self.config.decision.policy is Policy.RANDOM
         self._recent: list[tuple[float, float]] = []
         self.bumps = ExpiringPlaces(self.config.memory_steps)
         self.trail: list[tuple[float, float]] = []  # where the robot stood, step by step
@@ -175,16 +176,16 @@ class SearchAgent:
         self._objects = snapshot.objects
         if self._scan_left > 0:
             return Step(Action.TURN_LEFT, Reason.SCAN)
-        remaining = targets_to_search(self.task.remaining, self.config.decision.policy)
+        remaining = self.policy.targets(self.task.remaining)
         plus = self.config.decision.plus
-        if self.config.decision.policy is Policy.OVAMOS_PLUS and plus.strict_stop:  # a stricter idea of found
+        if self.policy.plus_switches and plus.strict_stop:  # a stricter idea of found
             snapshot = snapshot.model_copy(update={"objects": strict_objects(snapshot.objects, plus)})
         if self.goal is None or self._goal_expired() or (
                 self.goal.kind is not GoalKind.OBJECT and self._object_seen(snapshot, remaining)):
             self._decide(snapshot, pose, remaining)
         for _ in range(2):  # the goal, then (if it was reached or unreachable) one fresh decision
             if self.goal is None:
-                return self._wander() if self._random_walk else self._idle_turn(snapshot, pose)
+                return self._wander() if self.policy.wanders else self._idle_turn(snapshot, pose)
             goal = self.goal
             if goal.kind is GoalKind.OBJECT and math.hypot(goal.x - pose.x, goal.y - pose.y) \
                     <= self.config.object_stop_m:
@@ -295,7 +296,7 @@ class SearchAgent:
                      f" {g.label}" if g.label else "", g.x, g.y, g.candidates)
             self._goal_commands = 0
             self._goal_budget = goal_budget(math.hypot(g.x - pose.x, g.y - pose.y), self.config.decision.plus) \
-                if self.config.decision.policy is Policy.OVAMOS_PLUS else None
+                if self.policy.plus_switches else None
         self.decisions += 1
         self._toward_goal = 0
 
@@ -417,7 +418,7 @@ class SearchAgent:
         stays in it). Off by default: large objects fill the image from that close and are
         rarely detected there (numbers in services/planner/plus.py)."""
         plus = self.config.decision.plus
-        if self.config.decision.policy is not Policy.OVAMOS_PLUS or plus.look_before_stop == 0:
+        if not self.policy.plus_switches or plus.look_before_stop == 0:
             return None
         if self._look is None or self._look[0] is not goal:
             self._look = (goal, obj.hits, obj.views, 0)

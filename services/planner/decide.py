@@ -3,10 +3,10 @@
 Order of business (paper, Sec. III): a confirmed object of a remaining target
 wins (go there and STOP; which one: :func:`_object_goal`); otherwise candidates and the best frontier are
 taken from the (decayed, aggregated) value map, path lengths between the robot
-and every action point are computed once, and a policy picks the goal. The
-policies behind one interface are the full method and its ablations;
-baselines that differ in the map they read (finder, vlfm, random) plug in the
-same way.
+and every action point are computed once, and the policy picks the goal. What
+sets the policies apart (the targets searched at once, decay, how the goal is
+chosen) is their :class:`ovamos.services.planner.policies.Policy`: the full
+method, its ablations and the baselines (finder, vlfm, random) all run here.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from ovamos.services.planner.candidates import (
     frontier_scores,
 )
 from ovamos.services.planner.plus import ManyFrontierPOMDP, PlusConfig, detection_candidates, frontier_bonuses
+from ovamos.services.planner.policies import OVAMOS, POLICIES, Choice, PolicyName
 from ovamos.services.planner.pomdp import POMDPConfig, SearchPOMDP, root_particles
 from ovamos.services.planner.pouct import POUCT
 from ovamos.shared.grid import GridGeometry, inflate
@@ -37,23 +38,10 @@ from ovamos.shared.messages import MapSnapshot, ObjectInstance, TraceOption
 from ovamos.shared.robot import ROBOT
 
 
-class Policy(str, Enum):
-    OVAMOS = "ovamos"
-    GREEDY = "ovamos-greedy"      # no POMDP: the highest value among candidates and frontier
-    NO_DECAY = "ovamos-nodecay"   # POMDP on the value map without decay
-    FINDER = "finder"             # all targets' layers, always the best frontier
-    VLFM = "vlfm"                 # one target at a time (see `targets_to_search`), always the best frontier
-    RANDOM = "random"             # a random walk (same stop logic for found objects): no goals
-    OVAMOS_PLUS = "ovamos-plus"   # ours: several frontiers, detections to verify (plus.py)
-
-
-FRONTIER_ONLY = (Policy.FINDER, Policy.VLFM)
-NO_DECAY = (Policy.NO_DECAY, Policy.FINDER, Policy.VLFM)
-
-
 class DecisionConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    policy: Policy = Policy.OVAMOS
+    policy: PolicyName = Field(default=OVAMOS.name, description="how the next goal is chosen: one of "
+                               + ", ".join(POLICIES) + " (services/planner/policies.py)")
     candidates: CandidateConfig = Field(default_factory=CandidateConfig)
     pomdp: POMDPConfig = Field(default_factory=POMDPConfig)
     plus: PlusConfig = Field(default_factory=PlusConfig, description="ovamos-plus only")
@@ -97,19 +85,12 @@ def explored_window(snapshot: MapSnapshot) -> tuple[slice, slice, GridGeometry]:
     return slice(r0, r1), slice(c0, c1), grid
 
 
-def targets_to_search(remaining: Sequence[str], policy: Policy) -> list[str]:
-    """The targets ``policy`` looks for now, of the ``remaining`` ones. VLFM is a single-object method, so it runs once per
-    target in the task's order: it reads that target's value layer and goes only to that
-    target's objects (it keeps its map, so an object seen earlier is still known)."""
-    return list(remaining[:1]) if policy is Policy.VLFM else list(remaining)
-
-
 def decision_values(snapshot: MapSnapshot, remaining: Sequence[str], config: DecisionConfig,
                     window: Window = WHOLE) -> np.ndarray | None:
     """The value map ``config.policy`` decides on: :func:`ovamos.services.mapping.layers.value_map`
-    of the remaining targets, decayed unless the policy is a no-decay one."""
+    of the remaining targets, decayed unless the policy's values do not decay."""
     return value_map(snapshot, remaining, config.decay_tau, config.decay_kappa,
-                     decayed=config.policy not in NO_DECAY, window=window)
+                     decayed=POLICIES[config.policy].decays, window=window)
 
 
 class ActionDistances:
@@ -204,15 +185,16 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     places already looked at from close by: candidates and frontiers there are not chosen
     again, but an object confirmed there is (a value peak is where objects get confirmed).
     """
+    policy = POLICIES[config.policy]
     avoid = _points(avoid)
     radius = config.avoid_radius_m
-    remaining = targets_to_search(remaining, config.policy)
+    remaining = policy.targets(remaining)
     if (obj := _object_goal(snapshot.objects, robot_xy, remaining, avoid, radius)) is not None:
         return Decision(GoalKind.OBJECT, obj.x, obj.y, obj.label,
                         reason=f"a confirmed {obj.label}, a remaining target: go beside it and stop")
     avoid = np.vstack([avoid, _points(visited)])
     frontiers = snapshot.frontiers[away(snapshot.frontiers, avoid, radius)]
-    if config.policy is Policy.RANDOM:
+    if policy.wanders:
         return None  # the agent walks at random between confirmed objects
     rows, cols, grid = explored_window(snapshot)
     values = decision_values(snapshot, remaining, config, (rows, cols))
@@ -223,19 +205,20 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     if not keep.all():
         cands = Candidates(cands.points[keep], cands.values[keep],
                            cands.belief[keep] / max(cands.belief[keep].sum(), 1e-12))
-    if config.policy is Policy.OVAMOS_PLUS:
+    if policy.choice is Choice.PLUS:
         return _plus(snapshot, robot_xy, remaining, config, values, grid, frontiers, cands,
                      lambda points: away(points, avoid, radius))
     f = best_frontier(frontiers, values, grid, config.candidates.frontier_radius_m)
     frontier = None if f is None else frontiers[f]
     frontier_value = 0.0 if frontier is None else _value_at(values, grid, frontier)
-    if config.policy in FRONTIER_ONLY or len(cands.points) == 0:
-        why = (f"{config.policy.value} always takes the best frontier" if config.policy in FRONTIER_ONLY
+    frontier_only = policy.choice is Choice.BEST_FRONTIER
+    if frontier_only or len(cands.points) == 0:
+        why = (f"{policy.name} always takes the best frontier" if frontier_only
                else "no candidate above the value threshold: the best frontier")
         return None if frontier is None else Decision(
             GoalKind.FRONTIER, *map(float, frontier), reason=why,
             options=_options(cands, *_one(frontier, frontier_value)))
-    if config.policy is Policy.GREEDY:
+    if policy.choice is Choice.GREEDY:
         return _greedy(cands, frontier, frontier_value)
     return _pouct(cands, *_one(frontier, frontier_value), robot_xy, snapshot, config)
 
