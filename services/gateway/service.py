@@ -63,7 +63,7 @@ from ovamos.services.gateway.sse import TaskWatchers
 from ovamos.services.gateway.store import TaskRecord, TaskStore
 from ovamos.services.gateway.tasks import Notify, TaskManager
 from ovamos.shared import keys
-from ovamos.shared.bus import Bus, BusCore
+from ovamos.shared.bus import Bus, BusCore, Publisher
 from ovamos.shared.messages import MapSnapshot
 from ovamos.shared.service import Service, ServiceConfigError, subscribe_robots
 from ovamos.shared.status import live_services
@@ -84,8 +84,9 @@ def wire(bus: BusCore, config: GatewayConfig, store: TaskStore, notify: Notify
     """The gateway's cores on ``bus``: each served robot's declared outputs published, the resume
     queued, then each robot's declared inputs subscribed (so the resume runs ahead of them)."""
     node = TOPOLOGY[GatewayService.name]
-    out = {(port.name, robot): bus.publisher(port.key(robot), port.message)
-           for robot in config.robots for port in node.outputs}
+    out: dict[tuple[str, str], Publisher[Any]] = {
+        (port.name, robot): bus.publisher(port.key(robot), port.message)
+        for robot in config.robots for port in node.outputs}
     event_keys = {node.port("inputs", "task_events").key(robot) for robot in config.robots}
 
     def malformed_events() -> int:
