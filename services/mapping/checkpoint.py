@@ -40,9 +40,6 @@ def load_checkpoint(path: str | Path, config: MappingConfig) -> MapState:
         snapshot = MapSnapshot.from_bytes(Path(path).read_bytes())
     except (OSError, DecodeError) as exc:
         raise CheckpointError(f"checkpoint {path} is unusable: {exc}") from None
-    if snapshot.confidence is None or snapshot.searched is None:
-        raise CheckpointError(f"checkpoint {path} has no confidences or searched areas (a published "
-                              "snapshot, not a checkpoint)")
     try:
         return MapState.from_snapshot(snapshot, config)
     except ValueError as exc:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from typing import TypedDict
 
 import cv2
 import numpy as np
@@ -253,6 +254,8 @@ class MapState:
         if (snapshot.obstacle.shape != state.grid.shape or snapshot.resolution != state.grid.resolution
                 or tuple(snapshot.origin) != (state.grid.x0, state.grid.y0)):
             raise ValueError("the snapshot's grid does not match the configured grid")
+        if snapshot.confidence is None or snapshot.searched is None:
+            raise ValueError("no confidences or searched areas (a published snapshot, not a checkpoint)")
         state.obstacle = snapshot.obstacle.copy()
         state.explored = snapshot.explored.copy()
         for i, target in enumerate(snapshot.layers):
@@ -271,5 +274,10 @@ class MapState:
         return state
 
 
-def _evidence(config: MappingConfig) -> dict[str, float]:
+class _Evidence(TypedDict):
+    min_hit_ratio: float
+    view_range_m: float
+
+
+def _evidence(config: MappingConfig) -> _Evidence:
     return {"min_hit_ratio": config.object_min_hit_ratio, "view_range_m": config.object_view_range_m}
