@@ -256,7 +256,7 @@ class Executive:
         return TaskEvent(task_id=task.task_id, status=task.state, targets=tuple(task.targets),
                          found=tuple(task.found.values()), steps=task.steps,
                          distance_m=task.distance, stamp=self._wall_clock(),
-                         message=task.reason or self.waiting or (agent.condition if searching else ""),
+                         message=task.reason or self.waiting or (agent.condition if searching and agent is not None else ""),
                          misses=agent.misses() if task.state is TaskStatus.FAILED and agent is not None else (),
                          x=None if pose is None else pose.x, y=None if pose is None else pose.y,
                          goal=self._goal(), last_action=task.last_action,
