@@ -382,8 +382,8 @@ class SearchAgent:
         """Time to decide again. A candidate is the POMDP's macro action MoveTo(candidate): it is
         kept until reached (deciding again on the way made the robot flip-flop between
         candidates and look at none). A frontier moves as the map grows and an object's estimate
-        is refined: those are decided again every ``redecide_every`` commands (keeping a
-        frontier until it was explored cost 4 points of SR: 120 episodes, seed 0)."""
+        is refined: those are decided again every ``redecide_every`` commands (keeping one until it
+        was explored cost success: docs/notes/ovamos-plus.md)."""
         goal = self.goal
         return goal is not None and goal.kind is not GoalKind.CANDIDATE \
             and self._toward_goal >= self.config.redecide_every
@@ -393,8 +393,8 @@ class SearchAgent:
         in the middle of a bed is farther than the default snap radius from every free cell, and
         was never reached. The agent STOPs on entering that distance; arriving at a snapped
         place at its edge can leave the robot just outside, and the object is then given up
-        like any goal the map does not let it reach (0.65 m, which cannot, solved 17 of the first
-        40 episodes of seed 0 against 18, and 0.5 m also 17)."""
+        like any goal the map does not let it reach (a fixed radius did no better:
+        docs/notes/ovamos-plus.md)."""
         if goal.kind is not GoalKind.OBJECT:
             return None
         nav = self.config.navigation

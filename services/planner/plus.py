@@ -3,12 +3,11 @@
 The paper's decision step (:mod:`ovamos.services.planner.decide`) stays the reference. This one keeps
 its map, candidates, belief and POUCT, and changes these things, each a switch of
 :class:`PlusConfig` so that each has its ablation row in the search benchmark (the first two on
-by default):
+by default; what each was measured on: docs/notes/ovamos-plus.md):
 
 * **Frontiers** (``frontiers``): the paper offers POUCT one frontier, the one with the highest
   value nearby, wherever it is; re-decided every metre, that goal jumps across the house as
-  values change and the robot walks back and forth between rooms (seed 1, 24 episodes: most
-  failures ran out of steps that way). Here the ``frontiers`` best frontiers by value are
+  values change and the robot walks back and forth between rooms. Here the ``frontiers`` best frontiers by value are
   actions, so the path cost in the POMDP picks a near one among the good ones, and each
   frontier's bonus is scaled by its value relative to the best value on offer (at least
   ``frontier_floor``), so that frontier and candidate rewards follow one value map.
@@ -17,34 +16,25 @@ by default):
   by (a confirmation needs repeated hits). The paper's planner only goes there if the value map
   happens to peak there; here such instances are candidates with the best candidate value.
 * **A stricter stop** (``strict_stop``, off by default): a STOP is irrevocable and a wrong one
-  costs its target. With realistic perception ovamos-plus made the most wrong STOPs (report seed,
-  120 episodes: 30 against 19-23), and at 2026-26, -49 and -19 every near miss was a look-alike
-  with 2-6 hits in 3-18 views, the right objects 7-11 in 10-16 (found on the report seed: so it
-  was tried only on the development seed). With ``strict_stop`` an instance counts as found only
+  costs its target, and the near misses of realistic perception are look-alikes seen in fewer of
+  their views than the right objects. With ``strict_stop`` an instance counts as found only
   with ``stop_min_hits`` hits in at least ``stop_min_hit_ratio`` of its views; until then it is
   a detection to verify, and after ``reject_views`` views below the ratio it is left alone. It
-  lost more right targets than wrong STOPs it saved (seed 1, 48 episodes, realistic: SR 60.4 %
-  / MSPL 0.363 without; 43.8 / 0.253 with 3 hits in 50 %; 47.9 / 0.270 with 40 %; 45.8 / 0.257
-  with 50 % and no rejection; 54.2 / 0.303 with only 3 hits): small and half-hidden objects are
-  detected in few of the frames that see them, and reaching a place to verify does not turn the
-  camera to it. The benchmark's ``ovamos-plus-strictstop`` runs it.
+  is off because it loses more right targets than wrong STOPs it saves: small and half-hidden
+  objects are detected in few of the frames that see them. The benchmark's ``ovamos-plus-strictstop`` runs it.
 * **A look before the STOP** (``look_before_stop``, off by default): the same wrong STOPs
   again, from the other side. Beside a confirmed instance the robot turns to face it and swings
   off and back, up to ``look_before_stop`` turns; it STOPs at the first new hit, and leaves the
   instance alone after ``look_views`` views of its place without one (turns that add no view,
-  the object being too close to see, are no evidence: it STOPs). It avoided 2 of 7 wrong STOPs
-  and lost 10 right ones (seed 1, 48 episodes, realistic: SR 47.9 % / MSPL 0.277 with 4 turns
-  and 2 views, against 60.4 / 0.363): from 0.5-0.9 m a washing machine, fridge, television or
-  shelf fills more than the image, and the simulated detector, like a real one on a cropped
-  object, rarely fires on it there. The benchmark's ``ovamos-plus-look`` runs it.
+  the object being too close to see, are no evidence: it STOPs). It is off because from close by a
+  large object fills more than the image and a detector rarely fires on it there, so it loses
+  more right STOPs than wrong ones it avoids. The benchmark's ``ovamos-plus-look`` runs it.
 * **A goal budget** (``goal_commands_per_m``, off by default): the navigator plans through
   unexplored space and re-plans as walls appear; a goal behind a wall that is revealed bit by bit
-  kept the robot busy for 280 commands in one development episode. With a budget a goal gets
+  can keep the robot busy for hundreds of commands. With a budget a goal gets
   ``goal_commands_min`` commands plus ``goal_commands_per_m`` per metre of straight-line
   distance, counted across re-decisions of the same goal, and is then given up like an
-  unreachable one. On the development seed it did not pay (24 episodes, realistic perception: SR
-  75.0 % either way, MSPL 0.428 with 24 + 12/m against 0.459 without), so it is off; the
-  benchmark's ``ovamos-plus-budget`` runs it.
+  unreachable one. It did not pay on the development seed, so it is off; the benchmark's ``ovamos-plus-budget`` runs it.
 
 This module knows nothing of Zenoh; the planner service runs it when its policy is
 ``ovamos-plus``.
