@@ -25,7 +25,7 @@ def sim_base(is_free: Callable[[float, float], bool] = open_space, **driver: obj
     """A started simulated base at the origin; stop() it."""
     from ovamos.services.base_driver.config import DriverConfig
     robot = SimRobot(Pose(x=0.0, y=0.0, yaw=0.0), is_free)
-    base = WheeledSimRobot(robot, DriverConfig(**driver)).start()  # type: ignore[arg-type]
+    base = WheeledSimRobot(robot, DriverConfig(**driver)).start()
     wait_for_mode(base.driver, DriverMode.READY)
     return base
 
@@ -104,7 +104,7 @@ class FakeHardware:
         self.v = self.w = 0.0
         self.halts += 1
 
-    def feedback(self):  # type: ignore[no-untyped-def]
+    def feedback(self):
         from ovamos.services.base_driver.hardware import WheelFeedback
         self._advance()
         if self.silent:  # the last message, again
@@ -140,7 +140,7 @@ class FakeOdometryBase(FakeHardware):
         self.pose = integrate_arc(self.pose, (self.v - self.w * self.track / 2) * dt,
                                   (self.v + self.w * self.track / 2) * dt, self.track)
 
-    def feedback(self):  # type: ignore[no-untyped-def]
+    def feedback(self):
         from ovamos.services.base_driver.hardware import WheelFeedback
         self._advance()
         return WheelFeedback(stamp=self.stamp, left_pos_rad=0.0, right_pos_rad=0.0, pose=self.pose,

@@ -80,7 +80,7 @@ def text_of(browser: webdriver.Chrome, element_id: str) -> str:
 def wait_text(browser: webdriver.Chrome, element_id: str, wanted: str, timeout: float = 20.0) -> str:
     """Wait until the element's text contains ``wanted``; its text."""
     return wait_for(lambda: wanted in (t := text_of(browser, element_id)) and t, timeout,
-                    f"{wanted!r} in #{element_id}")  # type: ignore[return-value]
+                    f"{wanted!r} in #{element_id}")
 
 
 def task_rows(browser: webdriver.Chrome) -> list[WebElement]:

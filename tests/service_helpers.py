@@ -55,7 +55,7 @@ class Planner:
             return False
         wait_for(sent, timeout, f"command {command.action_id} taken")
         return wait_for(lambda: (s := self.state()) and s.last_completed >= command.action_id and s,
-                        timeout, f"command {command.action_id} completed")  # type: ignore[return-value]
+                        timeout, f"command {command.action_id} completed")
 
 
 def service_stats(bus: Bus, service: str) -> Any:

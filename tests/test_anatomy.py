@@ -27,3 +27,18 @@ def test_the_registry_is_the_topology_and_an_unknown_name_lists_the_known() -> N
     assert list(SERVICES) == list(TOPOLOGY)
     with pytest.raises(UnknownServiceError, match="unknown service 'nope'; available: sim, base_driver"):
         service_class("nope")
+
+
+def test_the_robots_path_loads_no_benchmark_and_no_heavy_library() -> None:
+    """``ovamos run base_driver`` on a robot: the command line and the driver's adapter load only the
+    benchmark's policy table (the CLI's help lists it) and none of torch, MuJoCo, scikit-learn,
+    OpenCV or rclpy."""
+    import json
+    import subprocess
+    import sys
+    probe = ("import json, sys, ovamos.cli, ovamos.services.base_driver.service; "
+             "print(json.dumps(sorted(m for m in sys.modules if m.startswith('ovamos.bench.') "
+             "or m.split('.')[0] in ('torch', 'mujoco', 'sklearn', 'cv2', 'rclpy'))))")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout) == ["ovamos.bench.policies"]

@@ -20,7 +20,7 @@ DT = 0.02
 class Rig:
     def __init__(self, **config: object) -> None:
         self.t = 0.0
-        self.config = DriverConfig(recover_every_s=0.2, **config)  # type: ignore[arg-type]
+        self.config = DriverConfig(recover_every_s=0.2, **config)
         self.hw = FakeHardware(lambda: self.t, self.config.track_width_m, self.config.wheel_radius_m)
         self.d = BaseController(self.config, self.hw, clock=lambda: self.t)
 
@@ -29,7 +29,7 @@ class Rig:
             self.t += DT
             self.d.tick()
 
-    def until(self, predicate, limit_s: float = 20.0) -> None:  # type: ignore[no-untyped-def]
+    def until(self, predicate, limit_s: float = 20.0) -> None:
         for _ in range(round(limit_s / DT)):
             if predicate():
                 return
@@ -243,7 +243,7 @@ def test_a_base_with_its_own_odometry_is_taken_as_it_is_and_its_primitives_land(
     hw = FakeOdometryBase(lambda: t[0], start, report_velocity=report_velocity)
     d = BaseController(config, hw, clock=lambda: t[0])
 
-    def until(predicate) -> None:  # type: ignore[no-untyped-def]
+    def until(predicate) -> None:
         for _ in range(round(20.0 / DT)):
             if predicate():
                 return

@@ -30,7 +30,7 @@ WHEELED = ("kobuki", "opencr", "odrive")
 EPISODE = (0, 4)  # the demo's
 
 
-def _result(base: str, steps: int, on_step=None) -> dict:  # type: ignore[no-untyped-def]
+def _result(base: str, steps: int, on_step=None) -> dict:
     spec, scene, truth = load_episode(*EPISODE)
     spec = spec.model_copy(update={"max_steps": steps})
     result = run_episode(spec, scene, truth, EpisodeConfig(base=base), load_prior(), on_step)

@@ -57,7 +57,7 @@ def test_an_environment_that_widens_discovery_is_refused(env: dict[str, str], me
     (lambda x: x.replace("<useBuiltinTransports>false</useBuiltinTransports>", ""), "built-in transports"),
     (lambda x: x[: len(x) // 2], "cannot be read as a profile"),
 ])
-def test_a_profile_that_could_reach_beyond_loopback_is_refused(tmp_path: Path, change, message: str) -> None:  # type: ignore[no-untyped-def]
+def test_a_profile_that_could_reach_beyond_loopback_is_refused(tmp_path: Path, change, message: str) -> None:
     profile = tmp_path / "profile.xml"
     profile.write_text(change(LOOPBACK_PROFILE.read_text()))
     with pytest.raises(DdsNetworkError, match=message):

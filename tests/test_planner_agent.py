@@ -15,7 +15,7 @@ from tests.planner_maps import snapshot
 
 
 def agent(**config: object) -> SearchAgent:
-    return SearchAgent(SearchTask("t", ["cup"]), AgentConfig(initial_turns=0, **config))  # type: ignore[arg-type]
+    return SearchAgent(SearchTask("t", ["cup"]), AgentConfig(initial_turns=0, **config))
 
 
 def test_a_candidate_is_kept_until_reached_even_when_a_better_one_appears() -> None:

@@ -21,7 +21,7 @@ PLUS = DecisionConfig(policy="ovamos-plus")
 
 
 def plus(**changes: object) -> DecisionConfig:
-    return PLUS.model_copy(update={"plus": PlusConfig(**changes)})  # type: ignore[arg-type]
+    return PLUS.model_copy(update={"plus": PlusConfig(**changes)})
 
 
 def test_of_two_equally_valued_frontiers_plus_takes_the_near_one_and_the_paper_the_first_best() -> None:

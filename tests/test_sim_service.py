@@ -38,12 +38,12 @@ class Robot(Planner):
 
     def frame(self, seq: int) -> RgbdFrame:
         return wait_for(lambda: next((f for f in self.frames if f.seq == seq), None), 20,
-                        f"frame {seq}")  # type: ignore[return-value]
+                        f"frame {seq}")
 
     def frame_after(self, action_id: int) -> RgbdFrame:
         """The first frame rendered after command ``action_id`` completed."""
         return wait_for(lambda: next((f for f in self.frames if f.after_action == action_id), None), 20,
-                        f"a frame after command {action_id}")  # type: ignore[return-value]
+                        f"a frame after command {action_id}")
 
 
 @contextmanager
@@ -60,7 +60,7 @@ def _start(inproc_router: str, config: SimServiceConfig) -> Iterator[Robot]:
 
 def _config(scene_file: Path, **kw: object) -> SimServiceConfig:
     return SimServiceConfig(scene_file=scene_file, start=Pose(x=1.5, y=2.0, yaw=0.0), width=96, height=72,
-                            republish_s=0.3, **kw)  # type: ignore[arg-type]
+                            republish_s=0.3, **kw)
 
 
 @pytest.fixture

@@ -115,7 +115,7 @@ def test_invalid_file_is_a_config_error(tmp_path: Path, text: str) -> None:
 
 def test_unknown_mode_argument_is_a_config_error() -> None:
     with pytest.raises(ZenohConfigError, match="satellite"):
-        build_config("satellite")  # type: ignore[arg-type]
+        build_config("satellite")
 
 
 def _endpoints(cfg: zenoh.Config, which: str) -> list[str]:

@@ -27,7 +27,7 @@ def main() -> None:
     node = rclpy.create_node("fake_viewer")
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
-    def on_grid(topic: str):  # type: ignore[no-untyped-def]
+    def on_grid(topic: str):
         def got(msg: OccupancyGrid) -> None:
             data = list(msg.data)
             print(json.dumps({"topic": topic, "frame": msg.header.frame_id, "width": msg.info.width,

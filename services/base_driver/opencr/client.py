@@ -152,7 +152,7 @@ class OpenCRHardware:
         self._raw = None
 
     # ---- bus primitives ------------------------------------------------------------------
-    def _guard(self, call):  # type: ignore[no-untyped-def]
+    def _guard(self, call):
         """Run one SDK call; a vanished port (unplugged) becomes a HardwareError and closes."""
         if self._port is None:
             raise HardwareError(f"OpenCR port {self.config.port} is not open")

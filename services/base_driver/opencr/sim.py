@@ -385,7 +385,7 @@ def line_port_handler(line: MemoryLine) -> Callable[[str], object]:
     ``port_handler``): the SDK's own packet code runs, on bytes that never leave the process."""
     import dynamixel_sdk as dxl
 
-    class LinePortHandler(dxl.PortHandler):  # type: ignore[misc]
+    class LinePortHandler(dxl.PortHandler):
         def setupPort(self, cflag_baud: int) -> bool:
             line.is_open = True
             self.ser, self.is_open = line, True
