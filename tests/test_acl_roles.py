@@ -25,6 +25,8 @@ from ovamos.shared.procs import free_port, loopback
 from ovamos.shared.zconfig import build_config
 from tests.polling import port_open, wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 REPO = Path(__file__).resolve().parents[1]
 ZENOH = REPO / "deploy" / "zenoh"
 PROBE = REPO / "tests" / "netns_probe.py"

@@ -15,6 +15,8 @@ from ovamos.shared.motion import Action
 from tests.base_driver_helpers import command, heading_deg, run, sim_base, wheels_at_rest
 from tests.polling import wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 
 @pytest.fixture
 def base() -> Iterator[WheeledSimRobot]:

@@ -27,6 +27,8 @@ from ovamos.shared.motion import Action, Pose
 from tests.base_driver_helpers import command, run, wait_for_mode
 from tests.polling import wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 
 @contextmanager
 def kobuki() -> Iterator[tuple[BaseController, Callable[[], tuple[float, float]], SimKobuki]]:

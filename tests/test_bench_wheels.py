@@ -26,6 +26,8 @@ from ovamos.shared.simtime import SimClock
 from tests.base_driver_helpers import turns_to_nearest_wall
 from tests.polling import wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 WHEELED = ("kobuki", "opencr", "odrive")
 EPISODE = (0, 4)  # the demo's
 

@@ -26,6 +26,8 @@ from ovamos.services.camera.software_device import SoftwareCamera
 from ovamos.shared.messages import Intrinsics
 from tests.sim_scenes import two_rooms
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 W, H, FPS = 160, 120, 30
 SCALE = 0.001
 

@@ -27,6 +27,8 @@ from ovamos.shared.zconfig import TlsFiles, ZenohConfigError, build_config, chec
 from tests.polling import ovamos_unwrapped as ovamos
 from tests.polling import port_open, wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 REPO = Path(__file__).resolve().parents[1]
 SECURE_LAPTOP = REPO / "deploy" / "zenoh" / "laptop-router-secure.json5"
 SECURE_ROBOT = REPO / "deploy" / "zenoh" / "robot-router-secure.json5"

@@ -14,6 +14,8 @@ from ovamos import __version__
 from ovamos.bench.transport import run_benchmark
 from ovamos.demo import DEMO_EPISODE, DEMO_SEED
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 
 def ovamos(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "ovamos.cli", *args], capture_output=True,
@@ -84,6 +86,7 @@ def test_graph_table_has_a_row_per_service() -> None:
         assert text in out.stdout, text
 
 
+@pytest.mark.demo  # the fast tier's one end-to-end run
 def test_demo_finds_every_target_through_the_http_api_and_cleans_up(tmp_path: Path) -> None:
     """Router, mapping, perception, planner, simulated robot and gateway as processes; the task
     goes in over HTTP and comes back done with every target found."""

@@ -28,6 +28,8 @@ from ovamos.shared.procs import free_port, loopback, start_cli, stop
 from ovamos.shared.zconfig import RouterUnreachableError, build_config, open_session
 from tests.polling import wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 OPEN_TIMEOUT_S = 2.0
 
 

@@ -43,6 +43,8 @@ from tests.gateway_mocks import (
 )
 from tests.polling import wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 
 @pytest.fixture(scope="module")
 def chromium_session() -> Iterator:

@@ -22,6 +22,8 @@ from ovamos.supervisor import Supervisor, port_open
 from tests.browser import LAPTOP, by_id, chromium, console_errors, row, screenshot, text_of, wait_text
 from tests.polling import wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 ROBOT = "sim"
 FOUND_GREEN = (22, 163, 74)  # the page's found-object marker (#16a34a)
 

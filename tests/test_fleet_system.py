@@ -31,6 +31,8 @@ from ovamos.shared.zconfig import build_config
 from ovamos.supervisor import Backoff, Supervisor, port_open
 from tests.polling import wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 SEED = 0
 EPISODES = {"sim1": 4, "sim2": 1, "sim3": 2}
 #: per robot a target of its episode found early (in-process, alone, from the start: step 26, 16, 58),

@@ -23,6 +23,8 @@ from ovamos.shared.service import ServiceConfigError, load_config
 from tests.gateway_mocks import ROBOT, MockDriver, MockPlanner, RunningGateway, gateway_config
 from tests.polling import wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 FORGED = {"Host": "attacker.example:8080"}  # what the rebound page's requests carry
 TOKEN = "a-token-of-24-characters"
 

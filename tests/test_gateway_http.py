@@ -22,6 +22,8 @@ from ovamos.shared.zconfig import build_config
 from tests.gateway_mocks import ODOM_SESSION, ROBOT, MockMapping, MockPlanner, RunningGateway, gateway_config
 from tests.polling import wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 CHAIR = FoundObject(label="chair", x=0.6, y=1.4, step=2)
 
 

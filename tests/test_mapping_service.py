@@ -24,6 +24,8 @@ from tests.polling import wait_for
 from tests.service_helpers import Running
 from tests.sim_scenes import two_rooms
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 ROBOT = "r1"
 
 

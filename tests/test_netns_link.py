@@ -50,7 +50,7 @@ TASK_TIMEOUT_S = 240.0
 INTERRUPTED_STEPS = 25
 
 _reason = unavailable_reason()
-pytestmark = pytest.mark.skipif(_reason is not None, reason=f"no network namespaces here: {_reason}")
+pytestmark = [pytest.mark.system, pytest.mark.skipif(_reason is not None, reason=f"no network namespaces here: {_reason}")]
 
 
 class Lines:

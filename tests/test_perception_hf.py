@@ -23,6 +23,8 @@ from ovamos.services.perception.hf.models import GroundingDetector, ItmScorer
 from ovamos.shared.messages import TaskSpec
 from tests.perception_helpers import render_frames
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 TARGETS = ("fridge", "cup", "chair")
 
 

@@ -26,6 +26,8 @@ from tests.perception_helpers import ROBOT, Robot, RunningPerception, render_fra
 from tests.polling import wait_for
 from tests.sim_scenes import two_rooms
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 
 @pytest.fixture(scope="module")
 def frames() -> list[RgbdFrame]:

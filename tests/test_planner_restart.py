@@ -31,6 +31,8 @@ from tests.gateway_mocks import RunningGateway, gateway_config
 from tests.polling import wait_for
 from tests.test_planner_service import ROBOT, MockBaseAndMap
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 MAX_STEPS = 40
 ROWS, COLS = 60, 600  # a corridor 3 m by 30 m: the cup at its far end takes more than MAX_STEPS
 

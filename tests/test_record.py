@@ -49,6 +49,8 @@ from ovamos.shared.zconfig import build_config, open_session
 from ovamos.supervisor import Entry, Supervisor, port_open
 from tests.polling import wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 ROBOT = "sim"
 STEPS = 40
 PATIENT = {"scouting": {"multicast": {"enabled": False}},

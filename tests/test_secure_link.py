@@ -18,6 +18,8 @@ from ovamos.shared.certs import CertError, check_certificate, init_ca, issue, li
 from ovamos.shared.zconfig import TlsFiles, ZenohConfigError, build_config
 from tests.polling import ovamos_unwrapped as ovamos
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 
 @pytest.fixture
 def certs(tmp_path: Path) -> Path:

@@ -36,7 +36,7 @@ OVAMOS = Path(sys.executable).with_name("ovamos")
 STARTUP_S = 150.0   # generous: other suites load this 2-core machine
 STOP_S = 90.0       # the supervisor gives each child up to 10 s after SIGTERM
 
-pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc (Linux)")
+pytestmark = [pytest.mark.system, pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc (Linux)")]
 
 
 # -- processes from /proc ---------------------------------------------------------------------

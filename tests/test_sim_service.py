@@ -20,6 +20,8 @@ from tests.polling import wait_for
 from tests.service_helpers import ROBOT, Planner, Running
 from tests.sim_scenes import two_rooms
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 
 @pytest.fixture
 def scene_file(tmp_path: Path) -> Path:

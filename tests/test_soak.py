@@ -7,6 +7,8 @@ import pytest
 
 from ovamos.bench.soak import ABSENT_STEPS, fresh_steps, run_soak, soak_tasks
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 TASKS = 8
 MARGIN_STEPS = 120
 """Over a fresh start's steps: the robot starts where the last task left it, anywhere in the demo's

@@ -36,6 +36,8 @@ from ovamos.shared.service import load_config
 from ovamos.supervisor import Backoff, Entry, State, Supervisor, SupervisorError, exit_reason, port_open, status_table
 from tests.polling import status_cli, wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 REPO = Path(__file__).resolve().parents[1]
 SHIPPED = sorted(PROFILE_DIR.glob("*.toml"))
 # Restart quickly in tests; the shipped default starts at 0.5 s.

@@ -21,6 +21,8 @@ from ovamos.shared.procs import free_port, kill
 from ovamos.supervisor import Backoff, Supervisor, port_open
 from tests.polling import wait_for
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 ROBOT = "sim"
 FAULT_STEP_BUDGET = 1500
 TARGET = "floor_lamp"  # of the demo episode's targets

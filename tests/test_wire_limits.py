@@ -148,6 +148,8 @@ import json, resource, sys
 from pathlib import Path
 from ovamos.shared import codec
 from ovamos.shared.messages import DecodeError, PerceptionResult
+
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
 payload = Path(sys.argv[1]).read_bytes()
 decode = {"codec-wide bound": lambda: codec.unpack(payload, PerceptionResult.KIND, PerceptionResult.VERSION),
           "PerceptionResult.from_bytes": lambda: PerceptionResult.from_bytes(payload)}[sys.argv[2]]
