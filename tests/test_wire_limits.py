@@ -71,6 +71,8 @@ from ovamos.shared.zconfig import build_config
 from tests.polling import wait_for
 from tests.test_codec import assemble, split  # the payload surgery of the codec tests
 
+pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+
 REPO = Path(__file__).resolve().parents[1]
 BOMB_BYTES = 1 << 30
 RSS_BOUND = 100 << 20  # what decoding the bomb may add to a receiver's peak memory, far below 1 GiB
@@ -149,7 +151,6 @@ from pathlib import Path
 from ovamos.shared import codec
 from ovamos.shared.messages import DecodeError, PerceptionResult
 
-pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
 payload = Path(sys.argv[1]).read_bytes()
 decode = {"codec-wide bound": lambda: codec.unpack(payload, PerceptionResult.KIND, PerceptionResult.VERSION),
           "PerceptionResult.from_bytes": lambda: PerceptionResult.from_bytes(payload)}[sys.argv[2]]
