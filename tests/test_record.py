@@ -43,7 +43,7 @@ from ovamos.services.mapping.config import MappingServiceConfig
 from ovamos.services.sim.episodes import make_episode
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
-from ovamos.shared.messages import Odometry, ServiceStats
+from ovamos.shared.messages import MapSnapshot, Odometry, ServiceStats
 from ovamos.shared.procs import free_port, kill, loopback, start_cli, stop
 from ovamos.shared.zconfig import build_config, open_session
 from ovamos.supervisor import Entry, Supervisor, port_open
@@ -192,16 +192,17 @@ def test_replaying_frames_odometry_and_perception_into_a_fresh_mapping_rebuilds_
         procs.append(start_cli(["run", "mapping", "--robot-id", robot, "--config", str(tmp_path / "mapping.json"),
                                 "--connect", loopback(port)]))
         zcfg = build_config(connect=[loopback(port)])
-        session = open_session(zcfg)
-        try:
-            wait_for(lambda: _alive(session, robot, "mapping"), timeout=60, what="the mapping service")
-            time.sleep(1.0)  # its subscriptions follow its liveliness token
+        with Bus.open(zcfg, robot, "test") as bus:
+            def snapshot() -> MapSnapshot | None:
+                return bus.get(keys.map_snapshot(robot), MapSnapshot, 1.0)
+            wait_for(lambda: _alive(bus.session, robot, "mapping"), timeout=60, what="the mapping service")
+            # it answers once it has wired itself, and its subscriptions are declared before its queryable
+            # answers: a frame replayed now is not lost
+            wait_for(snapshot, 30, "the mapping service's first answer")
             report = replay(zcfg, recorded_run.path, rate=1.0, names=["rgbd", "odom", "perception_result"],
                             robot_id=robot, stop=threading.Event())
-        finally:
-            session.close()
-        assert report.read["rgbd"] > STEPS and not report.truncated
-        time.sleep(2.0)  # the last frame's pairing and fusion
+            assert report.read["rgbd"] > STEPS and not report.truncated
+            wait_for(lambda: (now := snapshot()) is not None and now.seq == original.seq, 30, "the last frame fused")
         stop(procs.pop())
         replayed = load_checkpoint(tmp_path / "replayed.ckpt", config)
     finally:
@@ -224,6 +225,19 @@ def _publish_odometry(bus: Bus, first: int, n: int) -> list[bytes]:
     return payloads
 
 
+def _readable_odometry(path: Path) -> list[bytes]:
+    """The odometry payloads a reader gets from a recording that may end in a torn chunk."""
+    got = []
+    with path.open("rb") as f:
+        try:
+            for _, channel, message in NonSeekingReader(f).iter_messages(log_time_order=False):
+                if channel.topic == keys.odom(ROBOT):
+                    got.append(message.data)
+        except McapError:
+            pass  # the truncated tail
+    return got
+
+
 def test_a_killed_recorder_leaves_a_file_readable_up_to_its_last_chunk(tmp_path: Path) -> None:
     port = free_port()
     path = tmp_path / "killed.mcap"
@@ -235,21 +249,15 @@ def test_a_killed_recorder_leaves_a_file_readable_up_to_its_last_chunk(tmp_path:
         with Bus.open(build_config(connect=[loopback(port)]), ROBOT, "test") as bus:
             wait_for(lambda: _ready(bus.session, ROBOT, "recorder"), timeout=60, what="the recorder")
             flushed = _publish_odometry(bus, 0, 200)
-            time.sleep(2.5)  # past the recorder's flush period: these are in complete chunks
+            # past a flush: these are in complete chunks on disk
+            wait_for(lambda: len(_readable_odometry(path)) >= len(flushed), 30, "the first messages flushed")
             unflushed = _publish_odometry(bus, 200, 200)
             kill(recorder)
     finally:
         for proc in procs:
             stop(proc)
     assert not path.read_bytes().endswith(b"\x89MCAP0\r\n")  # killed: no summary, no closing magic
-    got = []
-    with path.open("rb") as f:
-        try:
-            for _, channel, message in NonSeekingReader(f).iter_messages(log_time_order=False):
-                if channel.topic == keys.odom(ROBOT):
-                    got.append(message.data)
-        except McapError:
-            pass  # the truncated tail
+    got = _readable_odometry(path)
     assert got[:len(flushed)] == flushed
     assert got == (flushed + unflushed)[:len(got)]  # a prefix: nothing lost before the break, nothing torn
     # our own reader says where it stopped instead of failing
