@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -21,14 +22,22 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "pyproject.toml"
 BIN = Path(sys.executable).parent
+CHECKS = ("ruff", "contracts", "types")
 
 
 def unpack_wheel(into: Path) -> Path:
-    """Build the package's wheel and unpack it (``pip install --target``) under ``into``; the site folder."""
+    """Build the package's wheel and unpack it (``pip install --target``) under ``into``; the site folder.
+
+    setuptools stages the files in the checkout's ``build/`` and packs whatever it finds there, so a
+    module removed since the last build would ride along: the folder goes before and after."""
     wheels, site = into / "wheel", into / "site"
     pip = [sys.executable, "-m", "pip", "-q", "--disable-pip-version-check"]
-    subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(REPO)], check=True,
-                   cwd=into)
+    shutil.rmtree(REPO / "build", ignore_errors=True)
+    try:
+        subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(REPO)],
+                       check=True, cwd=into)
+    finally:
+        shutil.rmtree(REPO / "build", ignore_errors=True)
     subprocess.run([*pip, "install", "--no-deps", "--no-compile", "--target", str(site), *map(str, wheels.glob("*.whl"))],
                    check=True, cwd=into)
     return site
@@ -50,8 +59,10 @@ def types(site: Path) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("checks", nargs="*", choices=("ruff", "contracts", "types"), default=[])
-    checks = parser.parse_args(argv).checks or ["ruff", "contracts", "types"]
+    parser.add_argument("checks", nargs="*", metavar="{ruff,contracts,types}", help="the checks to run (default: all)")
+    checks = parser.parse_args(argv).checks or list(CHECKS)
+    if unknown := sorted(set(checks) - set(CHECKS)):
+        parser.error(f"unknown check {', '.join(unknown)}: one of {', '.join(CHECKS)}")
     failed = []
     with tempfile.TemporaryDirectory(prefix="ovamos-lint-") as tmp:
         site = unpack_wheel(Path(tmp)) if {"contracts", "types"} & set(checks) else Path(tmp)
