@@ -70,6 +70,10 @@ MAX_DETECTIONS = 32
 """Most detections one perception result carries: the perception service keeps 20 by default
 (its ``max_detections``), with room above that."""
 
+MAX_PATH_POINTS = 512
+"""Most waypoints one path command carries: a path across the largest map (75 m) at one waypoint
+every 0.15 m, with room to spare."""
+
 MAX_MAP_SIDE = 1500
 """Cells a side of the largest map grid: the mapping default (and the deployed config) is 1000,
 50 m at 5 cm (a large house, an office floor); half as much again leaves room for 75 m."""
@@ -498,8 +502,10 @@ class PlanCommand(JsonMessage):
     """One command for the base, identified so that a re-sent copy is executed once.
 
     ``action`` is a discrete primitive (the planner's); ``velocity`` a teleop
-    command held for ``duration_s`` at most (the deadman still applies).
-    Action ids grow within a session; a driver executes an id only once.
+    command held for ``duration_s`` at most (the deadman still applies); ``path`` waypoints (x, y)
+    in the odometry frame, followed closed-loop to the last one while the command keeps being
+    re-sent (the deadman applies to it as to a velocity). Action ids grow within a session; a
+    driver executes an id only once, and a newer id replaces what runs.
     """
 
     action_id: int = Field(ge=1)
@@ -509,11 +515,13 @@ class PlanCommand(JsonMessage):
     linear: float = 0.0   # m/s, velocity commands only
     angular: float = 0.0  # rad/s, velocity commands only
     duration_s: float = Field(default=0.0, ge=0)
+    path: tuple[tuple[float, float], ...] = Field(default=(), max_length=MAX_PATH_POINTS)
 
     @model_validator(mode="after")
     def _one_kind(self) -> Self:
-        if self.action is not None and (self.linear or self.angular):
-            raise ValueError("a command is either a discrete action or a velocity, not both")
+        kinds = (self.action is not None) + bool(self.linear or self.angular) + bool(self.path)
+        if kinds > 1:
+            raise ValueError("a command is one of a discrete action, a velocity or a path")
         return self
 
 

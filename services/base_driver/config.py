@@ -27,6 +27,20 @@ from ovamos.shared.motion import Pose
 from ovamos.shared.robot import PRIMITIVES, ROBOT, Primitives
 
 
+class FollowConfig(StrictModel):
+    """How a path command is followed (:mod:`ovamos.services.base_driver.follower`): a regulated
+    pure pursuit on odometry, within the driver's speed and acceleration limits."""
+
+    lookahead_m: float = Field(default=0.3, gt=0, description="the point steered toward, this far along the path")
+    goal_tolerance_m: float = Field(default=0.05, gt=0, description="the path is done this close to its last point")
+    rotate_in_place_rad: float = Field(
+        default=0.8, gt=0, le=math.pi,
+        description="a heading error to the lookahead point above this turns the base in place first")
+    min_radius_m: float = Field(default=0.5, gt=0, description="tighter curves than this are driven slower, "
+                                                                 "in proportion (regulated pure pursuit)")
+    min_speed_m_s: float = Field(default=0.05, gt=0, description="the slowest a curve or the goal's approach drives")
+
+
 class DriverConfig(StrictModel):
     hardware: Literal["odrive_can", "kobuki", "opencr", "ros2"] = Field(
         default="odrive_can", description="the base's hardware interface: odrive_can (a custom CAN base), "
@@ -71,6 +85,7 @@ class DriverConfig(StrictModel):
     heading_gain: float = Field(default=2.0, ge=0, description="1/s; holds the heading on a forward move")
     settle_rev_s: float = Field(default=0.01, gt=0, description="wheels slower than this are at rest")
     primitive_timeout_s: float = Field(default=10.0, gt=0, description="abort a primitive after this")
+    follow: FollowConfig = Field(default_factory=FollowConfig, description="path commands")
     back_off_on_bump: bool = Field(
         default=True,
         description="a MOVE_FORWARD stopped by a collision report (BaseController.bump: the "

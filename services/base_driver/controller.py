@@ -35,7 +35,7 @@ Safety, in order of precedence:
   completes as ``blocked``, turns and reversing stay allowed);
 * limits: body speed and acceleration are clamped, and a wheel never exceeds
   the top linear speed (both wheels scale, keeping the curvature);
-* deadman: a velocity command not renewed within ``deadman_s`` ramps to zero.
+* deadman: a velocity or path command not renewed within ``deadman_s`` ramps to zero.
   Primitives are bounded by their own goal and ``primitive_timeout_s``, and with
   ``command_timeout_s`` by the planner's keep-alive: a copy of the active command
   (re-sent every ``resend_s``) must come within that time, or the primitive is
@@ -54,6 +54,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from ovamos.services.base_driver.config import DriverConfig
+from ovamos.services.base_driver.follower import PathFollower
 from ovamos.services.base_driver.hardware import BaseHardware, HardwareError, WheelFeedback
 from ovamos.services.base_driver.kinematics import Geometry, WheelOdometry, toward
 from ovamos.services.base_driver.primitives import PrimitiveTracker
@@ -89,7 +90,7 @@ class _Active:
     command: PlanCommand
     received: float
     started: float | None = None         # when execution began (the base was ready)
-    tracker: PrimitiveTracker | None = None
+    tracker: PrimitiveTracker | PathFollower | None = None  # None: a velocity command
     outcome: Outcome = "done"            # how it completes when the tracker reaches its goal
     stall: tuple[float, Pose, float] | None = None  # the stall window: since when, from where, travel commanded
 
@@ -278,7 +279,10 @@ class BaseController:
                 if backward:  # hit something behind: stop there
                     self._finish("blocked")
                 continue  # else the last forward push of wheels still slowing down: keep going
-            if (self.config.back_off_on_bump and tracker is not None
+            if isinstance(tracker, PathFollower):
+                self._v = 0.0  # at once: the wheels are against the obstacle
+                self._finish("blocked")
+            elif (self.config.back_off_on_bump and isinstance(tracker, PrimitiveTracker)
                     and tracker.action is Action.MOVE_FORWARD):
                 active.tracker = PrimitiveTracker(Action.MOVE_FORWARD, tracker.start, self.config,
                                                   distance_m=0.0)
@@ -298,7 +302,8 @@ class BaseController:
 
     def _moving_forward(self) -> bool:
         a = self._active
-        return a is not None and a.started is not None and a.command.action is Action.MOVE_FORWARD
+        return a is not None and a.started is not None and (a.command.action is Action.MOVE_FORWARD
+                                                           or bool(a.command.path))
 
     # -- e-stop -----------------------------------------------------------------------------------
     def engage_estop(self, source: str, reason: str = "") -> None:
@@ -492,6 +497,8 @@ class BaseController:
             active.started = now
             if cmd.action is not None:
                 active.tracker = PrimitiveTracker(cmd.action, self._odom.pose, c)
+            elif cmd.path:
+                active.tracker = PathFollower(cmd.path, c)
         if active.tracker is None:  # velocity command
             expired = cmd.duration_s > 0 and now - active.started >= cmd.duration_s
             if now - self._last_command_at > c.deadman_s or expired:
@@ -500,7 +507,12 @@ class BaseController:
                     self._counters["deadman"] += 1
                 return 0.0, 0.0
             return cmd.linear, cmd.angular
-        if now - active.started > c.primitive_timeout_s:
+        if isinstance(active.tracker, PathFollower):
+            if now - self._last_command_at > c.deadman_s:  # the planner's keep-alive stopped
+                self._finish("aborted")
+                self._counters["deadman"] += 1
+                return 0.0, 0.0
+        elif now - active.started > c.primitive_timeout_s:
             self._finish("aborted")
             return 0.0, 0.0
         if c.command_timeout_s is not None and now - self._last_command_at > c.command_timeout_s:

@@ -22,7 +22,7 @@ from ovamos.shared.motion import Action, Pose, wrap_angle
 BRAKING_MARGIN = 0.8  # plan braking at 80 % of the acceleration limit: the ramp lags a tick
 
 
-def _approach(remaining: float, top: float, accel: float, gain: float, creep: float) -> float:
+def approach(remaining: float, top: float, accel: float, gain: float, creep: float) -> float:
     """Signed speed toward a goal ``remaining`` away (positive: ahead)."""
     d = abs(remaining)
     speed = max(creep, min(top, math.sqrt(2 * accel * BRAKING_MARGIN * d), gain * d))
@@ -60,11 +60,11 @@ class PrimitiveTracker:
             if abs(r) <= c.linear_tolerance_m:
                 return None
             heading = c.heading_gain * wrap_angle(self.start.yaw - pose.yaw)
-            return _approach(r, c.max_linear_m_s, c.max_linear_accel_m_s2, c.approach_gain,
+            return approach(r, c.max_linear_m_s, c.max_linear_accel_m_s2, c.approach_gain,
                              c.creep_m_s), heading
         if self.action in (Action.TURN_LEFT, Action.TURN_RIGHT):
             if abs(r) <= c.angular_tolerance_rad:
                 return None
-            return 0.0, _approach(r, c.max_angular_rad_s, c.max_angular_accel_rad_s2,
+            return 0.0, approach(r, c.max_angular_rad_s, c.max_angular_accel_rad_s2,
                                   c.approach_gain, c.creep_rad_s)
         return None  # STOP: stand still

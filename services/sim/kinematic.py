@@ -4,7 +4,7 @@ Used for lock-step runs that must be deterministic (same seed, same
 trajectory in one process or over Zenoh) and for fast demos; the ``odrive``
 motion mode runs the real driver instead. It keeps the driver's contract: an
 action id executes once, an e-stop latches until cleared and rejects commands
-meanwhile. Velocity (teleop) commands need the ``odrive`` mode and are rejected.
+meanwhile. Velocity (teleop) and path commands need a wheeled mode and are rejected.
 """
 
 from __future__ import annotations
