@@ -50,6 +50,23 @@ from ovamos.shared.simtime import SimClock
 MAP_MARGIN_M = 2.0
 
 
+class StepLatency(BaseModel):
+    """What a stepwise step costs besides its motion, the robot standing still: the frame taken after
+    the command, perception, fusion and the decision. Defaults are assumptions for a GPU laptop
+    (the stack's own timings on this CPU-only machine are slower), so the search time is the base's
+    motion as simulated plus these: configure them to a deployment's measured latencies."""
+
+    model_config = ConfigDict(extra="forbid")
+    frame_s: float = Field(default=0.033, ge=0, description="the next frame of a 30 Hz camera")
+    perception_s: float = Field(default=0.08, ge=0, description="detection and scoring of one frame")
+    mapping_s: float = Field(default=0.02, ge=0, description="fusing the frame into the map")
+    decision_s: float = Field(default=0.05, ge=0, description="the planner's decision step")
+
+    @property
+    def total_s(self) -> float:
+        return self.frame_s + self.perception_s + self.mapping_s + self.decision_s
+
+
 class EpisodeConfig(BaseModel):
     """Everything an episode's outcome depends on besides the episode itself."""
 
@@ -64,6 +81,8 @@ class EpisodeConfig(BaseModel):
     motion: MotionConfig = Field(default_factory=MotionConfig)
     base: Motion = Field(default="kinematic", description="kinematic: a primitive lands exactly; odrive, "
                          "kobuki, opencr: the base controller on that simulated base, in simulated time")
+    latency: StepLatency = Field(default_factory=StepLatency, description="a step's cost besides its motion "
+                                 "(the search time of a wheeled base)")
 
     @field_validator("policy")
     @classmethod
@@ -92,6 +111,7 @@ class EpisodeResult(BaseModel):
     stops: list[StopRecord]
     trajectory: list[tuple[float, float, float]]
     funnel: list[TargetFunnel] = []  # per target: how far its search got (older files: none)
+    search_s: float | None = None  # wheeled bases: simulated seconds from the first command to the last
     seconds: float
 
 
@@ -128,6 +148,7 @@ class EpisodeWorld:
         self.robot, self.wheels = _robot(start, truth, config)
         self.renderer = SceneRenderer(scene, config.width, config.height)
         self.scene = scene
+        self.clock = None if self.wheels is None else self.wheels.clock  # simulated time on a wheeled base
         self.seq = 0  # frames taken, over all tasks: lock-step's frame seq follows the commands
         self.blocked = 0  # primitives that ended blocked, over all tasks
 
@@ -188,6 +209,7 @@ def run_task(world: EpisodeWorld, spec: EpisodeSpec,
     trajectory = [(robot.pose.x, robot.pose.y, robot.pose.yaw)]
     funnel = FunnelRecorder(world.scene, spec.targets)
     distance0, blocked0 = robot.distance, world.blocked  # a later task's path and bumps are its own
+    began = None if world.clock is None else world.clock()
     while task.state is TaskStatus.SEARCHING:
         pose, true, seq = world.pose(), robot.pose, world.seq
         # lock-step as in the services: frame seq follows command seq (seq commands done)
@@ -219,6 +241,9 @@ def run_task(world: EpisodeWorld, spec: EpisodeSpec,
         world.seq += 1
     found = tuple(s.label for s in stops if s.success)
     success = set(found) >= set(spec.targets)
+    # the last command is the last STOP when every target was found: each step's motion as simulated,
+    # plus the time it stood for its frame, perception, fusion and decision
+    search_s = None if began is None else round(world.clock() - began + task.steps * config.latency.total_s, 2)
     shortest = truth.shortest_tour((spec.start.x, spec.start.y), spec.targets)
     return EpisodeResult(
         episode_id=spec.episode_id, policy=config.policy, scene_seed=spec.scene_seed,
@@ -226,5 +251,5 @@ def run_task(world: EpisodeWorld, spec: EpisodeSpec,
         found=found, steps=task.steps, path_m=round(robot.distance - distance0, 4), shortest_m=round(shortest, 4),
         state=task.state.value, reason=task.reason, decisions=agent.decisions, blocked=world.blocked - blocked0,
         stops=stops, funnel=funnel.result(stops), trajectory=[tuple(round(v, 4) for v in p) for p in trajectory],
-        seconds=round(time.perf_counter() - started, 3))
+        search_s=search_s, seconds=round(time.perf_counter() - started, 3))
 

@@ -15,7 +15,8 @@ from ovamos.shared.messages import Miss
 
 def policy_scores(results: Sequence[EpisodeResult]) -> dict[str, dict[str, float | int]]:
     """Per policy (paper order): SR in %, MSPL, episodes, the % of all targets found (a
-    finer signal than SR when few episodes succeed), wrong STOPs and the mean steps an episode."""
+    finer signal than SR when few episodes succeed), wrong STOPs, the mean steps an episode and, on a
+    wheeled base, the median and 90th percentile search time (simulated seconds)."""
     scores: dict[str, dict[str, float | int]] = {}
     for policy in sorted({r.policy for r in results}, key=policy_rank):
         mine = [r for r in results if r.policy == policy]
@@ -26,6 +27,10 @@ def policy_scores(results: Sequence[EpisodeResult]) -> dict[str, dict[str, float
                           "targets_found": round(100 * found / sum(len(r.targets) for r in mine), 1),
                           "wrong_stops": sum(not stop.success for r in mine for stop in r.stops),
                           "steps": round(statistics.fmean(r.steps for r in mine), 1)}
+        times = [r.search_s for r in mine if r.search_s is not None]
+        if len(times) == len(mine):  # a wheeled base's run: search time in simulated seconds
+            scores[policy] |= {"median_search_s": round(float(np.median(times)), 1),
+                               "p90_search_s": round(float(np.percentile(times, 90)), 1)}
     return scores
 
 

@@ -29,8 +29,10 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
         present = [p for p in rows if p in scores]
         if not present or (rows is TABLE_PLUS and OVAMOS_PLUS.name not in scores):
             continue
-        table = Table("method", "episodes", "SR", "MSPL", "targets found", "wrong STOPs", "steps", "paper SR",
-                      "paper MSPL", title=f"{title} (seed {result['seed']}{limit})")
+        timed = all("median_search_s" in scores[p] for p in present)  # a wheeled base: simulated time
+        table = Table("method", "episodes", "SR", "MSPL", "targets found", "wrong STOPs", "steps",
+                      *(("search s (median / p90)",) if timed else ()), "paper SR", "paper MSPL",
+                      title=f"{title} (seed {result['seed']}{limit})")
         for policy in present:
             s = scores[policy]
             paper_sr, paper_mspl = (f"{PAPER[policy][0]:.1f}%", f"{PAPER[policy][1]:.3f}") if policy in PAPER \
@@ -38,6 +40,7 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
             label = "OVAMOS (full)" if rows is TABLE_II and policy == OVAMOS.name else LABELS[policy]
             table.add_row(label, str(s["episodes"]), f"{s['sr']:.1f}%", f"{s['mspl']:.3f}",
                           f"{s['targets_found']:.1f}%", str(s.get("wrong_stops", "")), f"{s.get('steps', 0):.0f}",
+                          *((f"{s['median_search_s']:.0f} / {s['p90_search_s']:.0f}",) if timed else ()),
                           paper_sr, paper_mspl)
         console.print(table)
     for key, name in (("vs_ovamos", "OVAMOS"), ("vs_plus", "OVAMOS-plus")):

@@ -34,8 +34,8 @@ def wait_for_mode(driver: BaseDriver, mode: DriverMode, timeout: float = 10.0) -
     wait_for(lambda: driver.state().mode is mode, timeout, f"driver mode {mode.value}")
 
 
-def command(action: Action | None = None, **velocity: float) -> PlanCommand:
-    return PlanCommand(action_id=next(_ids), stamp=0.0, action=action, **velocity)
+def command(action: Action | None = None, path: tuple[tuple[float, float], ...] = (), **velocity: float) -> PlanCommand:
+    return PlanCommand(action_id=next(_ids), stamp=0.0, action=action, path=path, **velocity)
 
 
 def run(driver: BaseDriver, cmd: PlanCommand, timeout: float = 15.0) -> str:
@@ -148,13 +148,16 @@ class FakeOdometryBase(FakeHardware):
                              bumpers=self.bumpers)
 
 
+def free_run(pose: Pose, heading: float, is_free: Callable[[float, float], bool]) -> float:
+    """How far the robot's centre can go from ``pose`` along ``heading`` (by 2 cm steps, up to 20 m)."""
+    d = 0.0
+    while d < 20 and is_free(pose.x + (d + 0.02) * math.cos(heading), pose.y + (d + 0.02) * math.sin(heading)):
+        d += 0.02
+    return d
+
+
 def turns_to_nearest_wall(pose: Pose, is_free: Callable[[float, float], bool]) -> tuple[int, float]:
-    """How many 30-degree left turns from ``pose`` face the nearest obstacle, and how far it is then
-    (by 2 cm steps, up to 20 m)."""
-    def free_run(heading: float) -> float:
-        d = 0.0
-        while d < 20 and is_free(pose.x + (d + 0.02) * math.cos(heading), pose.y + (d + 0.02) * math.sin(heading)):
-            d += 0.02
-        return d
-    return min(((turns, free_run(pose.yaw + math.radians(30 * turns))) for turns in range(12)), key=lambda t: t[1])
+    """How many 30-degree left turns from ``pose`` face the nearest obstacle, and how far it is then."""
+    return min(((turns, free_run(pose, pose.yaw + math.radians(30 * turns), is_free)) for turns in range(12)),
+               key=lambda t: t[1])
 

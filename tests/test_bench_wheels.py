@@ -105,3 +105,29 @@ def test_an_episodes_first_steps_are_those_of_a_real_time_demo_on_the_kobuki(tmp
     end = report["position"]
     x, y, _ = bench["trajectory"][-1]
     assert math.hypot(end["x"] - x, end["y"] - y) < 0.05
+
+
+def test_a_wheeled_episode_reports_its_search_time_in_simulated_seconds() -> None:
+    """The base's motion as simulated plus each step's standing time (frame, perception, fusion,
+    decision): never less than its primitives take at the base's top speeds, each latency second
+    counted once a step; a kinematic base has no time to report."""
+    from ovamos.bench.episode import EpisodeResult, StepLatency
+    from ovamos.bench.stats import policy_scores
+    steps = 20
+    actions: list[Action] = []
+    spec, scene, truth = load_episode(*EPISODE)
+    spec = spec.model_copy(update={"max_steps": steps})
+    still = EpisodeConfig(base="kobuki", latency=StepLatency(frame_s=0, perception_s=0, mapping_s=0, decision_s=0))
+    moving = run_episode(spec, scene, truth, still, load_prior(), lambda _, step: actions.append(step.action))
+    timed = run_episode(spec, scene, truth, EpisodeConfig(base="kobuki"), load_prior())
+    c = DriverConfig()
+    fastest = sum(0.25 / c.max_linear_m_s if a is Action.MOVE_FORWARD else
+                  math.radians(30) / c.max_angular_rad_s if a in (Action.TURN_LEFT, Action.TURN_RIGHT) else 0.0
+                  for a in actions)
+    assert moving.search_s is not None and moving.search_s > fastest > 0
+    assert timed.search_s == pytest.approx(moving.search_s + moving.steps * StepLatency().total_s, abs=0.02)
+    kinematic = run_episode(spec, scene, truth, EpisodeConfig(), load_prior())
+    assert kinematic.search_s is None
+    scores = policy_scores([EpisodeResult.model_validate(timed.model_dump())])["ovamos"]
+    assert scores["median_search_s"] == scores["p90_search_s"] == round(timed.search_s, 1)
+    assert "median_search_s" not in policy_scores([kinematic])["ovamos"]

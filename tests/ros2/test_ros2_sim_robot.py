@@ -26,7 +26,7 @@ from ovamos.services.sim.ros2_robot import CAMERA
 from ovamos.shared.messages import DriverMode
 from ovamos.shared.motion import Action
 from ovamos.shared.procs import stop
-from tests.base_driver_helpers import command, run, turns_to_nearest_wall, wait_for_mode
+from tests.base_driver_helpers import command, free_run, run, turns_to_nearest_wall, wait_for_mode
 from tests.polling import wait_for
 from tests.ros2.test_ros2_camera import read_frame
 
@@ -101,6 +101,28 @@ def test_a_move_into_a_wall_ends_blocked(sim_robot: Path, bump: str | None) -> N
         assert outcomes[-1] == "blocked" and "blocked" not in outcomes[:-2], (distance, outcomes)
         assert driver.counters["bumps"] > 0
         assert (driver.counters["ros2_bumps"] > 0) if bump else (driver.counters["stalls"] > 0)
+    finally:
+        driver.stop()
+
+
+def test_a_path_command_is_followed_on_its_odometry(sim_robot: Path) -> None:
+    """The path follower through ROS 2 (the controller's, as on every base): a point 0.8 m away in
+    the episode's most open direction, re-sent as the planner's keep-alive, ends done there."""
+    spec, _, truth = make_episode(*EPISODE)
+    heading = max((spec.start.yaw + math.radians(30 * k) for k in range(12)),
+                  key=lambda h: free_run(spec.start, h, truth.is_free))
+    assert free_run(spec.start, heading, truth.is_free) > 1.2
+    goal = (spec.start.x + 0.8 * math.cos(heading), spec.start.y + 0.8 * math.sin(heading))
+    driver = BaseController(DriverConfig(hardware="ros2")).start()
+    try:
+        wait_for_mode(driver, DriverMode.READY, timeout=60)
+        path = command(path=(goal,))
+        assert driver.submit(path) == "accepted"
+        wait_for(lambda: driver.submit(path) and driver.state().last_completed >= path.action_id, 60,
+                 "the path followed")  # each poll re-sends it: the keep-alive
+        assert driver.state().last_outcome == "done"
+        end = driver.odometry()
+        assert math.hypot(end.x - goal[0], end.y - goal[1]) <= driver.config.follow.goal_tolerance_m + 0.03
     finally:
         driver.stop()
 
