@@ -24,9 +24,11 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from ovamos.bench.continuous import RESEND_S, search_continuously
 from ovamos.bench.funnel import FunnelRecorder, StopRecord, TargetFunnel
 from ovamos.bench.policies import planner_policy
 from ovamos.services.base_driver.config import DriverConfig
@@ -43,7 +45,7 @@ from ovamos.services.sim.render import SceneRenderer
 from ovamos.services.sim.robot import MotionConfig, SimRobot
 from ovamos.services.sim.wheels import Motion, SerialSimRobot, WheeledSimRobot, base_motion, wheeled
 from ovamos.services.sim.world import Scene
-from ovamos.shared.messages import PerceptionResult, PlanCommand, TaskStatus
+from ovamos.shared.messages import MapSnapshot, PerceptionResult, PlanCommand, TaskStatus
 from ovamos.shared.motion import Action, Pose
 from ovamos.shared.simtime import SimClock
 
@@ -83,6 +85,8 @@ class EpisodeConfig(BaseModel):
                          "kobuki, opencr: the base controller on that simulated base, in simulated time")
     latency: StepLatency = Field(default_factory=StepLatency, description="a step's cost besides its motion "
                                  "(the search time of a wheeled base)")
+    frame_hz: float = Field(default=5.0, gt=0, description="continuous motion: the free-running camera's "
+                            "frames that are perceived and fused (perception takes the newest)")
 
     @field_validator("policy")
     @classmethod
@@ -113,6 +117,33 @@ class EpisodeResult(BaseModel):
     funnel: list[TargetFunnel] = []  # per target: how far its search got (older files: none)
     search_s: float | None = None  # wheeled bases: simulated seconds from the first command to the last
     seconds: float
+
+
+@dataclass
+class TaskRun:
+    """One task's search on a world, and what the result keeps of it."""
+
+    task: SearchTask
+    agent: SearchAgent
+    funnel: FunnelRecorder
+    trajectory: list[tuple[float, float, float]]
+    on_step: Callable[[int, Step], None] | None = None
+    stops: list[StopRecord] = field(default_factory=list)
+
+    def stop_at(self, world: EpisodeWorld, step: Step, true: Pose) -> None:
+        """The ground truth's word on a STOP made at the true pose ``true``."""
+        if step.goal is None or step.goal.label is None:
+            return
+        outcome = world.truth.stop(step.goal.label, true.x, true.y)  # where the robot really is
+        self.stops.append(StopRecord(step=self.task.steps + 1, label=step.goal.label, x=true.x, y=true.y,
+                                     success=outcome.success, distance_m=outcome.distance))
+
+    def booked(self, world: EpisodeWorld, step: Step) -> None:
+        """After the agent booked ``step``: where the robot now truly is, and the caller's hook."""
+        p = world.robot.pose
+        self.trajectory.append((p.x, p.y, p.yaw))
+        if self.on_step is not None:
+            self.on_step(self.task.steps, step)
 
 
 def scene_mapping(scene: Scene, base: MappingConfig | None = None) -> MappingConfig:
@@ -149,8 +180,37 @@ class EpisodeWorld:
         self.renderer = SceneRenderer(scene, config.width, config.height)
         self.scene = scene
         self.clock = None if self.wheels is None else self.wheels.clock  # simulated time on a wheeled base
-        self.seq = 0  # frames taken, over all tasks: lock-step's frame seq follows the commands
-        self.blocked = 0  # primitives that ended blocked, over all tasks
+        self.seq = 0  # frames taken, over all tasks (stepwise: one per command)
+        self.commands = 0  # commands sent, over all tasks
+        self.blocked = 0  # commands that ended blocked, over all tasks
+        self.keep_alive: PlanCommand | None = None  # continuous: the path command re-sent to the driver
+        if self.wheels is not None and config.agent.motion == "continuous":
+            self.wheels.clock.every(RESEND_S, self._resend)
+
+    def _resend(self) -> None:
+        if self.keep_alive is not None and self.wheels is not None:
+            self.wheels.driver.submit(self.keep_alive)  # a duplicate: the driver's keep-alive
+
+    def observe(self, search: TaskRun, stamp: float, after_action: int) -> MapSnapshot:
+        """Frame :attr:`seq` (the caller counts it) from where the robot truly is, perceived for the task's remaining targets and fused.
+
+        Every frame for the remaining targets, the first view too: the services map it before the
+        task reaches perception, which then re-scores it for the task's targets, and the map adds
+        those values (MapState.apply: a frame counts once), to the same map."""
+        true, task = self.robot.pose, search.task
+        frame = self.renderer.render(true.x, true.y, true.yaw, seq=self.seq, stamp=stamp, after_action=after_action)
+        remaining = task.remaining
+        detections = self.perception.detect(frame, remaining)
+        search.funnel.frame(task.steps, frame, self.perception.visible_classes(frame), detections)
+        self.state.apply(frame, PerceptionResult.build(frame.seq, frame.stamp, self.perception.score(frame, remaining),
+                                                       detections, frame.depth.shape))
+        snapshot = self.state.snapshot(frame.stamp, with_confidence=False)
+        search.funnel.map(task.steps, snapshot.objects)
+        return snapshot
+
+    def command(self, action: Action | None = None, path: tuple[tuple[float, float], ...] = ()) -> PlanCommand:
+        self.commands += 1
+        return PlanCommand(action_id=self.commands, stamp=float(self.commands), action=action, path=path)
 
     def pose(self) -> Pose:
         """Where the planner believes the robot is: its odometry (the true pose when kinematic)."""
@@ -162,10 +222,10 @@ class EpisodeWorld:
     def execute(self, action: Action) -> bool:
         """Run one primitive; False when a move was blocked (counted in :attr:`blocked`)."""
         if self.wheels is None:
+            self.commands += 1
             done = self.robot.apply(action)
         else:
-            command = PlanCommand(action_id=self.seq + 1, stamp=float(self.seq), action=action)
-            done = self.wheels.run_command(command) != "blocked"
+            done = self.wheels.run_command(self.command(action)) != "blocked"
         self.blocked += not done
         return done
 
@@ -200,56 +260,52 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
 def run_task(world: EpisodeWorld, spec: EpisodeSpec,
              on_step: Callable[[int, Step], None] | None = None) -> EpisodeResult:
     """Search for ``spec.targets`` on ``world`` from where its robot stands (``spec.start`` must be
-    that pose: the shortest tour, and so the SPL, is measured from it)."""
+    that pose: the shortest tour, and so the SPL, is measured from it), stepwise or continuously as
+    the agent's ``motion`` says."""
     started = time.perf_counter()
-    config, truth, robot, perception, state = world.config, world.truth, world.robot, world.perception, world.state
+    config, truth, robot = world.config, world.truth, world.robot
     task = SearchTask(spec.episode_id, list(spec.targets), max_steps=spec.max_steps)
-    agent = SearchAgent(task, config.agent)
-    stops: list[StopRecord] = []
-    trajectory = [(robot.pose.x, robot.pose.y, robot.pose.yaw)]
-    funnel = FunnelRecorder(world.scene, spec.targets)
+    search = TaskRun(task, SearchAgent(task, config.agent), FunnelRecorder(world.scene, spec.targets),
+                     [(robot.pose.x, robot.pose.y, robot.pose.yaw)], on_step)
     distance0, blocked0 = robot.distance, world.blocked  # a later task's path and bumps are its own
     began = None if world.clock is None else world.clock()
-    while task.state is TaskStatus.SEARCHING:
-        pose, true, seq = world.pose(), robot.pose, world.seq
-        # lock-step as in the services: frame seq follows command seq (seq commands done)
-        frame = world.renderer.render(true.x, true.y, true.yaw, seq=seq, stamp=float(seq), after_action=seq)
-        # Every frame for the remaining targets, the first view too: the services map it
-        # before the task reaches perception, which then re-scores it for the task's targets,
-        # and the map adds those values (MapState.apply: a frame counts once), to the same map.
-        remaining = task.remaining
-        detections = perception.detect(frame, remaining)
-        funnel.frame(task.steps, frame, perception.visible_classes(frame), detections)
-        state.apply(frame, PerceptionResult.build(seq, frame.stamp, perception.score(frame, remaining),
-                                                  detections, frame.depth.shape))
-        snapshot = state.snapshot(frame.stamp, with_confidence=False)
-        assert snapshot.has_seen_after(seq), "the map must have fused the frame after the last command"
-        funnel.map(task.steps, snapshot.objects)
-        step = agent.next_step(snapshot, pose)
-        if step.action is None:
-            break
-        before = robot.distance
-        blocked = not world.execute(step.action)
-        if step.reason is Reason.FOUND and step.goal is not None and step.goal.label is not None:
-            outcome = truth.stop(step.goal.label, true.x, true.y)  # where the robot really is
-            stops.append(StopRecord(step=task.steps + 1, label=step.goal.label, x=true.x, y=true.y,
-                                    success=outcome.success, distance_m=outcome.distance))
-        agent.executed(step, robot.distance - before, blocked, pose)
-        trajectory.append((robot.pose.x, robot.pose.y, robot.pose.yaw))
-        if on_step is not None:
-            on_step(task.steps, step)
-        world.seq += 1
+    if config.agent.motion == "continuous":
+        search_continuously(world, search)
+        search_s = None if began is None else round(world.clock() - began, 2)
+    else:
+        _search_stepwise(world, search)
+        # the last command is the last STOP when every target was found: each step's motion as
+        # simulated, plus the time it stood for its frame, perception, fusion and decision
+        search_s = None if began is None else round(world.clock() - began + task.steps * config.latency.total_s, 2)
+    stops = search.stops
     found = tuple(s.label for s in stops if s.success)
     success = set(found) >= set(spec.targets)
-    # the last command is the last STOP when every target was found: each step's motion as simulated,
-    # plus the time it stood for its frame, perception, fusion and decision
-    search_s = None if began is None else round(world.clock() - began + task.steps * config.latency.total_s, 2)
     shortest = truth.shortest_tour((spec.start.x, spec.start.y), spec.targets)
     return EpisodeResult(
         episode_id=spec.episode_id, policy=config.policy, scene_seed=spec.scene_seed,
         targets=spec.targets, success=success, spl=spl(success, shortest, robot.distance - distance0),
         found=found, steps=task.steps, path_m=round(robot.distance - distance0, 4), shortest_m=round(shortest, 4),
-        state=task.state.value, reason=task.reason, decisions=agent.decisions, blocked=world.blocked - blocked0,
-        stops=stops, funnel=funnel.result(stops), trajectory=[tuple(round(v, 4) for v in p) for p in trajectory],
+        state=task.state.value, reason=task.reason, decisions=search.agent.decisions,
+        blocked=world.blocked - blocked0, stops=stops, funnel=search.funnel.result(stops),
+        trajectory=[tuple(round(v, 4) for v in p) for p in search.trajectory],
         search_s=search_s, seconds=round(time.perf_counter() - started, 3))
 
+
+def _search_stepwise(world: EpisodeWorld, search: TaskRun) -> None:
+    """The lock-step loop: a primitive, the frame after it, perception, fusion, the next decision."""
+    task, agent, robot = search.task, search.agent, world.robot
+    while task.state is TaskStatus.SEARCHING:
+        pose, true, seq = world.pose(), robot.pose, world.seq
+        # lock-step as in the services: frame seq follows command seq (seq commands done)
+        snapshot = world.observe(search, stamp=float(seq), after_action=seq)
+        assert snapshot.has_seen_after(seq), "the map must have fused the frame after the last command"
+        step = agent.next_step(snapshot, pose)
+        if step.action is None:
+            break
+        before = robot.distance
+        blocked = not world.execute(step.action)
+        if step.reason is Reason.FOUND:
+            search.stop_at(world, step, true)
+        agent.executed(step, robot.distance - before, blocked, pose)
+        search.booked(world, step)
+        world.seq += 1

@@ -407,9 +407,13 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
          timeout: Annotated[Optional[float], typer.Option(
              help="Give the search this many seconds (default: 600 on the kinematic base, 1500 on a "
                   "wheeled one, whose primitives take real time).")] = None,
-         base: Annotated[str, typer.Option(help="How the simulated robot moves: kinematic (ideal), odrive, "
-                                                "kobuki or opencr (the real base driver and its client on a "
-                                                "simulated device).")] = "kinematic",
+         base: Annotated[Optional[str], typer.Option(
+             help="How the simulated robot moves: kinematic (ideal; the default stepwise), odrive, kobuki "
+                  "(the default continuous) or opencr (the real base driver and its client on a simulated "
+                  "device), or ros2.")] = None,
+         motion: Annotated[str, typer.Option(
+             help="stepwise: a primitive, then the frame after it (the paper's); continuous: paths driven "
+                  "while frames free-run (a wheeled base).")] = "stepwise",
          out: Annotated[Path, typer.Option(help="Folder for the report, map, configs and logs; while the "
                                                 f"services are up, {ENDPOINTS_FILE} (their router and "
                                                 "gateway, for status, submit, map ...).")]
@@ -425,9 +429,15 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
              min=1, help="Each task's step limit (default: the paper's 500).")] = None
          ) -> None:
     """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
-    from ovamos.demo import BASES, DEMO_EPISODE, DEMO_SEED, ROS2_BASE, run_demo
+    from ovamos.demo import BASES, CONTINUOUS_BASE, DEMO_EPISODE, DEMO_SEED, MOTIONS, ROS2_BASE, run_demo
     seed = DEMO_SEED if seed is None else seed
     episode = DEMO_EPISODE if episode is None else episode
+    if motion not in MOTIONS:
+        raise _fail(f"--motion {motion!r}: one of {', '.join(MOTIONS)}")
+    base = base or ("kinematic" if motion == "stepwise" else CONTINUOUS_BASE)
+    if motion == "continuous" and base == "kinematic":
+        raise _fail("--motion continuous drives paths on wheels: the kinematic base only executes primitives; "
+                    f"choose --base {CONTINUOUS_BASE}, opencr, odrive or ros2")
     if base not in BASES:
         raise _fail(f"--base {base!r}: one of {', '.join(BASES)}")
     if base == ROS2_BASE:
@@ -436,7 +446,7 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
         code = run_demo(console, out_dir=out, seed=seed, episode=episode, targets=targets,
                         keep_running=keep_running, timeout_s=timeout, base=base,
                         record=out / "run.mcap" if record else None, robots=robots, max_steps=max_steps,
-                        publish=lambda router, gateway: Deployment(router, gateway, os.getpid()).published(
+                        motion=motion, publish=lambda router, gateway: Deployment(router, gateway, os.getpid()).published(
                             out / ENDPOINTS_FILE))
     except (TimeoutError, OSError) as exc:
         raise _fail(str(exc)) from None

@@ -35,6 +35,7 @@ from ovamos.bench.episode import scene_mapping
 from ovamos.services.gateway.client import GatewayClient, GatewayError
 from ovamos.services.gateway.models import TaskView
 from ovamos.services.perception.config import PerceptionServiceConfig
+from ovamos.services.planner.agent import AgentConfig
 from ovamos.services.sim.episodes import make_episode
 from ovamos.services.sim.prior import ObjectPrior
 from ovamos.services.sim.wheels import Motion
@@ -53,6 +54,8 @@ SERVICES = ("mapping", "perception", "planner", "sim", "gateway")
 ROS2_SERVICES = ("mapping", "perception", "planner", "base_driver", "camera", "gateway")
 ROS2_BASE = "ros2"
 BASES: tuple[str, ...] = (*get_args(Motion), ROS2_BASE)  # the simulated robot's ways to move
+MOTIONS: tuple[str, ...] = get_args(AgentConfig.model_fields["motion"].annotation)  # how the planner drives it
+CONTINUOUS_BASE = "kobuki"  # continuous motion's default base: a TurtleBot 2's wheels
 
 
 def demo_services(base: str) -> tuple[str, ...]:
@@ -98,22 +101,24 @@ def suggested_targets(seed: int, episode: int, searched: Sequence[str], count: i
 
 
 def _robot_configs(folder: Path, seed: int, episode: int, *, width: int, height: int, base: str,
-                   checkpoint: str = "map.ckpt") -> dict[str, dict[str, Any]]:
-    """The per-robot services' configs for a robot in episode (``seed``, ``episode``)."""
+                   motion: str = "stepwise", checkpoint: str = "map.ckpt") -> dict[str, dict[str, Any]]:
+    """The per-robot services' configs for a robot in episode (``seed``, ``episode``): lock-step frames
+    stepwise, free-running ones (``frame_hz``) when the robot drives continuously."""
     _, scene, _ = make_episode(seed, episode)
     mapping = scene_mapping(scene)
     episode_keys = {"episode_seed": seed, "episode_index": episode}
+    lock_step = motion == "stepwise"
     robot = {"mapping": {"grid_cells": mapping.grid_cells, "center": list(mapping.center), "publish_hz": 5.0,
                          "checkpoint_path": str(folder / checkpoint)}}
     if base != ROS2_BASE:
-        return {**robot, "sim": {**episode_keys, "motion": base, "lock_step": True, "width": width, "height": height}}
+        return {**robot, "sim": {**episode_keys, "motion": base, "lock_step": lock_step, "width": width, "height": height}}
     from ovamos.services.sim.ros2_robot import BUMP_TOPIC, INSTANCE_IDS_TOPIC
     return {**robot, "ros2_robot": {**episode_keys, "width": width, "height": height},
             # the base's topics and geometry are the defaults, as the simulated robot's, which
             # also reports contact on BUMP_TOPIC
             "base_driver": {"driver": {"hardware": "ros2", "command_timeout_s": 0.5,
                                        "ros2": {"bump": BUMP_TOPIC}}},
-            "camera": {"backend": "ros2", "lock_step": True, "ros2": {"instance_ids": INSTANCE_IDS_TOPIC}}}
+            "camera": {"backend": "ros2", "lock_step": lock_step, "ros2": {"instance_ids": INSTANCE_IDS_TOPIC}}}
 
 
 def _write(folder: Path, configs: dict[str, dict[str, Any]]) -> dict[str, Path]:
@@ -126,15 +131,22 @@ def _write(folder: Path, configs: dict[str, dict[str, Any]]) -> dict[str, Path]:
 
 
 def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_port: int,
-                  width: int = 320, height: int = 240, base: str = "kinematic") -> dict[str, Path]:
+                  width: int = 320, height: int = 240, base: str = "kinematic", motion: str = "stepwise"
+                  ) -> dict[str, Path]:
     """One JSON config per service, all describing the same episode (scene, start pose); ``base``
-    is how the simulated robot moves (see ``SimServiceConfig.motion``)."""
+    is how the simulated robot moves (see ``SimServiceConfig.motion``), ``motion`` how the planner
+    drives it (``AgentConfig.motion``)."""
     episode_keys = {"episode_seed": seed, "episode_index": episode}
-    return _write(folder, {**_robot_configs(folder, seed, episode, width=width, height=height, base=base),
+    return _write(folder, {**_robot_configs(folder, seed, episode, width=width, height=height, base=base,
+                                            motion=motion),
                            "perception": {"backend": "sim", "sim": episode_keys},
-                           "planner": {},
+                           "planner": _planner_config(motion),
                            "gateway": {"port": http_port, "robots": [robot_id],
                                        "state_dir": str(folder / "gateway")}})
+
+
+def _planner_config(motion: str) -> dict[str, Any]:
+    return {} if motion == "stepwise" else {"agent": {"motion": motion}}
 
 
 def fleet_episodes(seed: int, episode: int, robots: int) -> dict[str, int]:
@@ -147,7 +159,8 @@ def fleet_episodes(seed: int, episode: int, robots: int) -> dict[str, int]:
 
 
 def write_fleet_configs(folder: Path, *, seed: int, episodes: dict[str, int], http_port: int,
-                        width: int = 320, height: int = 240, base: str = "kinematic") -> dict[str, Path]:
+                        width: int = 320, height: int = 240, base: str = "kinematic", motion: str = "stepwise"
+                        ) -> dict[str, Path]:
     """A fleet's configs (:mod:`ovamos.fleet`): ``mapping-R`` and ``sim-R`` per robot R, each
     robot in its own home (``episodes[R]``); one ``perception`` that batches across the robots,
     reading each robot's frames in its scene; one ``planner`` config and one ``gateway`` for all."""
@@ -156,12 +169,12 @@ def write_fleet_configs(folder: Path, *, seed: int, episodes: dict[str, int], ht
     configs: dict[str, dict[str, Any]] = {}
     for robot, home in homes.items():
         for name, config in _robot_configs(folder, seed, home["episode_index"], width=width, height=height,
-                                           base=base, checkpoint=f"map-{robot}.ckpt").items():
+                                           base=base, motion=motion, checkpoint=f"map-{robot}.ckpt").items():
             configs[f"{name}-{robot}"] = config
     perception = PerceptionServiceConfig(backend="sim", batch_size=len(robots), batch_wait_ms=10.0)
     configs["perception"] = {**perception.model_dump(mode="json", include={"backend", "batch_size", "batch_wait_ms"}),
                              **fleet.fleet_wide_settings("perception", perception, robots, homes)}
-    configs["planner"] = {}
+    configs["planner"] = _planner_config(motion)
     configs["gateway"] = {"port": http_port, "robots": robots, "state_dir": str(folder / "gateway")}
     return _write(folder, configs)
 
@@ -248,9 +261,11 @@ def wait_for_services(client: GatewayClient, robots: list[str], deadline: float,
 def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode: int = DEMO_EPISODE,
              targets: list[str] | None = None, robot_id: str = "sim", keep_running: bool = False,
              timeout_s: float | None = None, base: str = "kinematic", record: Path | None = None,
-             robots: int = 1, publish: Publish | None = None, max_steps: int | None = None) -> int:
+             robots: int = 1, publish: Publish | None = None, max_steps: int | None = None,
+             motion: str = "stepwise") -> int:
     """Run the demo; ``record``: the MCAP file to record the run to (None: no recording);
-    ``max_steps``: each task's step limit (None: the gateway's default, the paper's 500).
+    ``max_steps``: each task's step limit (None: the gateway's default, the paper's 500); ``motion``:
+    stepwise or continuous (a wheeled ``base`` only).
 
     ``robots`` > 1: a fleet (:func:`write_fleet_configs`), robot i searching episode
     ``episode + i`` (its own home) for that episode's targets (or ``targets``), all at once.
@@ -262,11 +277,11 @@ def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode:
     url, router = f"http://127.0.0.1:{http_port}", loopback(zenoh_port)
     if robots == 1:
         configs = write_configs(out_dir / "config", seed=seed, episode=episode, robot_id=robot_id,
-                                http_port=http_port, base=base)
+                                http_port=http_port, base=base, motion=motion)
         entries = demo_entries(configs, robot_id=robot_id, zenoh_port=zenoh_port, record=record, base=base)
     else:
         configs = write_fleet_configs(out_dir / "config", seed=seed, episodes=episodes,
-                                      http_port=http_port, base=base)
+                                      http_port=http_port, base=base, motion=motion)
         entries = fleet_entries(configs, robots=fleet_ids, zenoh_port=zenoh_port, record=record)
     for robot, e in episodes.items():
         console.print(f"{robot}: episode {seed}-{e}: {', '.join(tasks[robot])}")

@@ -558,6 +558,9 @@ class DriverState(JsonMessage):
     active_action: int | None = None
     last_completed: int = Field(default=0, ge=0)
     last_outcome: Outcome | None = None
+    backing_off: bool = Field(
+        default=False, description="the active command was stopped by a collision and drives back before "
+                                   "it ends blocked: its outcome is known, a planner waits for it")
     primitives: Primitives | None = Field(
         default=None, description="the primitive sizes this base executes (None: it does not say); "
                                   "a planner whose own differ refuses to plan")

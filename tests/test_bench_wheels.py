@@ -14,10 +14,11 @@ from pathlib import Path
 
 import pytest
 
+from ovamos.bench.continuous import ContinuousNeedsWheels
 from ovamos.bench.episode import EpisodeConfig, run_episode
 from ovamos.bench.jobs import load_episode, load_prior
 from ovamos.services.base_driver.config import DriverConfig
-from ovamos.services.planner.agent import Step
+from ovamos.services.planner.agent import AgentConfig, Step
 from ovamos.services.sim.robot import MotionConfig, SimRobot
 from ovamos.services.sim.wheels import SerialSimRobot, WheeledSimRobot, base_motion, wheeled
 from ovamos.shared.messages import DriverMode, PlanCommand
@@ -85,8 +86,11 @@ def test_primitives_in_simulated_time_land_where_they_land_in_real_time(base: st
 
 def test_an_episodes_first_steps_are_those_of_a_real_time_demo_on_the_kobuki(tmp_path: Path) -> None:
     """What is compared: the actions the planner sent, in order, and where the task ended; not
-    when (a real-time primitive lands a little differently each time, within tolerance)."""
-    steps = 25
+    when (a real-time primitive lands a little differently each time, within tolerance). Through the
+    first target's STOP (step 22): the 25th decision faces a heading error within a fraction of a
+    degree of the navigator's turn threshold, where a primitive landing late on a loaded machine
+    turns the robot once more (seen once on CI)."""
+    steps = 22
     actions: list[str] = []
 
     def take(_: int, step: Step) -> None:
@@ -131,3 +135,23 @@ def test_a_wheeled_episode_reports_its_search_time_in_simulated_seconds() -> Non
     scores = policy_scores([EpisodeResult.model_validate(timed.model_dump())])["ovamos"]
     assert scores["median_search_s"] == scores["p90_search_s"] == round(timed.search_s, 1)
     assert "median_search_s" not in policy_scores([kinematic])["ovamos"]
+
+
+def test_a_continuous_episode_finds_the_demos_targets_in_simulated_time_the_same_way_twice() -> None:
+    """Paths followed while the camera free-runs, on the simulated Kobuki: deterministic, every
+    target found with a STOP within 1 m, in less simulated time than its stepwise search takes
+    for as many steps."""
+    spec, scene, truth = load_episode(*EPISODE)
+    continuous = EpisodeConfig(base="kobuki", agent=AgentConfig(motion="continuous"))
+    first, second = (run_episode(spec, scene, truth, continuous, load_prior()).model_dump(exclude={"seconds"})
+                     for _ in range(2))
+    assert first == second
+    assert first["success"] and all(s["distance_m"] <= 1.0 for s in first["stops"] if s["success"])
+    stepwise = _result("kobuki", first["steps"])
+    assert first["search_s"] < stepwise["search_s"]
+
+
+def test_continuous_motion_needs_a_wheeled_base() -> None:
+    spec, scene, truth = load_episode(*EPISODE)
+    with pytest.raises(ContinuousNeedsWheels, match="wheeled base"):
+        run_episode(spec, scene, truth, EpisodeConfig(agent=AgentConfig(motion="continuous")), load_prior())

@@ -39,6 +39,12 @@ class FollowConfig(StrictModel):
     min_radius_m: float = Field(default=0.5, gt=0, description="tighter curves than this are driven slower, "
                                                                  "in proportion (regulated pure pursuit)")
     min_speed_m_s: float = Field(default=0.05, gt=0, description="the slowest a curve or the goal's approach drives")
+    corner_rad: float = Field(default=0.6, gt=0, le=math.pi,
+                              description="a waypoint where the path turns by more than this is a corner: driven "
+                                          "to, slowing, and turned at, not cut")
+    corner_pass_m: float = Field(default=0.1, gt=0, description="a corner is gone round once the robot is this close")
+    back_off_m: float = Field(default=0.1, gt=0, description="with back_off_on_bump, a path stopped by a collision "
+                                                             "report drives back this far before it completes blocked")
 
 
 class DriverConfig(StrictModel):
@@ -89,8 +95,8 @@ class DriverConfig(StrictModel):
     back_off_on_bump: bool = Field(
         default=True,
         description="a MOVE_FORWARD stopped by a collision report (BaseController.bump: the "
-                    "simulator's contact check) drives straight back to where it started before "
-                    "it completes as blocked: the planner treats a blocked step as not made, and "
+                    "simulator's contact check) drives straight back to where it started (a path: "
+                    "follow.back_off_m) before it completes as blocked: the planner treats a blocked step as not made, and "
                     "a robot left touching the obstacle cannot plan its way out")
     stall_s: float | None = Field(
         default=1.0, gt=0,

@@ -279,13 +279,16 @@ class BaseController:
                 if backward:  # hit something behind: stop there
                     self._finish("blocked")
                 continue  # else the last forward push of wheels still slowing down: keep going
-            if isinstance(tracker, PathFollower):
+            if isinstance(tracker, PathFollower) and (backward or not self.config.back_off_on_bump):
                 self._v = 0.0  # at once: the wheels are against the obstacle
                 self._finish("blocked")
-            elif (self.config.back_off_on_bump and isinstance(tracker, PrimitiveTracker)
-                    and tracker.action is Action.MOVE_FORWARD):
-                active.tracker = PrimitiveTracker(Action.MOVE_FORWARD, tracker.start, self.config,
-                                                  distance_m=0.0)
+            elif self.config.back_off_on_bump and (isinstance(tracker, PathFollower) or (
+                    isinstance(tracker, PrimitiveTracker) and tracker.action is Action.MOVE_FORWARD)):
+                # a primitive back to where it started, a path back_off_m from the contact
+                active.tracker = (PrimitiveTracker(Action.MOVE_FORWARD, tracker.start, self.config, distance_m=0.0)
+                                  if isinstance(tracker, PrimitiveTracker) else
+                                  PrimitiveTracker(Action.MOVE_FORWARD, self._odom.pose, self.config,
+                                                   distance_m=-self.config.follow.back_off_m))
                 active.outcome = "blocked"
                 self._v = 0.0  # at once: the wheels are against the obstacle
                 self._counters["back_offs"] += 1
@@ -545,6 +548,7 @@ class BaseController:
                                faults=faults, estop_latched=self._estop is not None,
                                active_action=self._active.command.action_id if self._active else None,
                                last_completed=done.action_id, last_outcome=done.outcome,
+                               backing_off=self._active is not None and self._active.outcome == "blocked",
                                primitives=self._primitives)
 
     def odometry(self) -> Odometry:

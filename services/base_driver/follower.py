@@ -3,9 +3,11 @@
 Each tick the follower finds where along the path the robot is (never going back along it),
 steers toward the point ``lookahead_m`` further on with the arc through it (curvature
 ``2 y / L^2`` in the robot's frame), drives curves tighter than ``min_radius_m`` proportionally
-slower, and brakes for the last point on the same curve as a primitive's approach. A heading error
-to the lookahead point larger than ``rotate_in_place_rad`` (the path starts behind the robot, a
-sharp corner) turns the base in place first. Within ``goal_tolerance_m`` of the last point it asks
+slower, and brakes for the last point on the same curve as a primitive's approach. A corner (the
+path turning by more than ``corner_rad`` at a waypoint) is driven to and braked for like the last
+point, the lookahead not passing it, rather than cut. A heading error to the lookahead point larger
+than ``rotate_in_place_rad`` (the path starts behind the robot, a corner gone round) turns the base
+in place first. Within ``goal_tolerance_m`` of the last point it asks
 for zero, and the controller reports the path done once the wheels are at rest.
 """
 
@@ -39,6 +41,7 @@ class PathFollower:
     config: DriverConfig
     _segment: int = field(default=0, init=False)  # the segment the robot was last nearest to
     _along: float = field(default=0.0, init=False)
+    _passed: int = field(default=0, init=False)  # the last corner (waypoint index) the robot went round
 
     def __post_init__(self) -> None:
         if not self.path:
@@ -59,9 +62,19 @@ class PathFollower:
                 best = (d, i, t)
         _, self._segment, self._along = best
 
-    def _ahead(self, points: list[Point], distance: float) -> tuple[Point, float]:
+    def _corner(self, points: list[Point], j: int) -> bool:
+        """Whether the path turns at waypoint ``j`` by more than ``corner_rad``."""
+        if not 0 < j < len(points) - 1:
+            return False
+        (ax, ay), (bx, by), (cx, cy) = points[j - 1], points[j], points[j + 1]
+        turn = math.atan2(cy - by, cx - bx) - math.atan2(by - ay, bx - ax)
+        return abs(math.remainder(turn, 2 * math.pi)) > self.config.follow.corner_rad
+
+    def _ahead(self, points: list[Point], distance: float, here: Point) -> tuple[Point, float]:
         """The point ``distance`` along the path from the robot's place on it, and how far the path's
-        end is from that place (along the path)."""
+        end, or the next corner not yet gone round, is from that place (along the path): the
+        lookahead stops at a corner (pure pursuit would cut it by about a third of its lookahead,
+        more than the clearance a planned path leaves) until the robot is within ``corner_pass_m``."""
         i, t = self._segment, self._along
         a, b = points[i], points[i + 1]
         start = (a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]))
@@ -75,6 +88,10 @@ class PathFollower:
             left -= step
             remaining += step
             prev = points[j]
+            if j > self._passed and self._corner(points, j):
+                if math.hypot(points[j][0] - here[0], points[j][1] - here[1]) > self.config.follow.corner_pass_m:
+                    return (target if target is not None else points[j]), remaining
+                self._passed = j
         return (target if target is not None else points[-1]), remaining
 
     def request(self, pose: Pose) -> tuple[float, float] | None:
@@ -84,7 +101,7 @@ class PathFollower:
         if math.hypot(goal[0] - here[0], goal[1] - here[1]) <= f.goal_tolerance_m:
             return None
         self._progress(points, here)
-        target, remaining = self._ahead(points, f.lookahead_m)
+        target, remaining = self._ahead(points, f.lookahead_m, here)
         dx, dy = target[0] - pose.x, target[1] - pose.y
         cos, sin = math.cos(pose.yaw), math.sin(pose.yaw)
         x, y = cos * dx + sin * dy, -sin * dx + cos * dy  # the target in the robot's frame
@@ -95,7 +112,7 @@ class PathFollower:
         curvature = 2.0 * y / max(x * x + y * y, 1e-9)
         tight = f.min_radius_m * abs(curvature)  # > 1: a curve tighter than min_radius_m
         speed = c.max_linear_m_s / max(1.0, tight)
-        to_goal = max(remaining, math.hypot(goal[0] - here[0], goal[1] - here[1]))
+        to_goal = remaining  # to the path's end or the next corner, where it slows
         speed = max(f.min_speed_m_s, min(speed, approach(to_goal, c.max_linear_m_s, c.max_linear_accel_m_s2,
                                                          c.approach_gain, f.min_speed_m_s)))
         return speed, speed * curvature

@@ -25,6 +25,7 @@ import logging
 import math
 from dataclasses import dataclass
 from enum import Enum
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -77,6 +78,18 @@ class AgentConfig(BaseModel):
         description="with no goal it can reach, the robot is boxed in when it can reach less than "
                     "this share of the explored area it could stand on; it then recovers: forgets "
                     "bumps and unreachable goals, takes the cells it drove over as free, looks around")
+
+    motion: Literal["stepwise", "continuous"] = Field(
+        default="stepwise",
+        description="stepwise: every step one primitive, the robot standing still for the frame after "
+                    "it (the paper's; deterministic); continuous: a navigation step is a path the robot "
+                    "follows while frames free-run, decided again on events and every decide_every_s "
+                    "(services/planner/continuous.py)")
+    decide_every_s: float = Field(
+        default=1.0, gt=0,
+        description="continuous: re-decide this often while a path is followed (a step: about one "
+                    "MOVE_FORWARD of ground at a TurtleBot's 0.26 m/s, so the step-counted rules keep "
+                    "their meaning)")
 
     @property
     def primitives(self) -> Primitives:

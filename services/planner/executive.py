@@ -61,6 +61,7 @@ from dataclasses import dataclass
 from pydantic import BaseModel, ConfigDict, Field
 
 from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
+from ovamos.services.planner.continuous import Redecision, booked_step, path_for
 from ovamos.services.planner.task import SearchTask, SearchTaskError
 from ovamos.shared.log import sampled
 from ovamos.shared.messages import (
@@ -109,6 +110,7 @@ class _InFlight:
     step: Step
     pose: Pose
     sent: float
+    redecision: Redecision | None = None  # a path's (continuous motion): when it is decided on again
 
 
 class Executive:
@@ -302,17 +304,34 @@ class Executive:
                 # odometry and driver state travel separately: the pose after the command must
                 # be in before the step is booked (distance) and the next one decided (pose)
                 return self._wait(f"waiting for odometry after command {action_id}")
-            self.in_flight = None
-            pose = self._pose() or flight.pose
-            moved = math.hypot(pose.x - flight.pose.x, pose.y - flight.pose.y)
-            self.agent.executed(flight.step, moved, d.last_outcome == "blocked", flight.pose)
-            self.agent.task.last_action = action_id  # reported: a restarted planner goes on after it
-            self._event_due = True
+            self._book(flight, d.last_outcome == "blocked")
+            return self._decide(now, d) if self.task and self.task.state is TaskStatus.SEARCHING else []
+        if self._redecide(now, flight):  # continuous: the path is decided on again while it is driven
+            self._book(flight, blocked=False)
             return self._decide(now, d) if self.task and self.task.state is TaskStatus.SEARCHING else []
         if now - flight.sent >= self.config.resend_s:  # lost, or running: the driver's keep-alive
             flight.sent = now
             return [flight.command]
         return []
+
+    def _book(self, flight: _InFlight, blocked: bool) -> None:
+        """The step of ``flight`` done: completed, or (a path) cut short by the next decision."""
+        assert self.agent is not None
+        self.in_flight = None
+        pose = self._pose() or flight.pose
+        moved = math.hypot(pose.x - flight.pose.x, pose.y - flight.pose.y)
+        step, at = booked_step(flight.step, bool(flight.command.path), blocked, flight.pose, pose)
+        self.agent.executed(step, moved, blocked, at)
+        self.agent.task.last_action = flight.command.action_id  # reported: a restarted planner goes on after it
+        self._event_due = True
+
+    def _redecide(self, now: float, flight: _InFlight) -> bool:
+        """A path in flight is due for a new decision (on a map of the driver's session)."""
+        snapshot, pose, agent = self.snapshot, self._pose(), self.agent
+        if flight.redecision is None or snapshot is None or pose is None or agent is None or self.driver is None \
+                or snapshot.odom_session != self.driver.odom_session or self.driver.backing_off:
+            return False
+        return flight.redecision.due(now, snapshot, pose, agent.task.remaining, agent.config) is not None
 
     def _decide(self, now: float, d: DriverState) -> list[JsonMessage]:
         assert self.agent is not None
@@ -345,10 +364,12 @@ class Executive:
         if step.action is None:
             self._event_due = True
             return trace
+        path = path_for(self.agent, step) if self.config.agent.motion == "continuous" else None
         command = PlanCommand(action_id=self._next_id, stamp=self._wall_clock(), task_id=self.task.task_id if self.task
-                              else None, action=step.action)
+                              else None, action=None if path else step.action, path=path or ())
         self._next_id += 1
-        self.in_flight = _InFlight(command, step, pose, now)
+        redecision = None if path is None else Redecision.start(step, now, snapshot, self.agent.task.remaining)
+        self.in_flight = _InFlight(command, step, pose, now, redecision)
         if step.reason is Reason.FOUND:
             self._event_due = True
         return trace + [command]

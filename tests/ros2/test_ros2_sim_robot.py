@@ -144,9 +144,12 @@ def test_it_stops_by_itself_when_commands_stop(sim_robot: Path) -> None:
     assert "no cmd_vel for 0.5 s: stopping" in sim_robot.read_text()
 
 
+@pytest.mark.timeout(600)
 def test_the_demo_search_through_ros2_finds_its_target(tmp_path: Path) -> None:
     """``ovamos demo --base ros2``: the search drives the robot through cmd_vel and sees through its
-    ROS camera (the base driver and camera services with hardware / backend ros2)."""
+    ROS camera (the base driver and camera services with hardware / backend ros2). The demo's own
+    400 s bound, not the suite's 180 s: real-time primitives land a little differently on a loaded
+    machine and the search takes 20 to 70 steps, 30 to 130 s here (over 180 s once on CI)."""
     out = tmp_path / "demo"
     done = subprocess.run([sys.executable, "-m", "ovamos.cli", "demo", "--base", "ros2", "--target", "sofa",
                            "--timeout", "400", "--out", str(out), "--no-record"],

@@ -1,0 +1,94 @@
+"""A continuous search in simulated time: the robot follows paths while the camera free-runs.
+
+The planner's continuous motion (:mod:`ovamos.services.planner.continuous`) on a wheeled base's
+controller and simulated device, all on one :class:`~ovamos.shared.simtime.SimClock`: a frame
+every ``1 / frame_hz`` simulated seconds from where the robot truly is, perceived and fused into
+the map at once; a decision on the newest map when the command in flight completes or a path's
+:class:`~ovamos.services.planner.continuous.Redecision` falls due; the new command submitted
+``perception + mapping + decision`` seconds after the frame it was decided on, the robot driving
+on meanwhile; a path re-sent every :data:`RESEND_S` (the executive's keep-alive). Deterministic per
+episode: one thread, simulated time.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from ovamos.services.planner.agent import Reason, Step
+from ovamos.services.planner.continuous import Redecision, booked_step, path_for
+from ovamos.services.planner.executive import ExecutiveConfig
+from ovamos.shared.messages import PlanCommand, TaskStatus
+from ovamos.shared.motion import Action, Pose
+
+if TYPE_CHECKING:
+    from ovamos.bench.episode import EpisodeWorld, TaskRun
+
+RESEND_S: float = ExecutiveConfig.model_fields["resend_s"].default
+"""How often the planner re-sends the command in flight (the path's keep-alive)."""
+
+
+class ContinuousNeedsWheels(ValueError):
+    """Continuous motion on the kinematic robot: there are no wheels to follow a path with."""
+
+
+@dataclass
+class _Flight:
+    command: PlanCommand
+    step: Step
+    pose: Pose          # odometry at the decision
+    distance: float     # the true distance driven by then
+    redecision: Redecision
+
+
+def search_continuously(world: EpisodeWorld, search: TaskRun) -> None:
+    """Run ``search`` to its end on ``world``'s wheels in simulated time."""
+    clock, wheels = world.clock, world.wheels
+    if clock is None or wheels is None:
+        raise ContinuousNeedsWheels("continuous motion follows paths on a wheeled base: choose one "
+                                    "(--base kobuki, opencr or odrive)")
+    task, agent, driver, latency = search.task, search.agent, wheels.driver, world.config.latency
+    period = 1.0 / world.config.frame_hz
+    thinking = latency.perception_s + latency.mapping_s + latency.decision_s
+    flight: _Flight | None = None
+    while task.state is TaskStatus.SEARCHING:
+        now, state = clock(), driver.state()
+        snapshot = world.observe(search, stamp=now, after_action=state.last_completed)
+        world.seq += 1
+        pose = world.pose()
+        if flight is not None:
+            completed = state.last_completed >= flight.command.action_id
+            if not completed and (state.backing_off or not flight.command.path or not flight.redecision.due(
+                    now, snapshot, pose, task.remaining, agent.config)):
+                clock.sleep(period)
+                continue
+            _book(world, search, flight, blocked=completed and state.last_outcome == "blocked")
+            flight = None
+            if task.state is not TaskStatus.SEARCHING:
+                break
+        step = agent.next_step(snapshot, pose)
+        if step.action is None:
+            break
+        path = path_for(agent, step)
+        clock.sleep(thinking)  # perceived, fused, decided on: the command in flight (if any) runs on
+        command = world.command(path=path) if path else world.command(step.action)
+        if driver.submit(command) != "accepted":
+            raise RuntimeError(f"the simulated base refused command {command.action_id}: {driver.state()}")
+        world.keep_alive = command if path else None
+        flight = _Flight(command, step, pose, world.robot.distance, Redecision.start(step, now, snapshot, task.remaining))
+        clock.sleep(period * math.ceil(thinking / period) - thinking)  # to the camera's next frame
+    world.keep_alive = None
+    driver.submit(world.command(Action.STOP))  # the task is over: whatever runs stops
+
+
+def _book(world: EpisodeWorld, search: TaskRun, flight: _Flight, blocked: bool) -> None:
+    """The step of ``flight``, completed or cut short by the next decision. A STOP is judged where the
+    robot came to rest; a blocked path marks the obstacle ahead of where it was blocked."""
+    world.keep_alive = None
+    world.blocked += blocked
+    if flight.step.reason is Reason.FOUND:
+        search.stop_at(world, flight.step, world.robot.pose)
+    step, at = booked_step(flight.step, bool(flight.command.path), blocked, flight.pose, world.pose())
+    search.agent.executed(step, world.robot.distance - flight.distance, blocked, at)
+    search.booked(world, flight.step)
