@@ -45,8 +45,8 @@ test: $(VENV)/.installed syslibs
 	$(PY) -m pytest -q -m "not system or demo"
 
 test-all: $(VENV)/.installed syslibs lint
-	$(PY) -m pytest -q
-	@if unshare --net --mount true 2>/dev/null; then $(PY) -m ovamos.shared.dds -- $(PY) -m pytest -q tests/ros2; \
+	$(PY) -m pytest -q --durations=25
+	@if unshare --net --mount true 2>/dev/null; then $(PY) -m ovamos.shared.dds -- $(PY) -m pytest -q --durations=10 tests/ros2; \
 	else echo "tests/ros2 skipped: unshare --net --mount needs root (they load DDS)"; fi
 
 # ruff, the import contracts (import-linter) and mypy on the cores: tools/lint.py, configured in pyproject.toml
