@@ -6,7 +6,7 @@ over worker processes. Workers are started with "spawn": a fresh interpreter per
 no MuJoCo/EGL context or thread state from the parent. Results stream back as they finish.
 
 An episode's outcome depends only on (seed, index, policy, step limit, perception preset, home
-tier, base): the runner is deterministic (a wheeled base runs in simulated time).
+tier, base, motion): the runner is deterministic (a wheeled base runs in simulated time).
 """
 
 from __future__ import annotations
@@ -17,9 +17,10 @@ import os
 from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 from ovamos.bench.episode import EpisodeConfig, EpisodeResult, episode_config, run_episode
+from ovamos.services.planner.agent import AgentConfig, DriveMode
 from ovamos.services.sim.episodes import make_episode
 from ovamos.services.sim.evaluator import GroundTruth
 from ovamos.services.sim.perception_presets import perception_preset
@@ -42,6 +43,7 @@ class Job:
     perception: str = "ideal"
     homes: str = "default"
     base: str = "kinematic"
+    motion: str = "stepwise"
 
     @property
     def name(self) -> str:
@@ -73,7 +75,8 @@ def run_job(job: Job) -> EpisodeResult:
     spec, scene, truth = load_episode(job.seed, job.index, job.homes)
     if job.max_steps is not None:
         spec = spec.model_copy(update={"max_steps": job.max_steps})
-    config = EpisodeConfig(perception=perception_preset(job.perception), base=job.base)
+    config = EpisodeConfig(perception=perception_preset(job.perception), base=job.base,
+                           agent=AgentConfig(motion=cast(DriveMode, job.motion)))
     return run_episode(spec, scene, truth, episode_config(job.policy, config), load_prior())
 
 
@@ -86,10 +89,11 @@ def _work(job: Job) -> dict[str, Any]:
 
 
 def jobs_for(episodes: int, seed: int, policies: Sequence[str], max_steps: int | None = None,
-             perception: str = "ideal", homes: str = "default", base: str = "kinematic") -> list[Job]:
+             perception: str = "ideal", homes: str = "default", base: str = "kinematic",
+             motion: str = "stepwise") -> list[Job]:
     """Episode-major order: a worker tends to get the policies of one episode in a row (its scene
     is cached), and a run cut short has covered every policy about equally."""
-    return [Job(p, seed, i, max_steps, perception, homes, base) for i in range(episodes) for p in policies]
+    return [Job(p, seed, i, max_steps, perception, homes, base, motion) for i in range(episodes) for p in policies]
 
 
 def iter_results(jobs: Sequence[Job], workers: int) -> Iterator[EpisodeResult]:

@@ -40,6 +40,7 @@ from ovamos.bench.provenance import code_version
 from ovamos.bench.stats import miss_reasons, paired_differences, policy_scores
 from ovamos.bench.tables import print_table
 from ovamos.services.mapping.render import write_png
+from ovamos.services.planner.agent import DriveMode
 from ovamos.services.sim.generate import home_tier
 from ovamos.services.sim.perception_presets import perception_preset
 from ovamos.services.sim.wheels import Motion
@@ -49,10 +50,11 @@ TIMING_FIELDS = {"seconds"}  # wall clock: kept out of the comparable JSONL
 EPISODES_FILE, TIMINGS_FILE, SUMMARY_FILE, CHART_FILE, RUN_FILE = (
     "episodes.jsonl", "timings.jsonl", "summary.json", "chart.png", "run.json")
 #: What an episode's outcome depends on besides the code, policy and index: a resumed run must match.
-RUN_SETTINGS = ("seed", "perception", "homes", "max_steps", "base")
+RUN_SETTINGS = ("seed", "perception", "homes", "max_steps", "base", "motion")
 #: the value of a setting a run.json from before it existed held
-SETTING_DEFAULTS = {"base": "kinematic"}
+SETTING_DEFAULTS = {"base": "kinematic", "motion": "stepwise"}
 BASES: tuple[str, ...] = get_args(Motion)  # the robots an episode can run on
+MOTIONS: tuple[str, ...] = get_args(DriveMode)  # how the planner drives them
 #: the code version of an episode whose timing line does not name one
 UNRECORDED = "unrecorded"
 
@@ -71,10 +73,15 @@ def parse_policies(text: str | Sequence[str]) -> tuple[str, ...]:
     return tuple(p for p in POLICY_ORDER if p in names)
 
 
-def check_settings(perception: str, homes: str, base: str = "kinematic") -> None:
-    """A perception preset, a home tier and a base that exist (else a :class:`SearchError` naming them)."""
+def check_settings(perception: str, homes: str, base: str = "kinematic", motion: str = "stepwise") -> None:
+    """A perception preset, a home tier, a base and a motion that exist and go together (else a
+    :class:`SearchError` naming them)."""
     if base not in BASES:
         raise SearchError(f"unknown base {base!r}: one of {', '.join(BASES)}")
+    if motion not in MOTIONS:
+        raise SearchError(f"unknown motion {motion!r}: one of {', '.join(MOTIONS)}")
+    if motion == "continuous" and base == "kinematic":
+        raise SearchError("continuous motion drives paths on a wheeled base: add --base kobuki, opencr or odrive")
     try:
         perception_preset(perception)
         home_tier(homes)
@@ -113,6 +120,7 @@ class SearchRun:
     perception: str = "ideal"
     homes: str = "default"
     base: str = "kinematic"
+    motion: str = "stepwise"
     resumed: int = 0  # results read back from the folder, not run (and not timed) by this run
     code: dict[str, int] = field(default_factory=dict)  # episodes per code version that ran them
 
@@ -155,10 +163,11 @@ def _progress(console: Console | None, total: int) -> Iterator[Callable[[Episode
 def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_POLICIES, workers: int = 2,
                max_steps: int | None = None, progress: Console | None = None, perception: str = "ideal",
                homes: str = "default", out: Path | None = None, resume: bool = False,
-               base: str = "kinematic") -> SearchRun:
+               base: str = "kinematic", motion: str = "stepwise") -> SearchRun:
     """Run every (policy, episode) pair with the simulated perception ``perception`` (a preset
     name) in homes of tier ``homes`` on the robot ``base`` (kinematic, or a wheeled base's
-    controller and simulated device in simulated time); ``max_steps`` overrides the paper's 500 (quick runs and
+    controller and simulated device in simulated time) driven ``motion`` (stepwise, or continuous
+    on a wheeled base); ``max_steps`` overrides the paper's 500 (quick runs and
     tests only: the tables need the paper's limit).
 
     With ``out`` each result is appended to its ``episodes.jsonl`` as it finishes; with ``resume``
@@ -169,11 +178,12 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     if resume and out is None:
         raise SearchError("--resume needs --out DIR: the folder of the run to go on with")
     policies = parse_policies(policies)
-    check_settings(perception, homes, base)
-    settings = {"seed": seed, "perception": perception, "homes": homes, "max_steps": max_steps, "base": base}
+    check_settings(perception, homes, base, motion)
+    settings = {"seed": seed, "perception": perception, "homes": homes, "max_steps": max_steps, "base": base,
+                "motion": motion}
     kept = held_results(out, settings) if resume and out is not None else []
     done = {(r.policy, _episode_index(r)) for r in kept}  # run.json vouched for their seed
-    jobs = [j for j in jobs_for(episodes, seed, policies, max_steps, perception, homes, base)
+    jobs = [j for j in jobs_for(episodes, seed, policies, max_steps, perception, homes, base, motion)
             if (j.policy, j.index) not in done]
     code = code_version()
     kept_code = _kept_code(out, kept) if out is not None and kept else Counter[str]()
@@ -193,8 +203,8 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     codes = kept_code + Counter({code: len(results) - len(kept)})  # (a count of 0 is dropped)
     return SearchRun(seed, max([episodes, *(_episode_index(r) + 1 for r in kept)]),
                      parse_policies([*policies, *(r.policy for r in kept)]), workers, max_steps,
-                     sort_results(results), time.perf_counter() - started, perception, homes, base, len(kept),
-                     dict(codes))
+                     sort_results(results), time.perf_counter() - started, perception, homes, base, motion,
+                     len(kept), dict(codes))
 
 
 def held_results(out: Path, settings: dict[str, Any]) -> list[EpisodeResult]:
@@ -264,7 +274,8 @@ def summary(run: SearchRun) -> dict[str, Any]:
             "episodes_per_min": round(60 * (len(run.results) - run.resumed) / max(run.seconds, 1e-9), 2),
             "resumed": run.resumed, "code": run.code,
             "seed": run.seed, "episodes": run.episodes, "workers": run.workers,
-            "max_steps": run.max_steps, "perception": run.perception, "homes": run.homes, "base": run.base}
+            "max_steps": run.max_steps, "perception": run.perception, "homes": run.homes, "base": run.base,
+            "motion": run.motion}
 
 
 # -- files ----------------------------------------------------------------------------------------
@@ -312,17 +323,17 @@ def find_result(results: Iterable[EpisodeResult], episode_id: str, policy: str) 
 
 def replay(episode_id: str, out: Path, policy: str = "ovamos", source: Path | None = None,
            max_steps: int | None = None, perception: str = "ideal", homes: str = "default",
-           base: str = "kinematic") -> tuple[Path, EpisodeResult]:
+           base: str = "kinematic", motion: str = "stepwise") -> tuple[Path, EpisodeResult]:
     """Draw one episode: re-run it (deterministic), or read it from ``source`` (a JSONL this
     module wrote). The scene is always regenerated from the id; a file whose scene seed differs
     was made by another generator and is refused rather than drawn on the wrong house."""
     seed, index = parse_episode_id(episode_id)
     (policy,) = parse_policies(policy)
-    check_settings(perception, homes, base)
+    check_settings(perception, homes, base, motion)
     init_worker()
     spec, scene, _ = load_episode(seed, index, homes)
     if source is None:
-        result = run_job(Job(policy, seed, index, max_steps, perception, homes, base))
+        result = run_job(Job(policy, seed, index, max_steps, perception, homes, base, motion))
     else:
         result = find_result(read_results(source), spec.episode_id, policy)
         if result.scene_seed != spec.scene_seed:
@@ -338,7 +349,7 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
          as_json: bool = False, out: Path | None = None, max_steps: int | None = None,
          replay_id: str | None = None, policy: str = "ovamos", source: Path | None = None,
          perception: str = "ideal", homes: str = "default", resume: bool = False, base: str = "kinematic",
-         console: Console | None = None, err: Console | None = None) -> int:
+         motion: str = "stepwise", console: Console | None = None, err: Console | None = None) -> int:
     """``ovamos bench search``: the benchmark, or with ``replay_id`` one episode's picture.
     Raises :class:`SearchError` for bad arguments; returns the exit code."""
     console = console or Console()
@@ -346,7 +357,7 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
     if replay_id is not None:
         if out is None:
             raise SearchError("--replay needs --out DIR for the picture")
-        path, result = replay(replay_id, out, policy, source, max_steps, perception, homes, base)
+        path, result = replay(replay_id, out, policy, source, max_steps, perception, homes, base, motion)
         if as_json:
             print(json.dumps({"png": str(path), **result.model_dump(mode="json", exclude={"trajectory"})}))
         else:
@@ -355,7 +366,8 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
                           f"{list(result.targets)}, {result.steps} steps -> {path}")
         return 0
     run = run_search(episodes, seed, parse_policies(policies), workers, max_steps, progress=err,
-                     perception=perception, homes=homes, out=out, resume=resume, base=base)
+                     perception=perception, homes=homes, out=out, resume=resume, base=base,
+                     motion=motion)
     result = summary(run)
     if out is not None:
         written = write_outputs(out, run, result)

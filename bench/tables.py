@@ -23,7 +23,7 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
     scores = result["policies"]
     limit = "" if result.get("max_steps") is None else f", max {result['max_steps']} steps (quick run)"
     limit += f", {result.get('perception', 'ideal')} perception, {result.get('homes', 'default')} homes"
-    limit += f", {result.get('base', 'kinematic')} base"
+    limit += f", {result.get('base', 'kinematic')} base, {result.get('motion', 'stepwise')}"
     for title, rows in (("Table I: comparison with baselines", TABLE_I),
                         ("Table II: ablations", TABLE_II), ("Ours: OVAMOS-plus and its ablations", TABLE_PLUS)):
         present = [p for p in rows if p in scores]

@@ -827,6 +827,9 @@ def bench_search(
         base: Annotated[str, typer.Option(help="The robot: kinematic (each primitive lands exactly) or "
                                                "odrive, kobuki, opencr (the base controller on that simulated "
                                                "base, in simulated time).")] = "kinematic",
+        motion: Annotated[str, typer.Option(help="stepwise (a primitive, then the frame after it) or continuous "
+                                                 "(paths driven while the camera free-runs; a wheeled --base).")
+                          ] = "stepwise",
         as_json: AsJson = False) -> None:
     """Search benchmark: SR and MSPL per policy (the paper's Tables I and II), or one episode's picture."""
     from ovamos.bench.search import SearchError
@@ -834,7 +837,8 @@ def bench_search(
     try:
         code = search_main(episodes=episodes, seed=seed, policies=policies, workers=workers, as_json=as_json,
                            out=out, max_steps=max_steps, replay_id=replay, policy=policy, source=source,
-                           perception=perception, homes=homes, resume=resume, base=base, console=console, err=err)
+                           perception=perception, homes=homes, resume=resume, base=base, motion=motion,
+                           console=console, err=err)
     except SearchError as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)

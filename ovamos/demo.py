@@ -35,7 +35,7 @@ from ovamos.bench.episode import scene_mapping
 from ovamos.services.gateway.client import GatewayClient, GatewayError
 from ovamos.services.gateway.models import TaskView
 from ovamos.services.perception.config import PerceptionServiceConfig
-from ovamos.services.planner.agent import AgentConfig
+from ovamos.services.planner.agent import DriveMode
 from ovamos.services.sim.episodes import make_episode
 from ovamos.services.sim.prior import ObjectPrior
 from ovamos.services.sim.wheels import Motion
@@ -54,7 +54,7 @@ SERVICES = ("mapping", "perception", "planner", "sim", "gateway")
 ROS2_SERVICES = ("mapping", "perception", "planner", "base_driver", "camera", "gateway")
 ROS2_BASE = "ros2"
 BASES: tuple[str, ...] = (*get_args(Motion), ROS2_BASE)  # the simulated robot's ways to move
-MOTIONS: tuple[str, ...] = get_args(AgentConfig.model_fields["motion"].annotation)  # how the planner drives it
+MOTIONS: tuple[str, ...] = get_args(DriveMode)  # how the planner drives it
 CONTINUOUS_BASE = "kobuki"  # continuous motion's default base: a TurtleBot 2's wheels
 
 
@@ -135,7 +135,7 @@ def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_
                   ) -> dict[str, Path]:
     """One JSON config per service, all describing the same episode (scene, start pose); ``base``
     is how the simulated robot moves (see ``SimServiceConfig.motion``), ``motion`` how the planner
-    drives it (``AgentConfig.motion``)."""
+    drives it (``[agent] motion``)."""
     episode_keys = {"episode_seed": seed, "episode_index": episode}
     return _write(folder, {**_robot_configs(folder, seed, episode, width=width, height=height, base=base,
                                             motion=motion),

@@ -155,3 +155,24 @@ def test_continuous_motion_needs_a_wheeled_base() -> None:
     spec, scene, truth = load_episode(*EPISODE)
     with pytest.raises(ContinuousNeedsWheels, match="wheeled base"):
         run_episode(spec, scene, truth, EpisodeConfig(agent=AgentConfig(motion="continuous")), load_prior())
+
+
+def test_the_search_benchmark_runs_continuous_motion_and_keeps_it_apart_from_stepwise(tmp_path: Path) -> None:
+    """``bench search --motion continuous``: its episodes are :func:`run_episode`'s with the planner's
+    motion set, timed in simulated seconds; a resume with the other motion is refused (a table of
+    two benchmarks), and so is continuous motion on the kinematic base."""
+    from ovamos.bench.jobs import Job, run_job
+    from ovamos.bench.search import SearchError, run_search
+    run = run_search(1, EPISODE[0], ("ovamos",), workers=1, max_steps=15, base="kobuki", motion="continuous",
+                     out=tmp_path)
+    (result,) = run.results
+    alone = run_job(Job("ovamos", EPISODE[0], 0, 15, base="kobuki", motion="continuous"))
+    assert result.model_dump(exclude={"seconds"}) == alone.model_dump(exclude={"seconds"})
+    assert result.search_s is not None
+    assert json.loads((tmp_path / "run.json").read_text())["motion"] == "continuous"
+    with pytest.raises(SearchError, match="motion 'continuous' there, 'stepwise' here"):
+        run_search(1, EPISODE[0], ("ovamos",), workers=1, max_steps=15, base="kobuki", out=tmp_path, resume=True)
+    with pytest.raises(SearchError, match="wheeled base"):
+        run_search(1, EPISODE[0], ("ovamos",), workers=1, max_steps=15, motion="continuous")
+    with pytest.raises(SearchError, match="unknown motion 'smooth'"):
+        run_search(1, EPISODE[0], ("ovamos",), workers=1, max_steps=15, base="kobuki", motion="smooth")

@@ -44,6 +44,10 @@ from ovamos.shared.robot import PRIMITIVES, ROBOT, Primitives
 log = logging.getLogger("ovamos.planner")
 
 
+#: how the planner drives the robot (AgentConfig.motion)
+DriveMode = Literal["stepwise", "continuous"]
+
+
 class AgentConfig(BaseModel):
     """Everything one search needs besides the map: the method's and the controller's parameters."""
 
@@ -79,7 +83,7 @@ class AgentConfig(BaseModel):
                     "this share of the explored area it could stand on; it then recovers: forgets "
                     "bumps and unreachable goals, takes the cells it drove over as free, looks around")
 
-    motion: Literal["stepwise", "continuous"] = Field(
+    motion: DriveMode = Field(
         default="stepwise",
         description="stepwise: every step one primitive, the robot standing still for the frame after "
                     "it (the paper's; deterministic); continuous: a navigation step is a path the robot "
