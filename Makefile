@@ -16,7 +16,7 @@ $(VENV)/.installed: pyproject.toml setup.py Makefile | $(PY)
 	@echo "installing into $(VENV) (first time: a few minutes): torch (CPU build)"
 	$(PIP) install torch==2.13.0
 	@echo "installing ovamos and its extras (dev, docs, sim, perception, camera, ros2)"
-	$(PIP) install -e '.[dev,docs,sim,perception,camera,ros2]'
+	$(PIP) install -e '.[dev,docs,sim,perception,camera,ros2,cluster]'
 	touch $@
 
 # System libraries from Debian/Ubuntu packages, installed when missing (with sudo

@@ -3,7 +3,8 @@
 An episode costs seconds to tens of seconds of CPU (render, perception, map and a decision per
 step) and episodes are independent, so the work units are (policy, episode index) pairs spread
 over worker processes. Workers are started with "spawn": a fresh interpreter per worker inherits
-no MuJoCo/EGL context or thread state from the parent. Results stream back as they finish.
+no MuJoCo/EGL context or thread state from the parent. Results stream back as they finish, each
+naming the worker that ran it. Dask runs the same units on a cluster (:mod:`ovamos.bench.cluster`).
 
 An episode's outcome depends only on (seed, index, policy, step limit, perception preset, home
 tier, base, motion): the runner is deterministic (a wheeled base runs in simulated time).
@@ -14,9 +15,10 @@ from __future__ import annotations
 import functools
 import multiprocessing as mp
 import os
+import socket
 from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, cast
 
 from ovamos.bench.episode import EpisodeConfig, EpisodeResult, episode_config, run_episode
@@ -65,7 +67,8 @@ def load_episode(seed: int, index: int, homes: str = "default") -> tuple[Any, Sc
 
 def init_worker() -> None:
     """Per worker process: headless rendering (EGL) unless the user chose a GL backend, and the
-    prior loaded once before the first episode."""
+    prior loaded once before the first episode. Cheap when called again (a Dask worker runs it
+    in every task: it has no initializer of its own)."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     load_prior()
 
@@ -80,12 +83,33 @@ def run_job(job: Job) -> EpisodeResult:
     return run_episode(spec, scene, truth, episode_config(job.policy, config), load_prior())
 
 
-def _work(job: Job) -> dict[str, Any]:
-    """Worker entry: a plain dict crosses the process boundary; errors name the unit."""
+@dataclass(frozen=True)
+class Finished:
+    """A work unit as the driver receives it: its result, or the error it raised (naming the
+    unit), and ``where`` it ran (``worker``: a Dask worker's address, else ``host:pid``; ``pid``)."""
+
+    job: Job
+    result: EpisodeResult | None = None
+    error: str | None = None
+    where: dict[str, str | int] = field(default_factory=dict)
+
+
+def work(job: Job) -> dict[str, Any]:
+    """Worker entry: a plain dict crosses the process boundary, an episode's error as a value (the
+    driver decides whether the run goes on) and the process that ran it."""
+    pid = os.getpid()
+    where = {"worker": f"{socket.gethostname()}:{pid}", "pid": pid}
     try:
-        return run_job(job).model_dump(mode="json")
+        return {"result": run_job(job).model_dump(mode="json"), **where}
     except Exception as exc:
-        raise EpisodeFailed(f"episode {job.name}: {type(exc).__name__}: {exc}") from None
+        return {"error": f"episode {job.name}: {type(exc).__name__}: {exc}", **where}
+
+
+def finished(job: Job, payload: dict[str, Any]) -> Finished:
+    """The driver's side of :func:`work`."""
+    result = payload.get("result")
+    return Finished(job, None if result is None else EpisodeResult.model_validate(result), payload.get("error"),
+                    {k: payload[k] for k in ("worker", "pid")})
 
 
 def jobs_for(episodes: int, seed: int, policies: Sequence[str], max_steps: int | None = None,
@@ -96,21 +120,32 @@ def jobs_for(episodes: int, seed: int, policies: Sequence[str], max_steps: int |
     return [Job(p, seed, i, max_steps, perception, homes, base, motion) for i in range(episodes) for p in policies]
 
 
-def iter_results(jobs: Sequence[Job], workers: int) -> Iterator[EpisodeResult]:
-    """Results as they finish: in this process for one worker, else from a spawn pool.
+def iter_results(jobs: Sequence[Job], workers: int, keep_going: bool = False) -> Iterator[Finished]:
+    """Units as they finish: in this process for one worker, else from a spawn pool. A unit that
+    raises comes back with its error when ``keep_going`` (the search benchmark's choice, as on a
+    cluster: the run goes on and ``--resume`` re-runs it); else it raises :class:`EpisodeFailed`
+    and the units not yet started are cancelled.
 
     A process pool executor rather than ``multiprocessing.Pool``: a worker that dies (a crash in
-    the GL driver, the OOM killer) fails the run with BrokenProcessPool instead of hanging it, and
-    on any error the episodes not yet started are cancelled."""
+    the GL driver, the OOM killer) fails the run with BrokenProcessPool instead of hanging it.
+    Close the iterator (``contextlib.closing``) to stop the pool when the caller stops early."""
+    for unit in _pool(jobs, workers):
+        if unit.error is not None and not keep_going:
+            raise EpisodeFailed(unit.error)
+        yield unit
+
+
+def _pool(jobs: Sequence[Job], workers: int) -> Iterator[Finished]:
     if workers <= 1 or len(jobs) <= 1:
         init_worker()
         for job in jobs:
-            yield EpisodeResult.model_validate(_work(job))
+            yield finished(job, work(job))
         return
     pool = ProcessPoolExecutor(min(workers, len(jobs)), mp_context=mp.get_context("spawn"),
                                initializer=init_worker)
     try:
-        for future in as_completed([pool.submit(_work, job) for job in jobs]):
-            yield EpisodeResult.model_validate(future.result())
+        futures = {pool.submit(work, job): job for job in jobs}
+        for future in as_completed(futures):
+            yield finished(futures[future], future.result())
     finally:
         pool.shutdown(wait=True, cancel_futures=True)

@@ -14,6 +14,12 @@ run's settings, so a run cut short (a crash, a closed laptop) loses at most the 
 ``--resume`` keeps what the folder holds and runs only the missing (policy, episode) pairs. The
 same mechanism adds policies or episodes to a finished run; its tables then cover all of them.
 
+The work units run on a local process pool (``--workers N``, the default) or on a Dask cluster
+(``--cluster``: :mod:`ovamos.bench.cluster`), with the same results and files: the engine is not a
+setting of the run, so a run started on one resumes on the other. A unit that raises does not stop
+the run: it is listed at the end (exit code 1) and, being absent from ``episodes.jsonl``, re-run by
+``--resume``.
+
 ``replay`` draws one episode from above so that a person can see why it failed.
 """
 
@@ -23,7 +29,7 @@ import json
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, closing, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, get_args
@@ -34,7 +40,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from ovamos.bench.draw import draw_chart, draw_replay
 from ovamos.bench.episode import EpisodeResult
-from ovamos.bench.jobs import Job, init_worker, iter_results, jobs_for, load_episode, run_job
+from ovamos.bench.cluster import ClusterError, ClusterSpec, connect, iter_cluster, parse_cluster
+from ovamos.bench.jobs import Finished, Job, init_worker, iter_results, jobs_for, load_episode, run_job
 from ovamos.bench.policies import DEFAULT_POLICIES, POLICY_ORDER
 from ovamos.bench.provenance import code_version
 from ovamos.bench.stats import miss_reasons, paired_differences, policy_scores
@@ -123,6 +130,8 @@ class SearchRun:
     motion: str = "stepwise"
     resumed: int = 0  # results read back from the folder, not run (and not timed) by this run
     code: dict[str, int] = field(default_factory=dict)  # episodes per code version that ran them
+    failed: list[str] = field(default_factory=list)  # the units that raised (their errors): not in results
+    engine: str = ""  # what ran the units: the process pool or a Dask cluster
 
 
 def sort_results(results: Iterable[EpisodeResult]) -> list[EpisodeResult]:
@@ -163,7 +172,8 @@ def _progress(console: Console | None, total: int) -> Iterator[Callable[[Episode
 def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_POLICIES, workers: int = 2,
                max_steps: int | None = None, progress: Console | None = None, perception: str = "ideal",
                homes: str = "default", out: Path | None = None, resume: bool = False,
-               base: str = "kinematic", motion: str = "stepwise") -> SearchRun:
+               base: str = "kinematic", motion: str = "stepwise", cluster: str | None = None,
+               cluster_config: Path | None = None) -> SearchRun:
     """Run every (policy, episode) pair with the simulated perception ``perception`` (a preset
     name) in homes of tier ``homes`` on the robot ``base`` (kinematic, or a wheeled base's
     controller and simulated device in simulated time) driven ``motion`` (stepwise, or continuous
@@ -171,7 +181,11 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     tests only: the tables need the paper's limit).
 
     With ``out`` each result is appended to its ``episodes.jsonl`` as it finishes; with ``resume``
-    the pairs that file already holds are kept, not run again, and the run covers them too."""
+    the pairs that file already holds are kept, not run again, and the run covers them too.
+
+    The units run on ``workers`` local processes, or with ``cluster`` (``local[:N]``,
+    ``tcp://HOST:PORT``, ``slurm`` with ``cluster_config``) on Dask. A unit that raises is
+    listed in the run's ``failed`` and the run goes on."""
     if episodes < 1 or workers < 1 or (max_steps is not None and max_steps < 1):
         raise SearchError(f"need episodes >= 1, workers >= 1 and max steps >= 1 "
                           f"(got {episodes}, {workers}, {max_steps})")
@@ -179,6 +193,10 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
         raise SearchError("--resume needs --out DIR: the folder of the run to go on with")
     policies = parse_policies(policies)
     check_settings(perception, homes, base, motion)
+    try:
+        spec = parse_cluster(cluster, cluster_config, workers) if cluster is not None else None
+    except ClusterError as exc:
+        raise SearchError(str(exc)) from None
     settings = {"seed": seed, "perception": perception, "homes": homes, "max_steps": max_steps, "base": base,
                 "motion": motion}
     kept = held_results(out, settings) if resume and out is not None else []
@@ -193,18 +211,43 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
                        f"{len(jobs)} to run on {code}", highlight=False, soft_wrap=True)
     append = _start_file(out, settings, kept, code) if out is not None else None
     started = time.perf_counter()
-    results = list(kept)
-    with _progress(progress, len(jobs)) as advance:
-        for result in iter_results(jobs, workers):
-            results.append(result)
+    results, failed = list(kept), []
+    engine = spec.describe() if spec is not None else f"process pool, {min(workers, max(len(jobs), 1))} workers"
+    with ExitStack() as stack, _progress(progress, len(jobs)) as advance:
+        for unit in stack.enter_context(closing(_units(jobs, workers, spec, stack, progress))):
+            if unit.result is None:
+                failed.append(unit.error or f"episode {unit.job.name}: no result")
+                if progress is not None:
+                    progress.print(f"failed: {failed[-1]}", highlight=False, soft_wrap=True, markup=False)
+                continue
+            pair = (unit.result.policy, _episode_index(unit.result))
+            if pair in done:
+                continue  # a unit the engine ran twice (a worker lost after it finished): counted once
+            done.add(pair)
+            results.append(unit.result)
             if append is not None:
-                append(result)
-            advance(result)
+                append(unit.result, unit.where.get("worker"))
+            advance(unit.result)
     codes = kept_code + Counter({code: len(results) - len(kept)})  # (a count of 0 is dropped)
     return SearchRun(seed, max([episodes, *(_episode_index(r) + 1 for r in kept)]),
                      parse_policies([*policies, *(r.policy for r in kept)]), workers, max_steps,
                      sort_results(results), time.perf_counter() - started, perception, homes, base, motion,
-                     len(kept), dict(codes))
+                     len(kept), dict(codes), failed, engine)
+
+
+def _units(jobs: Sequence[Job], workers: int, spec: ClusterSpec | None, stack: ExitStack,
+           progress: Console | None) -> Iterator[Finished]:
+    """The units as they finish, errors as values: from the process pool, or from a Dask cluster
+    that ``stack`` shuts down (a bad cluster is a :class:`SearchError`)."""
+    if spec is None or not jobs:
+        return iter_results(jobs, workers, keep_going=True)
+    if progress is not None:
+        progress.print(f"starting {spec.describe()}", highlight=False, soft_wrap=True)
+    try:
+        client = stack.enter_context(connect(spec))
+    except ClusterError as exc:
+        raise SearchError(str(exc)) from None
+    return iter_cluster(jobs, client)
 
 
 def held_results(out: Path, settings: dict[str, Any]) -> list[EpisodeResult]:
@@ -236,9 +279,11 @@ def _kept_code(out: Path, kept: Sequence[EpisodeResult]) -> Counter[str]:
 
 
 def _start_file(out: Path, settings: dict[str, Any], kept: Sequence[EpisodeResult], code: str
-                ) -> Callable[[EpisodeResult], None]:
+                ) -> Callable[[EpisodeResult, Any], None]:
     """Write run.json, the kept episodes and their timings; return the function that appends
-    each new result to both files (its timing line naming ``code``, the version running it)."""
+    each new result to both files (its timing line naming ``code``, the version running it, and
+    the worker that ran it: ``host:pid`` in the process pool, a Dask worker's address). Each line
+    is flushed as it is written: a run stopped by Ctrl-C keeps every episode that finished."""
     out.mkdir(parents=True, exist_ok=True)
     (out / RUN_FILE).write_text(json.dumps(settings) + "\n")
     episodes, timings = out / EPISODES_FILE, out / TIMINGS_FILE
@@ -247,10 +292,11 @@ def _start_file(out: Path, settings: dict[str, Any], kept: Sequence[EpisodeResul
     timings.write_text("".join(f"{line}\n" for line in old if (t := _timing(line)) is not None and t[0] in pairs))
     episodes.write_text("".join(jsonl_line(r) for r in kept))
 
-    def append(result: EpisodeResult) -> None:
+    def append(result: EpisodeResult, worker: Any = None) -> None:
         with timings.open("a") as file:
             file.write(json.dumps({"episode_id": result.episode_id, "policy": result.policy,
-                                   "seconds": result.seconds, "steps": result.steps, "code": code}) + "\n")
+                                   "seconds": result.seconds, "steps": result.steps, "code": code,
+                                   "worker": worker}) + "\n")
         with episodes.open("a") as file:
             file.write(jsonl_line(result))
     return append
@@ -272,7 +318,7 @@ def summary(run: SearchRun) -> dict[str, Any]:
             "missed": miss_reasons(run.results),
             "seconds": round(run.seconds, 1),
             "episodes_per_min": round(60 * (len(run.results) - run.resumed) / max(run.seconds, 1e-9), 2),
-            "resumed": run.resumed, "code": run.code,
+            "resumed": run.resumed, "code": run.code, "failed": run.failed, "engine": run.engine,
             "seed": run.seed, "episodes": run.episodes, "workers": run.workers,
             "max_steps": run.max_steps, "perception": run.perception, "homes": run.homes, "base": run.base,
             "motion": run.motion}
@@ -349,7 +395,8 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
          as_json: bool = False, out: Path | None = None, max_steps: int | None = None,
          replay_id: str | None = None, policy: str = "ovamos", source: Path | None = None,
          perception: str = "ideal", homes: str = "default", resume: bool = False, base: str = "kinematic",
-         motion: str = "stepwise", console: Console | None = None, err: Console | None = None) -> int:
+         motion: str = "stepwise", cluster: str | None = None, cluster_config: Path | None = None,
+         console: Console | None = None, err: Console | None = None) -> int:
     """``ovamos bench search``: the benchmark, or with ``replay_id`` one episode's picture.
     Raises :class:`SearchError` for bad arguments; returns the exit code."""
     console = console or Console()
@@ -367,7 +414,7 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
         return 0
     run = run_search(episodes, seed, parse_policies(policies), workers, max_steps, progress=err,
                      perception=perception, homes=homes, out=out, resume=resume, base=base,
-                     motion=motion)
+                     motion=motion, cluster=cluster, cluster_config=cluster_config)
     result = summary(run)
     if out is not None:
         written = write_outputs(out, run, result)
@@ -376,4 +423,10 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
         print(json.dumps(result))
     else:
         print_table(console, result)
+    if run.failed:
+        err.print(f"{len(run.failed)} episode(s) failed (not in the results; --resume re-runs them):",
+                  highlight=False, markup=False)
+        for error in run.failed:
+            err.print(f"  {error}", highlight=False, markup=False, soft_wrap=True)
+        return 1
     return 0

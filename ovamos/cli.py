@@ -830,6 +830,14 @@ def bench_search(
         motion: Annotated[str, typer.Option(help="stepwise (a primitive, then the frame after it) or continuous "
                                                  "(paths driven while the camera free-runs; a wheeled --base).")
                           ] = "stepwise",
+        cluster: Annotated[Optional[str], typer.Option(help="Run the episodes on Dask instead of --workers "
+                                                            "processes: local[:N] (N workers on 127.0.0.1), "
+                                                            "tcp://HOST:PORT (a running dask scheduler) or "
+                                                            "slurm (with --cluster-config). Needs "
+                                                            "ovamos[cluster].")] = None,
+        cluster_config: Annotated[Optional[Path], typer.Option(help="TOML file with a [slurm] table for "
+                                                                    "--cluster slurm (queue, cores, memory, "
+                                                                    "walltime, jobs).")] = None,
         as_json: AsJson = False) -> None:
     """Search benchmark: SR and MSPL per policy (the paper's Tables I and II), or one episode's picture."""
     from ovamos.bench.search import SearchError
@@ -838,7 +846,7 @@ def bench_search(
         code = search_main(episodes=episodes, seed=seed, policies=policies, workers=workers, as_json=as_json,
                            out=out, max_steps=max_steps, replay_id=replay, policy=policy, source=source,
                            perception=perception, homes=homes, resume=resume, base=base, motion=motion,
-                           console=console, err=err)
+                           cluster=cluster, cluster_config=cluster_config, console=console, err=err)
     except SearchError as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)
