@@ -91,7 +91,8 @@ class SlurmConfig(BaseModel):
             "queue": self.queue, "account": self.account, "cores": self.cores, "processes": self.cores,
             "memory": self.memory, "walltime": self.walltime, "interface": self.interface,
             "job_script_prologue": prologue, "job_extra_directives": self.job_extra_directives,
-            "scheduler_options": {"host": self.scheduler_host, "dashboard_address": None},
+            "scheduler_options": {"host": self.scheduler_host, "dashboard": False,
+                                  "dashboard_address": f"{_host(self.scheduler_host)}:0"},
             "worker_extra_args": ["--no-dashboard"],
         }
         if self.python is not None:
@@ -184,7 +185,9 @@ def connect(spec: ClusterSpec) -> Iterator[Any]:
         if spec.kind == "local":
             cluster = distributed.LocalCluster(
                 n_workers=spec.workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                scheduler_port=0, dashboard_address=None, worker_dashboard_address=None,
+                # no dashboards; the HTTP servers Dask starts anyway (health, metrics) on 127.0.0.1 too
+                scheduler_port=0, dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0",
+                scheduler_kwargs={"dashboard": False},
                 env={"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
             address, timeout = cluster, START_TIMEOUT_S
         elif spec.kind == "slurm":
