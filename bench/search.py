@@ -38,9 +38,9 @@ from pydantic import ValidationError
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from ovamos.bench.cluster import ClusterError, ClusterSpec, connect, iter_cluster, parse_cluster
 from ovamos.bench.draw import draw_chart, draw_replay
 from ovamos.bench.episode import EpisodeResult
-from ovamos.bench.cluster import ClusterError, ClusterSpec, connect, iter_cluster, parse_cluster
 from ovamos.bench.jobs import Finished, Job, init_worker, iter_results, jobs_for, load_episode, run_job
 from ovamos.bench.policies import DEFAULT_POLICIES, POLICY_ORDER
 from ovamos.bench.provenance import code_version

@@ -24,7 +24,7 @@ import pytest
 from distributed import Client
 from rich.console import Console
 
-from ovamos.bench.cluster import ClusterError, SlurmConfig, check_workers, parse_cluster, slurm_cluster
+from ovamos.bench.cluster import ClusterError, check_workers, parse_cluster, slurm_cluster
 from ovamos.bench.search import EPISODES_FILE, RUN_FILE, TIMINGS_FILE, SearchError, jsonl_line, main, run_search
 from ovamos.shared.procs import stop
 from tests.polling import wait_for
