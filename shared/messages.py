@@ -524,6 +524,13 @@ class PlanCommand(JsonMessage):
             raise ValueError("a command is one of a discrete action, a velocity or a path")
         return self
 
+    @property
+    def kind(self) -> str:
+        """What the command is, for logs: the primitive's name, ``path (N points)`` or ``velocity``."""
+        if self.action is not None:
+            return self.action.value
+        return f"path ({len(self.path)} points)" if self.path else "velocity"
+
 
 class DriverMode(str, Enum):
     IDLE = "idle"          # not enabled (start-up, or after a fault was cleared)

@@ -176,3 +176,22 @@ def test_the_search_benchmark_runs_continuous_motion_and_keeps_it_apart_from_ste
         run_search(1, EPISODE[0], ("ovamos",), workers=1, max_steps=15, motion="continuous")
     with pytest.raises(SearchError, match="unknown motion 'smooth'"):
         run_search(1, EPISODE[0], ("ovamos",), workers=1, max_steps=15, base="kobuki", motion="smooth")
+
+
+def test_a_continuous_demo_drives_paths_over_zenoh_and_stops_beside_its_target(tmp_path: Path) -> None:
+    """``ovamos demo --motion continuous``: every service as a process, the simulated Kobuki in real
+    time with the camera free-running; the planner sends paths, the target is found with a STOP
+    within 1 m of it."""
+    out = tmp_path / "demo"
+    done = subprocess.run([sys.executable, "-m", "ovamos.cli", "demo", "--motion", "continuous", "--target",
+                           "floor_lamp", "--out", str(out), "--no-record", "--timeout", "300"],
+                          capture_output=True, text=True, timeout=420)
+    assert done.returncode == 0, (done.stdout[-1500:], done.stderr[-1500:])
+    report = json.loads((out / "demo_report.json").read_text())
+    task = report["task"]
+    assert task["status"] == "done" and [f["label"] for f in task["found"]] == ["floor_lamp"]
+    (lamp,) = task["found"]
+    assert math.hypot(lamp["x"] - task["position"]["x"], lamp["y"] - task["position"]["y"]) <= 1.0
+    commands = re.findall(r"command \d+ \(([^)]*\)?)\): accepted", (out / "logs" / "sim.log").read_text())
+    assert any(c.startswith("path (") for c in commands) and commands[-1] == "STOP", commands
+    assert set(report["restarts"].values()) == {0}

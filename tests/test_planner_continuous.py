@@ -14,10 +14,10 @@ from ovamos.shared.motion import Action
 from tests.test_planner_executive import commands, driver, odom, snapshot, spec
 
 
-def scanned(every_s: float = 1.0) -> tuple[Executive, float]:
+def scanned(every_s: float = 1.0, careful: int = 5) -> tuple[Executive, float]:
     """A continuous executive past its one-turn look-around, its first path just sent; the time."""
-    ex = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=1, motion="continuous", decide_every_s=every_s),
-                                   resend_s=0.3))
+    ex = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=1, motion="continuous", decide_every_s=every_s,
+                                                     careful_steps=careful), resend_s=0.3))
     ex.on_task(spec())
     ex.on_driver(driver())
     ex.on_snapshot(snapshot(0))
@@ -66,8 +66,11 @@ def test_a_target_confirmed_on_the_way_is_decided_on_at_once() -> None:
     assert second.action_id == first.action_id + 1 and goal is not None and goal.label == "cup"
 
 
-def test_a_path_backing_off_from_a_bump_is_waited_for_and_booked_blocked() -> None:
-    ex, t = scanned(every_s=0.5)
+@pytest.mark.parametrize("careful", [0, 5])
+def test_a_path_backing_off_from_a_bump_is_waited_for_and_booked_blocked(careful: int) -> None:
+    """Then, within ``careful_steps`` of the bump, the way on is primitives, each checked on the map
+    with the bump in it."""
+    ex, t = scanned(every_s=0.5, careful=careful)
     first = ex.in_flight.command  # type: ignore[union-attr]
     backing = DriverState(**{**driver(completed=1, active=first.action_id, outcome="done").model_dump(),
                              "backing_off": True})
@@ -80,6 +83,7 @@ def test_a_path_backing_off_from_a_bump_is_waited_for_and_booked_blocked() -> No
     [second] = commands(ex.poll(t + 1.1))
     assert second.action_id == first.action_id + 1
     assert ex.agent.bumps.points(ex.task.steps)  # type: ignore[union-attr]  # the bump was marked
+    assert (second.action is not None and not second.path) if careful else (second.path and second.action is None)
 
 
 def test_stepwise_sends_primitives_only() -> None:

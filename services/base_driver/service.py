@@ -119,8 +119,7 @@ class BaseDriverService(Service):
     def _on_command(self, command: PlanCommand) -> None:
         outcome = self.base.submit(command)
         if outcome != "duplicate":
-            self.log.info("command %d (%s): %s", command.action_id,
-                          command.action.value if command.action else "velocity", outcome)
+            self.log.info("command %d (%s): %s", command.action_id, command.kind, outcome)
 
     def _on_estop(self, msg: EStop) -> None:
         if msg.engage:

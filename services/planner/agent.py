@@ -89,6 +89,11 @@ class AgentConfig(BaseModel):
                     "it (the paper's; deterministic); continuous: a navigation step is a path the robot "
                     "follows while frames free-run, decided again on events and every decide_every_s "
                     "(services/planner/continuous.py)")
+    careful_steps: int = Field(
+        default=5, ge=0,
+        description="continuous: after a bump, this many steps drive primitives (the navigator's "
+                    "0.25 m moves, each checked on the map with the bump) before paths again: a path "
+                    "re-planned past a bump the camera cannot see grazes it again")
     decide_every_s: float = Field(
         default=1.0, gt=0,
         description="continuous: re-decide this often while a path is followed (a step: about one "
@@ -154,6 +159,10 @@ class ExpiringPlaces:
 
     def clear(self) -> None:
         self._items.clear()
+
+    def since(self, step: int) -> int | None:
+        """Steps from the newest place remembered to ``step`` (None: none is)."""
+        return step - self._items[-1][2] if self._items else None
 
 
 class SearchAgent:

@@ -30,8 +30,12 @@ from ovamos.shared.motion import Action, Pose
 
 def path_for(agent: SearchAgent, step: Step) -> tuple[tuple[float, float], ...] | None:
     """The path to send for ``step`` (the navigator's remaining path, as of the decision just made),
-    or None when the step stays a primitive (anything but navigating towards a goal)."""
+    or None when the step stays a primitive (anything but navigating towards a goal, and navigating
+    within ``careful_steps`` of a bump)."""
     if step.reason is not Reason.NAVIGATE:
+        return None
+    since = agent.bumps.since(agent.task.steps)
+    if since is not None and since < agent.config.careful_steps:
         return None
     points = agent.navigator.path
     if len(points) == 0:
