@@ -86,7 +86,8 @@ class SlurmConfig(BaseModel):
 
     def cluster_kwargs(self) -> dict[str, Any]:
         """dask-jobqueue's SLURMCluster arguments for these settings."""
-        prologue = ["export MUJOCO_GL=${MUJOCO_GL:-egl}", *self.job_script_prologue]
+        prologue = ["export MUJOCO_GL=${MUJOCO_GL:-egl}", *(f"export {k}='{v}'" for k, v in WORKER_ENV.items()),
+                    *self.job_script_prologue]
         kwargs: dict[str, Any] = {
             "queue": self.queue, "account": self.account, "cores": self.cores, "processes": self.cores,
             "memory": self.memory, "walltime": self.walltime, "interface": self.interface,
@@ -156,6 +157,25 @@ def _host(host: str) -> str:
         return host  # a name
 
 
+#: Dask settings for the workers. The nanny's MALLOC_TRIM_THRESHOLD_ unset: setting it turns off
+#: glibc's adaptive mmap threshold, so every frame-sized array is mapped and unmapped (an episode
+#: spent 4-5x the system time of the process pool's). The statistical profiler off: it samples
+#: the episode's stack every 10 ms for a dashboard that is not shown.
+WORKER_CONFIG: dict[str, Any] = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                                 "distributed.worker.profile.enabled": False}
+#: the same as environment variables, for workers started by SLURM or by hand (``dask worker``)
+WORKER_ENV = {"DASK_DISTRIBUTED__NANNY__PRE_SPAWN_ENVIRON":
+              '{"MALLOC_TRIM_THRESHOLD_": None, "OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, '
+              '"OPENBLAS_NUM_THREADS": 1}',
+              "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False"}
+
+
+def dask_config() -> Any:
+    """:data:`WORKER_CONFIG` for the block (the local cluster's nannies read it when created)."""
+    import dask
+    return dask.config.set(WORKER_CONFIG)
+
+
 def _dask() -> Any:
     try:
         import distributed
@@ -183,12 +203,13 @@ def connect(spec: ClusterSpec) -> Iterator[Any]:
     client: Any = None
     try:
         if spec.kind == "local":
-            cluster = distributed.LocalCluster(
-                n_workers=spec.workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                # no dashboards; the HTTP servers Dask starts anyway (health, metrics) on 127.0.0.1 too
-                scheduler_port=0, dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0",
-                scheduler_kwargs={"dashboard": False},
-                env={"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
+            with dask_config():
+                cluster = distributed.LocalCluster(
+                    n_workers=spec.workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                    # no dashboards; the HTTP servers Dask starts anyway (health, metrics) on 127.0.0.1 too
+                    scheduler_port=0, dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0",
+                    scheduler_kwargs={"dashboard": False},
+                    env={"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
             address, timeout = cluster, START_TIMEOUT_S
         elif spec.kind == "slurm":
             assert spec.slurm is not None

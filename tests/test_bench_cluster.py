@@ -24,6 +24,7 @@ import pytest
 from distributed import Client
 from rich.console import Console
 
+from ovamos.bench import cluster
 from ovamos.bench.cluster import ClusterError, check_workers, parse_cluster, slurm_cluster
 from ovamos.bench.search import EPISODES_FILE, RUN_FILE, TIMINGS_FILE, SearchError, jsonl_line, main, run_search
 from ovamos.shared.procs import stop
@@ -36,6 +37,7 @@ POLICIES = ("random", "ovamos")
 UNITS = EPISODES * len(POLICIES)
 DASK = str(Path(sys.executable).with_name("dask"))
 ENV = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+WORKER_ENV = {**ENV, **cluster.WORKER_ENV}  # as the docs start a worker
 
 
 def lines(results) -> list[str]:
@@ -107,7 +109,7 @@ def start_worker(scheduler: str, dask_client: Client, tmp_path: Path) -> Iterato
         name = f"test-worker-{len(started)}"
         proc = subprocess.Popen([DASK, "worker", scheduler, "--host", "127.0.0.1", "--nthreads", "1",
                                  "--no-nanny", "--no-dashboard", "--dashboard-address", "127.0.0.1:0", "--name", name, "--local-directory",
-                                 str(tmp_path / name), *extra], cwd=tmp_path, env=ENV,
+                                 str(tmp_path / name), *extra], cwd=tmp_path, env=WORKER_ENV,
                                 start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         started.append(proc)
 
@@ -283,6 +285,7 @@ def test_the_slurm_job_script_carries_the_config(tmp_path: Path) -> None:
                      "#SBATCH --mem=60G", "#SBATCH -t 04:00:00"):
         assert expected in directives, script
     assert "source /opt/ovamos/.venv/bin/activate" in script and "export MUJOCO_GL=" in script
+    assert """export DASK_DISTRIBUTED__NANNY__PRE_SPAWN_ENVIRON='{"MALLOC_TRIM_THRESHOLD_": None,""" in script
     worker = next(line for line in script.splitlines() if "dask_worker" in line or "dask worker" in line)
     assert worker.startswith("/opt/ovamos/.venv/bin/python") and cluster.scheduler_address in worker
     for option in ("--nthreads 1", "--nworkers 32", "--no-dashboard"):
