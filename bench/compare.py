@@ -3,7 +3,9 @@
 For a question one run cannot answer: does the method lose on wheeled bases (``--base kinematic``
 against ``--base kobuki``, same seed), did a change help (the run before against the run after).
 Per policy: each run's SR, MSPL and mean steps on the shared episodes, and B minus A with 95 %
-bootstrap intervals (:func:`ovamos.bench.stats.paired`, steps too), and B's mean steps over A's.
+bootstrap intervals (:func:`ovamos.bench.stats.paired`, steps too), and B's mean steps over A's;
+when both ran on wheels (``--motion continuous`` against stepwise), their median search times in
+simulated seconds and B's over A's (:func:`ovamos.bench.stats.search_time_ratio`).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from rich.table import Table
 from ovamos.bench.episode import EpisodeResult
 from ovamos.bench.policies import LABELS, policy_rank
 from ovamos.bench.search import EPISODES_FILE, RUN_FILE, SETTING_DEFAULTS, SearchError, read_results
-from ovamos.bench.stats import paired, results_by_policy
+from ovamos.bench.stats import paired, results_by_policy, search_time_ratio
 
 __all__ = ["compare_runs", "print_comparison"]
 
@@ -53,13 +55,17 @@ def compare_runs(a: Path, b: Path) -> dict[str, Any]:
         means_a, means_b = _means(runs_a[policy], shared), _means(runs_b[policy], shared)
         policies[policy] = {"a": means_a, "b": means_b, "b_minus_a": diff,
                             "steps_ratio": round(means_b["steps"] / max(means_a["steps"], 1e-9), 3)}
+        timed = search_time_ratio(runs_a[policy], runs_b[policy])
+        if timed is not None:
+            policies[policy]["search_s"] = timed
     if not policies:
         raise SearchError(f"{a} and {b} share no (policy, episode): same seed and policies?")
     return {"a": {"folder": str(a), **settings_a}, "b": {"folder": str(b), **settings_b}, "policies": policies}
 
 
 def _label(run: dict[str, Any]) -> str:
-    return f"{run.get('base')} base, {run.get('perception')} perception, seed {run.get('seed')}"
+    return (f"{run.get('base')} base, {run.get('motion')}, {run.get('perception')} perception, "
+            f"seed {run.get('seed')}")
 
 
 def print_comparison(console: Console, result: dict[str, Any]) -> None:
@@ -75,3 +81,11 @@ def print_comparison(console: Console, result: dict[str, Any]) -> None:
                       f"{d['mspl_diff']:+.3f} [{d['mspl_ci'][0]:+.3f}, {d['mspl_ci'][1]:+.3f}]",
                       f"{p['a']['steps']:.0f}", f"{p['b']['steps']:.0f}", f"{p['steps_ratio']:.2f}x")
     console.print(table)
+    timed = {policy: p["search_s"] for policy, p in result["policies"].items() if "search_s" in p}
+    if timed:
+        times = Table("method", "episodes", "median search A (s)", "median search B (s)", "B / A (95% CI)",
+                      title="search time, simulated seconds (first command to the last STOP)")
+        for policy, t in timed.items():
+            times.add_row(LABELS.get(policy, policy), str(t["episodes"]), f"{t['a']:.0f}", f"{t['b']:.0f}",
+                          f"{t['b_over_a']:.2f} [{t['b_over_a_ci'][0]:.2f}, {t['b_over_a_ci'][1]:.2f}]")
+        console.print(times)

@@ -90,3 +90,20 @@ def paired(a: dict[str, EpisodeResult], b: dict[str, EpisodeResult], resamples: 
             "sr_diff": round(100 * mean[0], 1), "sr_ci": [round(100 * lo[0], 1), round(100 * hi[0], 1)],
             "mspl_diff": round(mean[1], 3), "mspl_ci": [round(lo[1], 3), round(hi[1], 3)],
             "steps_diff": round(mean[2], 1), "steps_ci": [round(lo[2], 1), round(hi[2], 1)]}
+
+
+def search_time_ratio(a: dict[str, EpisodeResult], b: dict[str, EpisodeResult], resamples: int = 2000,
+                      seed: int = 0) -> dict[str, Any] | None:
+    """The median search time (simulated seconds) of ``a`` and of ``b`` on the episodes both timed,
+    and ``b``'s median over ``a``'s with a 95 % bootstrap interval (the same episodes resampled for
+    both: paired); None unless both timed a shared episode (a kinematic base has no time)."""
+    shared = sorted(e for e in set(a) & set(b) if a[e].search_s is not None and b[e].search_s is not None)
+    if not shared:
+        return None
+    times = np.array([[a[e].search_s, b[e].search_s] for e in shared], dtype=float)
+    resampled = np.random.default_rng(seed).integers(0, len(shared), (resamples, len(shared)))
+    medians = np.median(times[resampled], axis=1)
+    lo, hi = np.percentile(medians[:, 1] / medians[:, 0], [2.5, 97.5])
+    median_a, median_b = np.median(times, axis=0)
+    return {"episodes": len(shared), "a": round(float(median_a), 1), "b": round(float(median_b), 1),
+            "b_over_a": round(float(median_b / median_a), 3), "b_over_a_ci": [round(float(lo), 3), round(float(hi), 3)]}

@@ -48,3 +48,24 @@ def test_runs_with_nothing_in_common_or_no_results_are_refused(tmp_path: Path) -
         compare_runs(a, tmp_path)
     done = ovamos_unwrapped("bench", "compare", str(a), str(tmp_path / "missing"))
     assert done.returncode == 2 and "no episodes.jsonl" in done.stderr + done.stdout
+
+
+def test_two_timed_runs_compare_their_median_search_times(tmp_path: Path) -> None:
+    """Continuous against stepwise on wheels: B's median search time over A's, paired over the
+    episodes both timed; a kinematic run has no time to compare."""
+    def timed(i: int, seconds: float | None) -> EpisodeResult:
+        result = fake("ovamos", i, True, 0.5)
+        result.search_s = seconds
+        return result
+    a = _run(tmp_path / "a", [timed(i, 100.0 * (i + 1)) for i in range(5)], base="kobuki")
+    b = _run(tmp_path / "b", [timed(i, 40.0 * (i + 1)) for i in range(4)] + [timed(4, None)], base="kobuki",
+             motion="continuous")
+    result = compare_runs(a, b)
+    assert result["b"]["motion"] == "continuous" and result["a"]["motion"] == "stepwise"
+    t = result["policies"]["ovamos"]["search_s"]
+    assert t["episodes"] == 4 and (t["a"], t["b"]) == (250.0, 100.0) and t["b_over_a"] == 0.4
+    assert t["b_over_a_ci"] == [0.4, 0.4]  # every episode 0.4x: no spread to resample
+    kinematic = _run(tmp_path / "k", [fake("ovamos", i, True, 0.5) for i in range(5)])
+    assert "search_s" not in compare_runs(kinematic, b)["policies"]["ovamos"]
+    done = ovamos_unwrapped("bench", "compare", str(a), str(b))
+    assert done.returncode == 0 and "search time, simulated seconds" in done.stdout and "0.40 [0.40," in done.stdout
