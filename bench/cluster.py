@@ -25,7 +25,7 @@ from __future__ import annotations
 import ipaddress
 import os
 import tomllib
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -195,8 +195,10 @@ def slurm_cluster(config: SlurmConfig) -> Any:
 
 
 @contextmanager
-def connect(spec: ClusterSpec) -> Iterator[Any]:
-    """A :class:`distributed.Client` on ``spec``'s cluster, every worker checked; what this
+def connect(spec: ClusterSpec, code: str | None = None, warn: Callable[[str], None] | None = None
+            ) -> Iterator[Any]:
+    """A :class:`distributed.Client` on ``spec``'s cluster, every worker checked (``warn`` is told
+    of workers whose code version is not ``code``, the one the timing lines record); what this
     started (a local or SLURM cluster) is shut down on leaving, Ctrl-C included."""
     distributed = _dask()
     cluster: Any = None
@@ -222,7 +224,11 @@ def connect(spec: ClusterSpec) -> Iterator[Any]:
             client = distributed.Client(address, timeout=START_TIMEOUT_S)
         except OSError as exc:
             raise ClusterError(f"cannot reach the Dask scheduler {spec.address}: {exc}") from None
-        check_workers(client, timeout)
+        versions = check_workers(client, timeout)
+        other = sorted(f"{worker} ({version})" for worker, version in versions.items() if version != code)
+        if code is not None and warn is not None and other:
+            warn(f"warning: worker(s) {', '.join(other)} run other code than this command ({code}), "
+                 f"which the timing lines name")
         yield client
     finally:
         if client is not None:

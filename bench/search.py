@@ -214,7 +214,7 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     results, failed = list(kept), []
     engine = spec.describe() if spec is not None else f"process pool, {min(workers, max(len(jobs), 1))} workers"
     with ExitStack() as stack, _progress(progress, len(jobs)) as advance:
-        for unit in stack.enter_context(closing(_units(jobs, workers, spec, stack, progress))):
+        for unit in stack.enter_context(closing(_units(jobs, workers, spec, stack, progress, code))):
             if unit.result is None:
                 failed.append(unit.error or f"episode {unit.job.name}: no result")
                 if progress is not None:
@@ -236,7 +236,7 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
 
 
 def _units(jobs: Sequence[Job], workers: int, spec: ClusterSpec | None, stack: ExitStack,
-           progress: Console | None) -> Iterator[Finished]:
+           progress: Console | None, code: str) -> Iterator[Finished]:
     """The units as they finish, errors as values: from the process pool, or from a Dask cluster
     that ``stack`` shuts down (a bad cluster is a :class:`SearchError`)."""
     if spec is None or not jobs:
@@ -244,7 +244,8 @@ def _units(jobs: Sequence[Job], workers: int, spec: ClusterSpec | None, stack: E
     if progress is not None:
         progress.print(f"starting {spec.describe()}", highlight=False, soft_wrap=True)
     try:
-        client = stack.enter_context(connect(spec))
+        warn = None if progress is None else (lambda text: progress.print(text, highlight=False, markup=False))
+        client = stack.enter_context(connect(spec, code, warn))
     except ClusterError as exc:
         raise SearchError(str(exc)) from None
     return iter_cluster(jobs, client)
