@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import ipaddress
 import os
+import signal
+import threading
 import tomllib
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -176,6 +178,21 @@ def dask_config() -> Any:
     return dask.config.set(WORKER_CONFIG)
 
 
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored while the local cluster's worker processes start (they inherit it): a Ctrl-C
+    at the terminal reaches the whole process group, and the command, not each worker, should
+    handle it (it cancels the units and shuts the cluster down, without a traceback per worker)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _dask() -> Any:
     try:
         import distributed
@@ -205,7 +222,7 @@ def connect(spec: ClusterSpec, code: str | None = None, warn: Callable[[str], No
     client: Any = None
     try:
         if spec.kind == "local":
-            with dask_config():
+            with dask_config(), _sigint_ignored():
                 cluster = distributed.LocalCluster(
                     n_workers=spec.workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                     # no dashboards; the HTTP servers Dask starts anyway (health, metrics) on 127.0.0.1 too

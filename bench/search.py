@@ -413,9 +413,16 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
                           f"{'success' if result.success else 'failure'}, found {list(result.found)} of "
                           f"{list(result.targets)}, {result.steps} steps -> {path}")
         return 0
-    run = run_search(episodes, seed, parse_policies(policies), workers, max_steps, progress=err,
-                     perception=perception, homes=homes, out=out, resume=resume, base=base,
-                     motion=motion, cluster=cluster, cluster_config=cluster_config)
+    try:
+        run = run_search(episodes, seed, parse_policies(policies), workers, max_steps, progress=err,
+                         perception=perception, homes=homes, out=out, resume=resume, base=base,
+                         motion=motion, cluster=cluster, cluster_config=cluster_config)
+    except KeyboardInterrupt:
+        if out is not None and (out / EPISODES_FILE).exists():
+            held = len((out / EPISODES_FILE).read_text().splitlines())
+            err.print(f"interrupted: {held} episodes are in {out / EPISODES_FILE}; --resume runs the rest",
+                      highlight=False, markup=False, soft_wrap=True)
+        raise
     result = summary(run)
     if out is not None:
         written = write_outputs(out, run, result)

@@ -244,6 +244,7 @@ def test_ctrl_c_on_a_local_cluster_keeps_what_finished_and_resume_completes_it(b
         stderr = proc.stderr.read() if proc.stderr else ""
     kept = file_lines(episodes)
     assert workers and 1 <= len(kept) < UNITS, stderr
+    assert f"interrupted: {len(kept)} episodes are in" in " ".join(stderr.split()) and "Traceback" not in stderr
     assert all(line.endswith("\n") for line in kept) and set(kept) <= set(baseline)
     wait_for(lambda: not any(w.is_running() and w.status() != psutil.STATUS_ZOMBIE for w in workers),
              timeout=30, what="the local cluster's workers to exit")
