@@ -251,8 +251,9 @@ def test_a_base_with_its_own_odometry_is_taken_as_it_is_and_its_primitives_land(
             d.tick()
         raise AssertionError(f"not reached: {d.state()}")
 
+    assert not d.has_pose  # nothing reported yet: the service publishes no odometry (its (0, 0) is made up)
     until(lambda: d.state().mode is DriverMode.READY)
-    assert (d.odometry().x, d.odometry().y) == (5.0, 3.0)
+    assert d.has_pose and (d.odometry().x, d.odometry().y) == (5.0, 3.0)
     cmd = command(Action.MOVE_FORWARD)
     assert d.submit(cmd) == "accepted"
     until(lambda: d.state().last_completed == cmd.action_id)

@@ -551,6 +551,15 @@ class BaseController:
                                backing_off=self._active is not None and self._active.outcome == "blocked",
                                primitives=self._primitives)
 
+    @property
+    def has_pose(self) -> bool:
+        """Whether the base has reported feedback yet. Before it the odometry is only where the
+        integration starts: for a base that reports its own pose (ROS 2's /odom) a made-up (0, 0)
+        that jumps to the robot's pose on the first message, and frames posed with it land in the
+        wrong place on the map."""
+        with self._lock:
+            return self._feedback is not None
+
     def odometry(self) -> Odometry:
         with self._lock:
             pose = self._odom.pose

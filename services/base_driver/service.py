@@ -53,6 +53,8 @@ class Base(Protocol):
     def clear_estop(self, source: str) -> None: ...
     def state(self) -> DriverState: ...
     def odometry(self) -> Odometry: ...
+    @property
+    def has_pose(self) -> bool: ...  # False: no odometry is published (nothing reported yet)
     def info(self) -> dict[str, object]: ...
     def stop(self) -> None: ...
 
@@ -144,13 +146,14 @@ class BaseDriverService(Service):
         self.publish(self.base.state())
 
     def publish(self, state: DriverState) -> None:
-        """Odometry at its rate; the state at its rate and whenever it changed (odometry first)."""
+        """Odometry at its rate, once the base has reported a pose; the state at its rate and
+        whenever it changed (odometry first)."""
         if self.planner_unreachable:
             state = state.model_copy(update={"warnings": (*state.warnings, PLANNER_UNREACHABLE)})
         now = time.monotonic()
         changed = self._last_state is None or _content(state) != _content(self._last_state)
         state_due = changed or now - self._state_at >= 1.0 / self.config.state_hz
-        if state_due or now - self._odom_at >= 1.0 / self.config.odom_hz:
+        if (state_due or now - self._odom_at >= 1.0 / self.config.odom_hz) and self.base.has_pose:
             self.out["odom"].put(self.base.odometry())
             self._odom_at = now
         if state_due:

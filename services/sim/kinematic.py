@@ -82,6 +82,8 @@ class KinematicBase:
                                last_completed=action_id, last_outcome=outcome,
                                primitives=self._primitives)
 
+    has_pose = True  # an ideal base knows its pose from the start
+
     def odometry(self) -> Odometry:
         """The exact pose: an ideal base has perfect odometry."""
         with self._lock:
