@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from ovamos.services.planner.agent import Reason, Step
-from ovamos.services.planner.continuous import Redecision, booked_step, path_for
+from ovamos.services.planner.continuous import Redecision, booked_step, path_step
 from ovamos.services.planner.executive import ExecutiveConfig
 from ovamos.shared.messages import PlanCommand, TaskStatus
 from ovamos.shared.motion import Action, Pose
@@ -39,7 +39,7 @@ class _Flight:
     step: Step
     pose: Pose          # odometry at the decision
     distance: float     # the true distance driven by then
-    redecision: Redecision
+    redecision: Redecision | None  # a path's: when it is decided on again
 
 
 def search_continuously(world: EpisodeWorld, search: TaskRun) -> None:
@@ -59,7 +59,7 @@ def search_continuously(world: EpisodeWorld, search: TaskRun) -> None:
         pose = world.pose()
         if flight is not None:
             completed = state.last_completed >= flight.command.action_id
-            if not completed and (state.backing_off or not flight.command.path or not flight.redecision.due(
+            if not completed and (state.backing_off or flight.redecision is None or not flight.redecision.due(
                     now, snapshot, pose, task.remaining, agent.config)):
                 clock.sleep(period)
                 continue
@@ -70,13 +70,13 @@ def search_continuously(world: EpisodeWorld, search: TaskRun) -> None:
         step = agent.next_step(snapshot, pose)
         if step.action is None:
             break
-        path = path_for(agent, step)
+        drive = path_step(agent, step, snapshot, pose, now)
         clock.sleep(thinking)  # perceived, fused, decided on: the command in flight (if any) runs on
-        command = world.command(path=path) if path else world.command(step.action)
+        command = world.command(path=drive.path, obstacles=drive.obstacles) if drive else world.command(step.action)
         if driver.submit(command) != "accepted":
             raise RuntimeError(f"the simulated base refused command {command.action_id}: {driver.state()}")
-        world.keep_alive = command if path else None
-        flight = _Flight(command, step, pose, world.robot.distance, Redecision.start(step, now, snapshot, task.remaining))
+        world.keep_alive = command if drive else None
+        flight = _Flight(command, step, pose, world.robot.distance, drive.redecision if drive else None)
         clock.sleep(period * math.ceil(thinking / period) - thinking)  # to the camera's next frame
     world.keep_alive = None
     driver.submit(world.command(Action.STOP))  # the task is over: whatever runs stops

@@ -208,9 +208,11 @@ class EpisodeWorld:
         search.funnel.map(task.steps, snapshot.objects)
         return snapshot
 
-    def command(self, action: Action | None = None, path: tuple[tuple[float, float], ...] = ()) -> PlanCommand:
+    def command(self, action: Action | None = None, path: tuple[tuple[float, float], ...] = (),
+                obstacles: tuple[tuple[float, float], ...] = ()) -> PlanCommand:
         self.commands += 1
-        return PlanCommand(action_id=self.commands, stamp=float(self.commands), action=action, path=path)
+        return PlanCommand(action_id=self.commands, stamp=float(self.commands), action=action, path=path,
+                           obstacles=obstacles)
 
     def pose(self) -> Pose:
         """Where the planner believes the robot is: its odometry (the true pose when kinematic)."""

@@ -74,6 +74,10 @@ MAX_PATH_POINTS = 512
 """Most waypoints one path command carries: a path across the largest map (75 m) at one waypoint
 every 0.15 m, with room to spare."""
 
+MAX_PATH_OBSTACLES = 512
+"""Most obstacle points one path command names (the mapped obstacles near the path, which the
+follower slows near): a wall each side of a 10 m path at 0.1 m spacing, with room to spare."""
+
 MAX_MAP_SIDE = 1500
 """Cells a side of the largest map grid: the mapping default (and the deployed config) is 1000,
 50 m at 5 cm (a large house, an office floor); half as much again leaves room for 75 m."""
@@ -504,8 +508,9 @@ class PlanCommand(JsonMessage):
     ``action`` is a discrete primitive (the planner's); ``velocity`` a teleop
     command held for ``duration_s`` at most (the deadman still applies); ``path`` waypoints (x, y)
     in the odometry frame, followed closed-loop to the last one while the command keeps being
-    re-sent (the deadman applies to it as to a velocity). Action ids grow within a session; a
-    driver executes an id only once, and a newer id replaces what runs.
+    re-sent (the deadman applies to it as to a velocity), slowing near ``obstacles`` (points in the
+    same frame: the mapped obstacles the planner saw near the path; the robot has no map). Action
+    ids grow within a session; a driver executes an id only once, and a newer id replaces what runs.
     """
 
     action_id: int = Field(ge=1)
@@ -516,12 +521,15 @@ class PlanCommand(JsonMessage):
     angular: float = 0.0  # rad/s, velocity commands only
     duration_s: float = Field(default=0.0, ge=0)
     path: tuple[tuple[float, float], ...] = Field(default=(), max_length=MAX_PATH_POINTS)
+    obstacles: tuple[tuple[float, float], ...] = Field(default=(), max_length=MAX_PATH_OBSTACLES)
 
     @model_validator(mode="after")
     def _one_kind(self) -> Self:
         kinds = (self.action is not None) + bool(self.linear or self.angular) + bool(self.path)
         if kinds > 1:
             raise ValueError("a command is one of a discrete action, a velocity or a path")
+        if self.obstacles and not self.path:
+            raise ValueError("obstacles come with a path command only")
         return self
 
     @property

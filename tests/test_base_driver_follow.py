@@ -1,7 +1,8 @@
 """Path commands (``PlanCommand.path``) on each simulated base, in simulated time: the real base
 controller follows the path closed-loop on odometry through the base's simulated device, the
 planner's keep-alive re-sending the command, and ends it done at the last point, blocked on a bump,
-aborted on an e-stop, a newer command or a keep-alive that stopped (the deadman)."""
+aborted on an e-stop, a newer command or a keep-alive that stopped (the deadman), slowing near the
+obstacles the command names."""
 
 from __future__ import annotations
 
@@ -42,8 +43,9 @@ class Base:
         if self._sent and self.clock() < self.keep_alive_until:
             self.driver.submit(self._sent[-1])
 
-    def send(self, path: Sequence[tuple[float, float]]) -> PlanCommand:
-        command = PlanCommand(action_id=len(self._sent) + 1, stamp=self.clock(), path=tuple(path))
+    def send(self, path: Sequence[tuple[float, float]], obstacles: Sequence[tuple[float, float]] = ()) -> PlanCommand:
+        command = PlanCommand(action_id=len(self._sent) + 1, stamp=self.clock(), path=tuple(path),
+                              obstacles=tuple(obstacles))
         assert self.driver.submit(command) == "accepted"
         self._sent.append(command)
         return command
@@ -121,6 +123,34 @@ def test_a_path_through_a_doorway_touches_no_wall(base_name: str) -> None:
         base.stop()
 
 
+def _speeds(trace: list[tuple[float, Pose]], lo: float, hi: float) -> list[float]:
+    """The robot's speed (m/s) between consecutive trace poses while lo <= x <= hi."""
+    return [math.hypot(b.x - a.x, b.y - a.y) / (tb - ta) for (ta, a), (tb, b) in zip(trace, trace[1:])
+            if lo <= a.x <= hi and tb > ta]
+
+
+def test_the_follower_slows_beside_a_named_obstacle_and_not_elsewhere(base_name: str) -> None:
+    """A post 0.25 m beside a straight path: a 0.07 m gap to the footprint, so beside it the robot
+    drives at most 0.12 / slow_clearance_m of its top speed; well before it, at full speed. The
+    same path without the post named: full speed beside it too (the robot has no map)."""
+    top = {}
+    for named in ((1.5, 0.25),), ():
+        base = Base(base_name)
+        f, c = base.driver.config.follow, base.driver.config
+        try:
+            command = base.send([(0.0, 0.0), (3.0, 0.0)], obstacles=named)
+            base.until(lambda: base.completed(command), "the path done")
+            assert base.driver.state().last_outcome == "done"
+            top[bool(named)] = (max(_speeds(base.trace, 0.5, 0.8)), max(_speeds(base.trace, 1.45, 1.55)))
+        finally:
+            base.stop()
+    cap = c.max_linear_m_s * (0.25 - f.footprint_m) / f.slow_clearance_m
+    full = top[False][0]  # the base's cruising speed (a simulated OpenCR's wheels fall short of the limit)
+    assert top[True][1] <= cap + 0.01 < full - 0.05  # beside the post: slowed
+    assert top[True][0] == pytest.approx(full, abs=0.01)  # before it: full speed
+    assert top[False][1] == pytest.approx(full, abs=0.01)  # not named: not slowed
+
+
 def test_a_newer_path_replaces_the_one_being_followed(base_name: str) -> None:
     base = Base(base_name)
     try:
@@ -187,3 +217,5 @@ def test_a_path_command_is_one_kind_and_bounded() -> None:
         PlanCommand(action_id=1, stamp=0.0, path=tuple((0.01 * i, 0.0) for i in range(MAX_PATH_POINTS + 1)))
     with pytest.raises(ValueError, match="at least one waypoint"):
         PathFollower((), DriverConfig())
+    with pytest.raises(ValueError, match="obstacles come with a path command only"):
+        PlanCommand(action_id=1, stamp=0.0, action=Action.MOVE_FORWARD, obstacles=((1.0, 0.0),))

@@ -1,16 +1,22 @@
 """Continuous motion in the planner's protocol, message by message: a navigation step goes out as a
 path, kept alive while the driver runs it and decided on again every ``decide_every_s`` (or at
 once when a target is confirmed, or at the object the path goes to) without waiting for the robot
-to stop; every other step stays a primitive; a path being backed off from a bump is waited for."""
+to stop, or when the path ahead is walled off or a much better frontier appears); every other step
+stays a primitive; a path being backed off from a bump is waited for; a path names the mapped
+obstacles near it."""
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 
 from ovamos.services.planner.agent import AgentConfig
+from ovamos.services.planner.continuous import PathWatch, obstacles_near
 from ovamos.services.planner.executive import Executive, ExecutiveConfig
-from ovamos.shared.messages import DriverState, ObjectInstance
-from ovamos.shared.motion import Action
+from ovamos.shared.messages import MAX_PATH_OBSTACLES, DriverState, MapSnapshot, ObjectInstance
+from ovamos.shared.motion import Action, Pose
 from tests.test_planner_executive import commands, driver, odom, snapshot, spec
 
 
@@ -94,3 +100,76 @@ def test_stepwise_sends_primitives_only() -> None:
     ex.on_odom(odom())
     [command] = commands(ex.poll(0.0))
     assert command.action is not None and not command.path
+
+
+def _wall(snap: MapSnapshot, cells: tuple[slice, slice]) -> MapSnapshot:
+    """``snap`` with obstacle cells at ``cells`` (rows, cols), explored."""
+    obstacle = snap.obstacle.copy()
+    obstacle[cells] = True
+    return snap.model_copy(update={"obstacle": obstacle})
+
+
+def test_a_path_walled_off_by_the_newest_map_is_decided_on_at_once_and_the_new_one_goes_round() -> None:
+    """The first path runs (1, 1) -> (5, 5) over an empty map; a wall seen across it (x = 3, y 2-4)
+    makes the next decision come before the period, and the new path goes round the wall. A wall
+    as long seen off the path (x = 5.5) changes nothing."""
+    ex, t = scanned(every_s=10.0)
+    first = ex.in_flight.command  # type: ignore[union-attr]
+    ex.on_driver(driver(completed=1, active=first.action_id, outcome="done"))
+    ex.on_snapshot(_wall(snapshot(2, after=1), (slice(10, 30), slice(110, 114))))  # x 5.5-5.7, y 0.5-1.5
+    assert commands(ex.poll(t + 0.2)) == []  # not on the path: keep following
+    wall = (slice(40, 80), slice(58, 62))  # x 2.9-3.1, y 2-4
+    ex.on_snapshot(_wall(snapshot(3, after=1), wall))
+    [second] = commands(ex.poll(t + 0.4))
+    assert second.action_id == first.action_id + 1 and second.path
+    xs, ys = zip(*[(x, y) for x, y in [(1.0, 1.0), *second.path]])
+    crossings = [(x0, y0, x1, y1) for x0, y0, x1, y1 in zip(xs, ys, xs[1:], ys[1:]) if min(x0, x1) < 3.0 < max(x0, x1)]
+    for x0, y0, x1, y1 in crossings:  # where the new path crosses x = 3, it is clear of the wall
+        y = y0 + (3.0 - x0) * (y1 - y0) / (x1 - x0)
+        assert not 1.85 < y < 4.15
+    assert second.obstacles  # the wall near the new path goes with it
+    assert all(2.5 < x < 3.5 and 1.5 < y < 4.5 for x, y in second.obstacles)
+
+
+def test_a_much_better_frontier_is_decided_on_at_once() -> None:
+    """Going to the frontier (5, 5) of a map without values, a frontier at (1, 5) whose
+    surroundings now score high (the cup's layer) is decided on before the period; the same map
+    again (a later frame, nothing new) is not."""
+    ex, t = scanned(every_s=10.0)
+    first = ex.in_flight.command  # type: ignore[union-attr]
+    assert ex.agent.goal is not None and ex.agent.goal.kind.value == "frontier"  # type: ignore[union-attr]
+    ex.on_driver(driver(completed=1, active=first.action_id, outcome="done"))
+    ex.on_snapshot(snapshot(2, after=1))
+    assert commands(ex.poll(t + 0.2)) == []
+    richer = snapshot(3, after=1)
+    values = richer.values.copy()
+    values[0, 95:105, 15:25] = 0.8  # the cup's layer, around (1, 5)
+    ex.on_snapshot(richer.model_copy(update={"values": values, "frontiers": np.array([[5.0, 5.0], [1.0, 5.0]])}))
+    [second] = commands(ex.poll(t + 0.4))
+    assert second.action_id == first.action_id + 1
+
+
+def test_the_obstacles_near_a_path_are_those_within_reach_nearest_first() -> None:
+    snap = _wall(_wall(snapshot(0), (slice(58, 62), slice(20, 100))), (slice(0, 4), slice(0, 120)))
+    # a wall along y = 3 (x 1-5) 0.1 m from the path, one along y = 0 (1 m away)
+    near = obstacles_near(snap, [(1.0, 2.9), (5.0, 2.9)], Pose(x=0.8, y=2.9, yaw=0.0), 0.5)
+    assert near and all(2.85 < y < 3.15 and 0.3 < x < 5.6 for x, y in near)
+    d = [math.hypot(x - 0.8, y - 2.9) for x, y in near]
+    assert d == sorted(d)
+    assert obstacles_near(snap, [(1.0, 2.9), (5.0, 2.9)], Pose(x=0.8, y=2.9, yaw=0.0), 0.0) == ()
+    long = _wall(snapshot(0), (slice(0, 120), slice(0, 120)))  # everything an obstacle: capped
+    assert len(obstacles_near(long, [(0.5, 0.5), (5.5, 5.5)], Pose(x=0.5, y=0.5, yaw=0.0), 0.5)) == MAX_PATH_OBSTACLES
+
+
+def test_a_path_watch_counts_only_what_is_newly_blocked_ahead() -> None:
+    """A robot that starts beside a wall (inside the navigator's radius of it: it drives out along
+    the path) is not walled off by that wall; an obstacle seen since ahead of it is, and one behind
+    it is not."""
+    beside = _wall(snapshot(0), (slice(16, 18), slice(18, 22)))  # y 0.8-0.9, by the start (1, 1)
+    path, radius = [(3.0, 1.0), (5.0, 1.0)], 0.15
+    watch = PathWatch.start(path, Pose(x=1.0, y=1.0, yaw=0.0), beside, radius)
+    assert not watch.clear.all()
+    assert not watch.walled_off(beside, Pose(x=1.0, y=1.0, yaw=0.0), radius)
+    ahead = _wall(beside, (slice(19, 21), slice(79, 81)))  # on the path at x = 4
+    assert watch.walled_off(ahead, Pose(x=1.5, y=1.0, yaw=0.0), radius)
+    assert not watch.walled_off(ahead, Pose(x=4.5, y=1.0, yaw=0.0), radius)  # already past it

@@ -45,6 +45,12 @@ class FollowConfig(StrictModel):
     corner_pass_m: float = Field(default=0.1, gt=0, description="a corner is gone round once the robot is this close")
     back_off_m: float = Field(default=0.1, gt=0, description="with back_off_on_bump, a path stopped by a collision "
                                                              "report drives back this far before it completes blocked")
+    slow_clearance_m: float = Field(
+        default=0.2, ge=0,
+        description="a gap narrower than this between the footprint (footprint_m) and the nearest obstacle the "
+                    "path command names drives proportionally slower (regulated pure pursuit's proximity "
+                    "rule); 0: never")
+    footprint_m: float = Field(default=ROBOT.radius_m, gt=0, description="the robot's radius, for the gap to an obstacle")
 
 
 class DriverConfig(StrictModel):

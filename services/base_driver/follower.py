@@ -3,7 +3,9 @@
 Each tick the follower finds where along the path the robot is (never going back along it),
 steers toward the point ``lookahead_m`` further on with the arc through it (curvature
 ``2 y / L^2`` in the robot's frame), drives curves tighter than ``min_radius_m`` proportionally
-slower, and brakes for the last point on the same curve as a primitive's approach. A corner (the
+slower, drives slower as the gap between its footprint and the nearest obstacle the command names
+(``PlanCommand.obstacles``: the robot has no map of its own) narrows below ``slow_clearance_m``,
+and brakes for the last point on the same curve as a primitive's approach. A corner (the
 path turning by more than ``corner_rad`` at a waypoint) is driven to and braked for like the last
 point, the lookahead not passing it, rather than cut. A heading error to the lookahead point larger
 than ``rotate_in_place_rad`` (the path starts behind the robot, a corner gone round) turns the base
@@ -34,11 +36,12 @@ def _closest_on_segment(a: Point, b: Point, p: Point) -> tuple[float, float]:
 
 @dataclass
 class PathFollower:
-    """Follows ``path`` (odometry frame) from wherever the robot is; :meth:`request` gives
-    (linear, angular) or None once the last point is reached."""
+    """Follows ``path`` (odometry frame) from wherever the robot is, slowing near ``obstacles`` (the
+    same frame); :meth:`request` gives (linear, angular) or None once the last point is reached."""
 
     path: Sequence[Point]
     config: DriverConfig
+    obstacles: Sequence[Point] = ()
     _segment: int = field(default=0, init=False)  # the segment the robot was last nearest to
     _along: float = field(default=0.0, init=False)
     _passed: int = field(default=0, init=False)  # the last corner (waypoint index) the robot went round
@@ -111,8 +114,16 @@ class PathFollower:
                                  c.creep_rad_s)
         curvature = 2.0 * y / max(x * x + y * y, 1e-9)
         tight = f.min_radius_m * abs(curvature)  # > 1: a curve tighter than min_radius_m
-        speed = c.max_linear_m_s / max(1.0, tight)
         to_goal = remaining  # to the path's end or the next corner, where it slows
-        speed = max(f.min_speed_m_s, min(speed, approach(to_goal, c.max_linear_m_s, c.max_linear_accel_m_s2,
-                                                         c.approach_gain, f.min_speed_m_s)))
+        speed = min(c.max_linear_m_s / max(1.0, tight), self._near_obstacle_speed(here),
+                    approach(to_goal, c.max_linear_m_s, c.max_linear_accel_m_s2, c.approach_gain, f.min_speed_m_s))
+        speed = max(f.min_speed_m_s, speed)
         return speed, speed * curvature
+
+    def _near_obstacle_speed(self, here: Point) -> float:
+        """The top speed scaled by the gap to the nearest named obstacle over ``slow_clearance_m``."""
+        c, f = self.config, self.config.follow
+        if not self.obstacles or f.slow_clearance_m == 0:
+            return c.max_linear_m_s
+        gap = min(math.hypot(ox - here[0], oy - here[1]) for ox, oy in self.obstacles) - f.footprint_m
+        return c.max_linear_m_s * max(0.0, min(1.0, gap / f.slow_clearance_m))

@@ -99,6 +99,15 @@ class AgentConfig(BaseModel):
         description="continuous: re-decide this often while a path is followed (a step: about one "
                     "MOVE_FORWARD of ground at a TurtleBot's 0.26 m/s, so the step-counted rules keep "
                     "their meaning)")
+    better_frontier: float = Field(
+        default=0.25, gt=0,
+        description="continuous, going to a frontier: a frontier scoring this much above the best one at the "
+                    "decision (the value map's units: each target's layer is normalised to 0..1) is decided on at "
+                    "once, not at the next decide_every_s")
+    tell_obstacles_m: float = Field(
+        default=0.5, ge=0,
+        description="continuous: a path command names the mapped obstacles this close to the path, which the "
+                    "robot's follower slows near (it has no map); 0: none")
 
     @property
     def primitives(self) -> Primitives:

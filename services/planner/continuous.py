@@ -4,8 +4,10 @@ Stepwise (the paper's, the default) every step is one primitive and the robot st
 the frame taken after it is perceived, fused and decided on. Continuous, a navigation step sends
 the navigator's remaining path to the goal instead; the robot follows it closed-loop on odometry
 while frames free-run into the map, and the agent is asked again (the step booked with the ground
-covered so far) when one of :meth:`Redecision.due`'s events happens or ``decide_every_s`` has
-passed, never waiting for the robot to stop. Every other step (the look-around, a turn with nowhere
+covered so far) when one of :meth:`Redecision.due`'s events happens (a target confirmed, at the
+object, the path walled off, a much better frontier) or ``decide_every_s`` has passed, never
+waiting for the robot to stop. The path goes with the mapped obstacles near it
+(:func:`obstacles_near`): the robot has no map, and its follower slows near them. Every other step (the look-around, a turn with nowhere
 to go, ovamos-plus's check turns, the STOP beside a found object) stays a primitive, so a found
 target still ends with the robot within its STOP distance and a STOP.
 
@@ -20,12 +22,40 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass
 
+import cv2
+import numpy as np
+
 from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
-from ovamos.services.planner.decide import GoalKind
-from ovamos.shared.messages import MAX_PATH_POINTS, MapSnapshot
+from ovamos.services.planner.candidates import frontier_scores
+from ovamos.services.planner.decide import GoalKind, decision_values, explored_window
+from ovamos.services.planner.policies import POLICIES
+from ovamos.shared.messages import MAX_PATH_OBSTACLES, MAX_PATH_POINTS, MapSnapshot
 from ovamos.shared.motion import Action, Pose
+
+Point = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class PathStep:
+    """A navigation step as a path command's content, and when it is to be decided on again."""
+
+    path: tuple[Point, ...]
+    obstacles: tuple[Point, ...]
+    redecision: Redecision
+
+
+def path_step(agent: SearchAgent, step: Step, snapshot: MapSnapshot, pose: Pose, now: float) -> PathStep | None:
+    """``step`` as a path to send (None: it stays a primitive, see :func:`path_for`), with the mapped
+    obstacles near it (``tell_obstacles_m``) and its :class:`Redecision`."""
+    path = path_for(agent, step)
+    if path is None:
+        return None
+    config, remaining = agent.config, agent.task.remaining
+    return PathStep(path, obstacles_near(snapshot, path, pose, config.tell_obstacles_m),
+                    Redecision.start(step, now, snapshot, pose, path, remaining, config))
 
 
 def path_for(agent: SearchAgent, step: Step) -> tuple[tuple[float, float], ...] | None:
@@ -43,12 +73,101 @@ def path_for(agent: SearchAgent, step: Step) -> tuple[tuple[float, float], ...] 
     return tuple((round(float(x), 4), round(float(y), 4)) for x, y in points[:MAX_PATH_POINTS])
 
 
+def obstacles_near(snapshot: MapSnapshot, path: Sequence[Point], pose: Pose, within_m: float
+                   ) -> tuple[Point, ...]:
+    """The mapped obstacles within ``within_m`` of the path from the robot on, one point per
+    ``2 x 2`` cells that hold one (their obstacle cells' mean), nearest the robot first, at most
+    :data:`MAX_PATH_OBSTACLES` (the near ones matter first: the path is sent again within a second)."""
+    if within_m <= 0 or not path:
+        return ()
+    res, (ox, oy), obstacle = snapshot.resolution, snapshot.origin, snapshot.obstacle
+    points = np.array([(pose.x, pose.y), *path], float)
+    lo = np.floor((points.min(axis=0) - within_m - (ox, oy)) / res).astype(int)
+    hi = np.ceil((points.max(axis=0) + within_m - (ox, oy)) / res).astype(int) + 1
+    c0, r0 = max(int(lo[0]), 0), max(int(lo[1]), 0)
+    c1, r1 = min(int(hi[0]), obstacle.shape[1]), min(int(hi[1]), obstacle.shape[0])
+    if c1 <= c0 or r1 <= r0:
+        return ()
+    crop = obstacle[r0:r1, c0:c1]
+    if not crop.any():
+        return ()
+    band = np.zeros(crop.shape, np.uint8)
+    cells = np.round((points - (ox + c0 * res, oy + r0 * res)) / res - 0.5).astype(np.int32)
+    cv2.polylines(band, [cells.reshape(-1, 1, 2)], False, 1, thickness=2 * math.ceil(within_m / res) + 1)
+    rows, cols = np.nonzero(crop & band.astype(bool))
+    if not len(rows):
+        return ()
+    blocks = (rows // 2) * (crop.shape[1] // 2 + 1) + cols // 2
+    _, inverse = np.unique(blocks, return_inverse=True)
+    x = np.bincount(inverse, ox + (c0 + cols + 0.5) * res) / np.bincount(inverse)
+    y = np.bincount(inverse, oy + (r0 + rows + 0.5) * res) / np.bincount(inverse)
+    order = np.argsort(np.hypot(x - pose.x, y - pose.y), kind="stable")[:MAX_PATH_OBSTACLES]
+    return tuple((round(float(x[i]), 3), round(float(y[i]), 3)) for i in order)
+
+
 def booked_step(step: Step, path: bool, blocked: bool, decided_at: Pose, now: Pose) -> tuple[Step, Pose]:
     """What the agent books for ``step`` and from where: a blocked path as a blocked MOVE_FORWARD
     from where the robot stopped (the bump is ahead of it there, not of where the path began)."""
     if path and blocked:
         return Step(Action.MOVE_FORWARD, Reason.NAVIGATE, step.goal), now
     return step, decided_at
+
+
+@dataclass(frozen=True)
+class PathWatch:
+    """The path sent, sampled every half cell, and which samples lay clear of the map's obstacles
+    (by the navigator's radius) at the decision: a sample ahead of the robot that a newer map
+    blocks means the path has been walled off (the goal may have become unreachable)."""
+
+    samples: np.ndarray  # N x 2 world xy, from the robot on
+    clear: np.ndarray    # N bool, at the decision
+
+    @classmethod
+    def start(cls, path: Sequence[Point], pose: Pose, snapshot: MapSnapshot, radius: float) -> PathWatch:
+        samples = _sampled(np.array([(pose.x, pose.y), *path], float), snapshot.resolution / 2)
+        return cls(samples, ~_blocked(snapshot, samples, radius))
+
+    def walled_off(self, snapshot: MapSnapshot, pose: Pose, radius: float) -> bool:
+        """Whether a sample from the one nearest the robot on, clear at the decision, is blocked now."""
+        here = int(np.argmin(np.hypot(self.samples[:, 0] - pose.x, self.samples[:, 1] - pose.y)))
+        ahead = self.samples[here:]
+        return bool((self.clear[here:] & _blocked(snapshot, ahead, radius)).any())
+
+
+def _sampled(polyline: np.ndarray, spacing: float) -> np.ndarray:
+    """Points along ``polyline`` (K x 2) at most ``spacing`` apart, its vertices included."""
+    out = [polyline[:1]]
+    for a, b in zip(polyline[:-1], polyline[1:]):
+        n = max(1, math.ceil(float(np.hypot(*(b - a))) / spacing))
+        out.append(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
+    return np.vstack(out)
+
+
+def _blocked(snapshot: MapSnapshot, xy: np.ndarray, radius: float) -> np.ndarray:
+    """For each point, whether an obstacle cell lies within ``radius`` of it (off the grid: no)."""
+    res, (ox, oy), obstacle = snapshot.resolution, snapshot.origin, snapshot.obstacle
+    r = math.ceil(radius / res)
+    dr, dc = np.mgrid[-r:r + 1, -r:r + 1]
+    disc = (dr * dr + dc * dc) * res * res <= radius * radius + 1e-12
+    rows = np.floor((xy[:, 1] - oy) / res).astype(np.int64)[:, None] + dr[disc]
+    cols = np.floor((xy[:, 0] - ox) / res).astype(np.int64)[:, None] + dc[disc]
+    inside = (rows >= 0) & (rows < obstacle.shape[0]) & (cols >= 0) & (cols < obstacle.shape[1])
+    hit = np.zeros(rows.shape, bool)
+    hit[inside] = obstacle[rows[inside], cols[inside]]
+    return hit.any(axis=1)
+
+
+def best_frontier_score(snapshot: MapSnapshot, remaining: list[str], config: AgentConfig) -> float:
+    """The highest frontier score (the value map's best within the frontier radius) of the map for
+    the policy's targets, as the decision step ranks frontiers; 0 with no frontier or no values."""
+    if not len(snapshot.frontiers):
+        return 0.0
+    rows, cols, grid = explored_window(snapshot)
+    decision = config.decision
+    values = decision_values(snapshot, POLICIES[decision.policy].targets(remaining), decision, (rows, cols))
+    if values is None:
+        return 0.0
+    return float(frontier_scores(snapshot.frontiers, values, grid, decision.candidates.frontier_radius_m).max())
 
 
 @dataclass
@@ -59,17 +178,26 @@ class Redecision:
     step: Step
     decided_at: float
     confirmed: Counter[str]  # the remaining targets' confirmed objects, by label
+    watch: PathWatch
+    frontier_then: float | None  # the best frontier's score at the decision (a frontier goal's only)
 
     @classmethod
-    def start(cls, step: Step, now: float, snapshot: MapSnapshot, remaining: list[str]) -> Redecision:
-        return cls(step, now, _confirmed(snapshot, remaining))
+    def start(cls, step: Step, now: float, snapshot: MapSnapshot, pose: Pose, path: Sequence[Point],
+              remaining: list[str], config: AgentConfig) -> Redecision:
+        goal = step.goal
+        frontier = goal is not None and goal.kind is GoalKind.FRONTIER
+        return cls(step, now, _confirmed(snapshot, remaining),
+                   PathWatch.start(path, pose, snapshot, config.navigation.robot_radius),
+                   best_frontier_score(snapshot, remaining, config) if frontier else None)
 
     def due(self, now: float, snapshot: MapSnapshot, pose: Pose, remaining: list[str], config: AgentConfig
             ) -> str | None:
         """Why to decide again now (None: keep following): a remaining target confirmed since (it
         may be worth a detour), within STOP distance of the object the path goes to (STOP there,
-        not at the path's end), or the decision period has passed (the map has grown: the goal
-        may have become unreachable or a better frontier appeared)."""
+        not at the path's end), the decision period passed (the map has grown), the path ahead
+        walled off by what the map has seen since (re-planned or given up at once, not driven
+        into), or, going to a frontier, a frontier scoring ``better_frontier`` above the best one
+        at the decision (the cheap events first)."""
         if _confirmed(snapshot, remaining) - self.confirmed:  # (positions are refined: counted, not compared)
             return "a target confirmed"
         goal = self.step.goal
@@ -78,6 +206,11 @@ class Redecision:
             return "at the object"
         if now - self.decided_at >= config.decide_every_s:
             return "period"
+        if self.watch.walled_off(snapshot, pose, config.navigation.robot_radius):
+            return "the path walled off"
+        if self.frontier_then is not None \
+                and best_frontier_score(snapshot, remaining, config) >= self.frontier_then + config.better_frontier:
+            return "a better frontier"
         return None
 
 

@@ -61,7 +61,7 @@ from dataclasses import dataclass
 from pydantic import BaseModel, ConfigDict, Field
 
 from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
-from ovamos.services.planner.continuous import Redecision, booked_step, path_for
+from ovamos.services.planner.continuous import Redecision, booked_step, path_step
 from ovamos.services.planner.task import SearchTask, SearchTaskError
 from ovamos.shared.log import sampled
 from ovamos.shared.messages import (
@@ -364,12 +364,12 @@ class Executive:
         if step.action is None:
             self._event_due = True
             return trace
-        path = path_for(self.agent, step) if self.config.agent.motion == "continuous" else None
+        drive = path_step(self.agent, step, snapshot, pose, now) if self.config.agent.motion == "continuous" else None
         command = PlanCommand(action_id=self._next_id, stamp=self._wall_clock(), task_id=self.task.task_id if self.task
-                              else None, action=None if path else step.action, path=path or ())
+                              else None, action=None if drive else step.action, path=drive.path if drive else (),
+                              obstacles=drive.obstacles if drive else ())
         self._next_id += 1
-        redecision = None if path is None else Redecision.start(step, now, snapshot, self.agent.task.remaining)
-        self.in_flight = _InFlight(command, step, pose, now, redecision)
+        self.in_flight = _InFlight(command, step, pose, now, drive.redecision if drive else None)
         if step.reason is Reason.FOUND:
             self._event_due = True
         return trace + [command]
