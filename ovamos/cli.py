@@ -285,14 +285,21 @@ def up(profile: Annotated[str, typer.Argument(
        listen_link: Annotated[Optional[str], typer.Option(
            "--listen-link", help="Secure profiles: HOST:PORT of the router's TLS listener (this host's "
                                  "address on the robot network).")] = None,
+       motion: Annotated[Optional[str], typer.Option(
+           help="stepwise or continuous: how the robot drives (the planner's [agent] motion; the camera and "
+                "the simulated robot lock-step or free-running). Give it on every host of a deployment. "
+                "Default: as the services' configs say.")] = None,
        log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Run a deployment profile: its router, then its services; restart crashed ones; Ctrl-C stops all."""
+    from ovamos.demo import MOTIONS
     from ovamos.profiles import ProfileError, supervisor_for
     from ovamos.supervisor import SupervisorError, status_table
     setup_logging(json_lines=log_json, level=log_level)
+    if motion is not None and motion not in MOTIONS:
+        raise _fail(f"--motion {motion!r}: one of {', '.join(MOTIONS)}")
     try:
         sup = supervisor_for(profile, log_dir=log_dir, connect_laptop=connect_laptop, certs=certs,
-                             listen_link=listen_link)
+                             listen_link=listen_link, motion=motion)  # type: ignore[arg-type]  # checked above
         code = sup.run_forever(on_started=lambda s: console.print(status_table(s.status(), title=profile)))
     except (ProfileError, SupervisorError) as exc:
         raise _fail(str(exc)) from None
@@ -429,7 +436,8 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
              min=1, help="Each task's step limit (default: the paper's 500).")] = None
          ) -> None:
     """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
-    from ovamos.demo import BASES, CONTINUOUS_BASE, DEMO_EPISODE, DEMO_SEED, MOTIONS, ROS2_BASE, run_demo
+    from ovamos.demo import BASES, DEMO_EPISODE, DEMO_SEED, MOTIONS, ROS2_BASE, run_demo
+    from ovamos.services.sim.wheels import CONTINUOUS_BASE
     seed = DEMO_SEED if seed is None else seed
     episode = DEMO_EPISODE if episode is None else episode
     if motion not in MOTIONS:

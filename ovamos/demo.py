@@ -55,7 +55,6 @@ ROS2_SERVICES = ("mapping", "perception", "planner", "base_driver", "camera", "g
 ROS2_BASE = "ros2"
 BASES: tuple[str, ...] = (*get_args(Motion), ROS2_BASE)  # the simulated robot's ways to move
 MOTIONS: tuple[str, ...] = get_args(DriveMode)  # how the planner drives it
-CONTINUOUS_BASE = "kobuki"  # continuous motion's default base: a TurtleBot 2's wheels
 
 
 def demo_services(base: str) -> tuple[str, ...]:

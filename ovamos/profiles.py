@@ -20,6 +20,8 @@ from typing import Any
 from pydantic import Field, PrivateAttr, ValidationError, field_validator
 
 from ovamos.registry import SERVICES
+from ovamos.services.planner.agent import DriveMode
+from ovamos.services.sim.wheels import CONTINUOUS_BASE
 from ovamos.shared.config import StrictModel, format_override
 from ovamos.shared.deploy import DEPLOY_DIR
 from ovamos.supervisor import DEFAULT_LOG_DIR, Backoff, Entry, Supervisor
@@ -95,21 +97,22 @@ class Profile(StrictModel):
 
     def entries(self, router_connect: Sequence[str] | None = None,
                 endpoint: str | None = None, *, certs: Path | None = None,
-                listen_link: str | None = None) -> list[Entry]:
+                listen_link: str | None = None, motion: DriveMode | None = None) -> list[Entry]:
         """The processes to supervise.
 
         ``router_connect`` replaces the router's connect endpoints (``--connect-laptop``
         on the robot); ``endpoint`` moves the router's plain TCP listener there and
         connects every service to it (tests and the demo use a free port rather than the
         shipped one); ``listen_link`` replaces its ``tls/`` listener (``--listen-link``).
-        ``certs`` is the certificate folder of a router with a ``cert``.
+        ``certs`` is the certificate folder of a router with a ``cert``. ``motion`` sets how the
+        robot drives (:func:`motion_settings`); None: as the services' configs say.
         """
         found = [self._router_entry(router_connect, endpoint, certs, listen_link)] if self.router else []
         if not self.robots:
-            return found + [self._service_entry(s, endpoint) for s in self.services]
-        return found + self._fleet_entries(endpoint)
+            return found + [self._service_entry(s, endpoint, motion=motion) for s in self.services]
+        return found + self._fleet_entries(endpoint, motion)
 
-    def _fleet_entries(self, endpoint: str | None) -> list[Entry]:
+    def _fleet_entries(self, endpoint: str | None, motion: DriveMode | None) -> list[Entry]:
         """A fleet's processes, in the profile's order: per-robot services once per robot."""
         from ovamos import fleet
         sim = next((s for s in self.services if s.service == "sim"), None)
@@ -118,10 +121,11 @@ class Profile(StrictModel):
         for spec in self.services:
             if spec.service in fleet.FLEET_WIDE:
                 settings = fleet.fleet_wide_settings(spec.service, _service_config(spec), self.robots, homes)
-                entries.append(self._service_entry(spec, endpoint, settings=settings))
+                entries.append(self._service_entry(spec, endpoint, settings=settings, motion=motion))
                 continue
             entries += [self._service_entry(spec, endpoint, robot=robot, name=f"{spec.entry_name}-{robot}",
-                                            settings=fleet.robot_settings(spec.service, homes.get(robot)))
+                                            settings=fleet.robot_settings(spec.service, homes.get(robot)),
+                                            motion=motion)
                         for robot in self.robots]
         return entries
 
@@ -168,12 +172,31 @@ class Profile(StrictModel):
         return self.router is not None and self.router.cert is not None
 
     def _service_entry(self, spec: ServiceSpec, endpoint: str | None, *, robot: str | None = None,
-                       name: str | None = None, settings: dict[str, Any] | None = None) -> Entry:
+                       name: str | None = None, settings: dict[str, Any] | None = None,
+                       motion: DriveMode | None = None) -> Entry:
+        if motion is not None:
+            settings = {**(settings or {}), **motion_settings(spec.service, _service_config(spec), motion)}
         argv = ["run", spec.service, "--robot-id", robot or spec.robot_id or self.robot_id,
                 "--instance", spec.instance, *_opt("--config", spec.config), *_opt("--zenoh", spec.zenoh),
                 *_repeat("--connect", [endpoint] if endpoint else spec.connect),
                 *_repeat("--set", [format_override(k, v) for k, v in (settings or {}).items()])]
         return Entry(name or spec.entry_name, tuple(argv), delay_s=spec.delay_s)
+
+
+def motion_settings(service: str, config: Any, motion: DriveMode) -> dict[str, Any]:
+    """The settings that make ``service`` (its ``config`` as loaded) take part in ``motion``: the
+    planner drives that way (``[agent] motion``); the camera and the simulated robot take a frame
+    after each command (stepwise) or free-run (continuous); a simulated robot on the kinematic base
+    gets a wheeled one for continuous motion (paths are followed by a base controller)."""
+    lock_step = motion == "stepwise"
+    if service == "planner":
+        return {"agent": {**config.agent.model_dump(mode="json"), "motion": motion}}
+    if service == "camera":
+        return {"lock_step": lock_step}
+    if service == "sim":
+        wheels = CONTINUOUS_BASE if motion == "continuous" and config.motion == "kinematic" else config.motion
+        return {"lock_step": lock_step, "motion": wheels}
+    return {}
 
 
 def _service_config(spec: ServiceSpec) -> Any:
@@ -340,13 +363,14 @@ def check_certs(profile: Profile, certs: Path | None) -> None:
 def supervisor_for(profile: str | Path, *, log_dir: Path = DEFAULT_LOG_DIR,
                    connect_laptop: str | None = None, endpoint: str | None = None,
                    check_configs: bool = True, certs: Path | None = None,
-                   listen_link: str | None = None) -> Supervisor:
+                   listen_link: str | None = None, motion: DriveMode | None = None) -> Supervisor:
     """What ``ovamos up PROFILE`` runs: the profile loaded, checked and turned into a supervisor.
 
     ``endpoint`` runs the profile's router there instead of its shipped port (see
     :meth:`Profile.entries`). A secure profile (its router has a ``cert``) links over TLS:
     ``connect_laptop`` and ``listen_link`` are then ``tls/`` endpoints, and the certificates
-    in ``certs`` are checked before anything starts.
+    in ``certs`` are checked before anything starts. ``motion`` (``ovamos up --motion``): see
+    :func:`motion_settings`.
     """
     loaded = load_profile(resolve_profile(profile))
     if check_configs:
@@ -357,5 +381,6 @@ def supervisor_for(profile: str | Path, *, log_dir: Path = DEFAULT_LOG_DIR,
     link = laptop_endpoint(listen_link, "tls", "--listen-link") if listen_link else None
     if link and not loaded.secure:
         raise ProfileError(f"{loaded.source}: --listen-link is for a secure profile (its router has a cert)")
-    return Supervisor(loaded.entries(router_connect=connect, endpoint=endpoint, certs=certs, listen_link=link),
+    return Supervisor(loaded.entries(router_connect=connect, endpoint=endpoint, certs=certs, listen_link=link,
+                                     motion=motion),
                       log_dir=log_dir, backoff=loaded.restart, stop_timeout_s=loaded.stop_timeout_s)

@@ -31,6 +31,7 @@ from ovamos.profiles import (
     supervisor_for,
     tcp_address,
 )
+from ovamos.services.planner.agent import DriveMode
 from ovamos.shared.procs import free_port, kill, loopback
 from ovamos.shared.service import load_config
 from ovamos.supervisor import Backoff, Entry, State, Supervisor, SupervisorError, exit_reason, port_open, status_table
@@ -306,6 +307,48 @@ def test_profile_paths_are_relative_to_the_file_and_flags_are_built(tmp_path: Pa
     moved = profile.entries(endpoint="tcp/127.0.0.1:9999")
     assert moved[0].ready == ("127.0.0.1", 9999) and moved[0].argv[-2:] == ("--listen", "tcp/127.0.0.1:9999")
     assert moved[1].argv[-2:] == ("--connect", "tcp/127.0.0.1:9999")
+
+
+def _configs(entries: list[Entry]) -> dict[str, object]:
+    """Each service entry's config as ``ovamos run`` would load it (its file and its --set overrides)."""
+    from ovamos.registry import service_class
+    from ovamos.shared.config import parse_overrides
+    loaded = {}
+    for e in entries:
+        if e.argv[0] != "run":
+            continue
+        argv = list(e.argv)
+        config = argv[argv.index("--config") + 1] if "--config" in argv else None
+        sets = [argv[i + 1] for i, a in enumerate(argv) if a == "--set"]
+        loaded[e.name] = load_config(service_class(argv[1]), config, parse_overrides(sets))
+    return loaded
+
+
+def _entries(profile: str, motion: DriveMode | None = None) -> list[Entry]:
+    return load_profile(resolve_profile(profile)).entries(motion=motion)
+
+
+def test_up_motion_sets_the_planner_camera_and_simulated_robot_and_keeps_the_rest() -> None:
+    """``ovamos up PROFILE --motion continuous``: the planner drives paths (the rest of its agent
+    section as configured), the camera and the simulated robot free-run, a kinematic simulated
+    robot gets wheels; ``--motion stepwise`` lock-steps them; without it, the configs rule."""
+    plain = _configs(_entries("all"))
+    moving = _configs(_entries("all", "continuous"))
+    assert moving["planner"].agent.motion == "continuous"  # type: ignore[attr-defined]
+    assert moving["planner"].agent.model_dump(exclude={"motion"}) == plain["planner"].agent.model_dump(exclude={"motion"})  # type: ignore[attr-defined]
+    assert (moving["sim"].lock_step, moving["sim"].motion) == (False, "kobuki")  # type: ignore[attr-defined]
+    assert (plain["sim"].lock_step, plain["sim"].motion, plain["planner"].agent.motion) == (True, "kinematic", "stepwise")  # type: ignore[attr-defined]
+    assert moving["mapping"] == plain["mapping"] and moving["gateway"] == plain["gateway"]
+    robot = _configs(_entries("robot", "continuous"))
+    assert robot["camera"].lock_step is False  # type: ignore[attr-defined]
+    assert _configs(_entries("robot", "stepwise"))["camera"].lock_step is True  # type: ignore[attr-defined]
+    assert _configs(_entries("laptop", "continuous"))["planner"].agent.motion == "continuous"  # type: ignore[attr-defined]
+
+
+def test_up_refuses_an_unknown_motion() -> None:
+    done = subprocess.run([sys.executable, "-m", "ovamos.cli", "up", "all", "--motion", "smooth"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode != 0 and "--motion 'smooth': one of stepwise, continuous" in done.stdout + done.stderr
 
 
 @pytest.mark.parametrize(("text", "expected"), [

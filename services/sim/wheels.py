@@ -41,6 +41,8 @@ from ovamos.shared.motion import Pose
 from ovamos.shared.simtime import SimClock
 
 Motion = Literal["kinematic", "odrive", "kobuki", "opencr"]
+CONTINUOUS_BASE: Motion = "kobuki"
+"""The simulated robot's wheels where continuous motion is asked of a kinematic one: a TurtleBot 2's."""
 """How the simulated robot moves (the sim service's docstring)."""
 ODRIVE_LOOP_S = 0.005  # the simulated ODrives' loop in simulated time (their thread's longest wait)
 
