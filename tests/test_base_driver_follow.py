@@ -131,7 +131,8 @@ def _speeds(trace: list[tuple[float, Pose]], lo: float, hi: float) -> list[float
 
 def test_the_follower_slows_beside_a_named_obstacle_and_not_elsewhere(base_name: str) -> None:
     """A post 0.25 m beside a straight path: a 0.07 m gap to the footprint, so beside it the robot
-    drives at most 0.12 / slow_clearance_m of its top speed; well before it, at full speed. The
+    drives at most 0.07 / slow_clearance_m of its top speed (or near_obstacle_m_s, the floor); well
+    before it, at full speed. The
     same path without the post named: full speed beside it too (the robot has no map)."""
     top = {}
     for named in ((1.5, 0.25),), ():
@@ -144,7 +145,7 @@ def test_the_follower_slows_beside_a_named_obstacle_and_not_elsewhere(base_name:
             top[bool(named)] = (max(_speeds(base.trace, 0.5, 0.8)), max(_speeds(base.trace, 1.45, 1.55)))
         finally:
             base.stop()
-    cap = c.max_linear_m_s * (0.25 - f.footprint_m) / f.slow_clearance_m
+    cap = max(f.near_obstacle_m_s, c.max_linear_m_s * (0.25 - f.footprint_m) / f.slow_clearance_m)
     full = top[False][0]  # the base's cruising speed (a simulated OpenCR's wheels fall short of the limit)
     assert top[True][1] <= cap + 0.01 < full - 0.05  # beside the post: slowed
     assert top[True][0] == pytest.approx(full, abs=0.01)  # before it: full speed

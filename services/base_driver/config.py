@@ -49,7 +49,12 @@ class FollowConfig(StrictModel):
         default=0.2, ge=0,
         description="a gap narrower than this between the footprint (footprint_m) and the nearest obstacle the "
                     "path command names drives proportionally slower (regulated pure pursuit's proximity "
-                    "rule); 0: never")
+                    "rule), down to near_obstacle_m_s; 0: never")
+    near_obstacle_m_s: float = Field(
+        default=0.12, gt=0,
+        description="the slowest the proximity rule drives: planned paths keep only the navigator's radius "
+                    "(below the footprint) from mapped obstacles, and scaled to zero the robot crept along "
+                    "every piece of furniture (Nav2's regulated pure pursuit floors it likewise)")
     footprint_m: float = Field(default=ROBOT.radius_m, gt=0, description="the robot's radius, for the gap to an obstacle")
 
 

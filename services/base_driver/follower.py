@@ -4,8 +4,9 @@ Each tick the follower finds where along the path the robot is (never going back
 steers toward the point ``lookahead_m`` further on with the arc through it (curvature
 ``2 y / L^2`` in the robot's frame), drives curves tighter than ``min_radius_m`` proportionally
 slower, drives slower as the gap between its footprint and the nearest obstacle the command names
-(``PlanCommand.obstacles``: the robot has no map of its own) narrows below ``slow_clearance_m``,
-and brakes for the last point on the same curve as a primitive's approach. A corner (the
+(``PlanCommand.obstacles``: the robot has no map of its own) narrows below ``slow_clearance_m``
+(down to ``near_obstacle_m_s``), and brakes for the last point on the same curve as a primitive's
+approach. A corner (the
 path turning by more than ``corner_rad`` at a waypoint) is driven to and braked for like the last
 point, the lookahead not passing it, rather than cut. A heading error to the lookahead point larger
 than ``rotate_in_place_rad`` (the path starts behind the robot, a corner gone round) turns the base
@@ -121,9 +122,10 @@ class PathFollower:
         return speed, speed * curvature
 
     def _near_obstacle_speed(self, here: Point) -> float:
-        """The top speed scaled by the gap to the nearest named obstacle over ``slow_clearance_m``."""
+        """The top speed scaled by the gap to the nearest named obstacle over ``slow_clearance_m``, no
+        slower than ``near_obstacle_m_s``."""
         c, f = self.config, self.config.follow
         if not self.obstacles or f.slow_clearance_m == 0:
             return c.max_linear_m_s
         gap = min(math.hypot(ox - here[0], oy - here[1]) for ox, oy in self.obstacles) - f.footprint_m
-        return c.max_linear_m_s * max(0.0, min(1.0, gap / f.slow_clearance_m))
+        return max(f.near_obstacle_m_s, c.max_linear_m_s * min(1.0, gap / f.slow_clearance_m))

@@ -7,9 +7,10 @@ while frames free-run into the map, and the agent is asked again (the step booke
 covered so far) when one of :meth:`Redecision.due`'s events happens (a target confirmed, at the
 object, the path walled off, a much better frontier) or ``decide_every_s`` has passed, never
 waiting for the robot to stop. The path goes with the mapped obstacles near it
-(:func:`obstacles_near`): the robot has no map, and its follower slows near them. Every other step (the look-around, a turn with nowhere
-to go, ovamos-plus's check turns, the STOP beside a found object) stays a primitive, so a found
-target still ends with the robot within its STOP distance and a STOP.
+(:func:`obstacles_near`): the robot has no map, and its follower slows near them. Every other
+step (the look-around, a turn with nowhere to go, ovamos-plus's check turns, the STOP beside a
+found object) stays a primitive, so a found target still ends with the robot within its STOP
+distance and a STOP.
 
 A step is then a decision tick: ``decide_every_s`` defaults to about the time a MOVE_FORWARD's
 0.25 m takes at a TurtleBot's top speed, so the agent's step-counted rules (re-decide every 4,
@@ -36,6 +37,11 @@ from ovamos.shared.messages import MAX_PATH_OBSTACLES, MAX_PATH_POINTS, MapSnaps
 from ovamos.shared.motion import Action, Pose
 
 Point = tuple[float, float]
+
+WALLED_OFF_SHARE = 0.5
+"""A path is walled off by an obstacle within this share of the navigator's radius of it: nearer
+than any plan keeps, where a wall the path runs along at the radius grows a cell as it is seen
+again without blocking anything (at the full radius that re-decided paths again and again)."""
 
 
 @dataclass(frozen=True)
@@ -116,8 +122,8 @@ def booked_step(step: Step, path: bool, blocked: bool, decided_at: Pose, now: Po
 @dataclass(frozen=True)
 class PathWatch:
     """The path sent, sampled every half cell, and which samples lay clear of the map's obstacles
-    (by the navigator's radius) at the decision: a sample ahead of the robot that a newer map
-    blocks means the path has been walled off (the goal may have become unreachable)."""
+    (by a radius) at the decision: a sample ahead of the robot that a newer map blocks means the
+    path has been walled off (the goal may have become unreachable)."""
 
     samples: np.ndarray  # N x 2 world xy, from the robot on
     clear: np.ndarray    # N bool, at the decision
@@ -187,7 +193,7 @@ class Redecision:
         goal = step.goal
         frontier = goal is not None and goal.kind is GoalKind.FRONTIER
         return cls(step, now, _confirmed(snapshot, remaining),
-                   PathWatch.start(path, pose, snapshot, config.navigation.robot_radius),
+                   PathWatch.start(path, pose, snapshot, WALLED_OFF_SHARE * config.navigation.robot_radius),
                    best_frontier_score(snapshot, remaining, config) if frontier else None)
 
     def due(self, now: float, snapshot: MapSnapshot, pose: Pose, remaining: list[str], config: AgentConfig
@@ -206,7 +212,7 @@ class Redecision:
             return "at the object"
         if now - self.decided_at >= config.decide_every_s:
             return "period"
-        if self.watch.walled_off(snapshot, pose, config.navigation.robot_radius):
+        if self.watch.walled_off(snapshot, pose, WALLED_OFF_SHARE * config.navigation.robot_radius):
             return "the path walled off"
         if self.frontier_then is not None \
                 and best_frontier_score(snapshot, remaining, config) >= self.frontier_then + config.better_frontier:
