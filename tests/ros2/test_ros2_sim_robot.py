@@ -145,14 +145,16 @@ def test_it_stops_by_itself_when_commands_stop(sim_robot: Path) -> None:
 
 
 @pytest.mark.timeout(600)
-@pytest.mark.parametrize(("motion", "target"), [("stepwise", "sofa"), ("continuous", "floor_lamp")])
-def test_the_demo_search_through_ros2_finds_its_target(tmp_path: Path, motion: str, target: str) -> None:
+@pytest.mark.parametrize("motion", ["stepwise", "continuous"])
+def test_the_demo_search_through_ros2_finds_its_target(tmp_path: Path, motion: str) -> None:
     """``ovamos demo --base ros2 [--motion continuous]``: the search drives the robot through cmd_vel
     and sees through its ROS camera (the base driver and camera services with hardware / backend
-    ros2); continuous, the base driver follows path commands while the camera free-runs, and the
-    distance booked is about the ground from the start to where it stopped. The demo's own 400 s bound, not the suite's 180 s: real-time primitives
-    land a little differently on a loaded machine and the search takes 20 to 70 steps, 30 to 130 s
-    here (over 180 s once on CI)."""
+    ros2); continuous, the base driver follows path commands while the camera free-runs. The
+    distance booked is about the ground from the start to where it stopped. The floor lamp, about
+    2 m from the start: 22 steps and 36 s of search stepwise, 21 steps and 28 s continuously here
+    (the sofa took 20 to 70 steps, 30 to 130 s, over 180 s once on CI). The demo's own 400 s bound,
+    not the suite's 180 s: real-time primitives land a little differently on a loaded machine."""
+    target = "floor_lamp"
     out = tmp_path / "demo"
     done = subprocess.run([sys.executable, "-m", "ovamos.cli", "demo", "--base", "ros2", "--motion", motion,
                            "--target", target, "--timeout", "400", "--out", str(out), "--no-record"],
@@ -164,8 +166,7 @@ def test_the_demo_search_through_ros2_finds_its_target(tmp_path: Path, motion: s
     assert report["task"]["steps"] > 0 and set(report["restarts"].values()) == {0}
     driven = (out / "logs" / "base_driver.log").read_text()
     assert "command 1 (" in driven and "(STOP): accepted" in driven  # the ros2 driver moved it, and stopped it
-    if motion == "continuous":
-        assert "(path (" in driven, driven[-1500:]
-        start, end = make_episode(*EPISODE)[0].start, report["task"]["position"]
-        straight = math.hypot(end["x"] - start.x, end["y"] - start.y)  # 2.0 m here, booked 2.0 m
-        assert report["task"]["distance_m"] < 2 * straight + 0.5
+    assert ("(path (" in driven) == (motion == "continuous"), driven[-1500:]
+    start, end = make_episode(*EPISODE)[0].start, report["task"]["position"]
+    straight = math.hypot(end["x"] - start.x, end["y"] - start.y)  # 2.0 m here, booked 2.0 m both ways
+    assert report["task"]["distance_m"] < 2 * straight + 0.5
