@@ -38,11 +38,6 @@ from ovamos.shared.motion import Action, Pose
 
 Point = tuple[float, float]
 
-WALLED_OFF_SHARE = 0.5
-"""A path is walled off by an obstacle within this share of the navigator's radius of it: nearer
-than any plan keeps, where a wall the path runs along at the radius grows a cell as it is seen
-again without blocking anything (at the full radius that re-decided paths again and again)."""
-
 
 @dataclass(frozen=True)
 class PathStep:
@@ -122,8 +117,9 @@ def booked_step(step: Step, path: bool, blocked: bool, decided_at: Pose, now: Po
 @dataclass(frozen=True)
 class PathWatch:
     """The path sent, sampled every half cell, and which samples lay clear of the map's obstacles
-    (by a radius) at the decision: a sample ahead of the robot that a newer map blocks means the
-    path has been walled off (the goal may have become unreachable)."""
+    (by the navigator's radius: where its plans may go) at the decision: a sample ahead of the
+    robot that a newer map blocks means the path has been walled off (the goal may have become
+    unreachable)."""
 
     samples: np.ndarray  # N x 2 world xy, from the robot on
     clear: np.ndarray    # N bool, at the decision
@@ -193,7 +189,7 @@ class Redecision:
         goal = step.goal
         frontier = goal is not None and goal.kind is GoalKind.FRONTIER
         return cls(step, now, _confirmed(snapshot, remaining),
-                   PathWatch.start(path, pose, snapshot, WALLED_OFF_SHARE * config.navigation.robot_radius),
+                   PathWatch.start(path, pose, snapshot, config.navigation.robot_radius),
                    best_frontier_score(snapshot, remaining, config) if frontier else None)
 
     def due(self, now: float, snapshot: MapSnapshot, pose: Pose, remaining: list[str], config: AgentConfig
@@ -212,7 +208,7 @@ class Redecision:
             return "at the object"
         if now - self.decided_at >= config.decide_every_s:
             return "period"
-        if self.watch.walled_off(snapshot, pose, WALLED_OFF_SHARE * config.navigation.robot_radius):
+        if self.watch.walled_off(snapshot, pose, config.navigation.robot_radius):
             return "the path walled off"
         if self.frontier_then is not None \
                 and best_frontier_score(snapshot, remaining, config) >= self.frontier_then + config.better_frontier:
