@@ -22,12 +22,13 @@ from dataclasses import dataclass, field
 from typing import Any, cast
 
 from ovamos.bench.episode import EpisodeConfig, EpisodeResult, episode_config, run_episode
-from ovamos.services.planner.agent import AgentConfig, DriveMode
+from ovamos.services.planner.agent import AgentConfig
 from ovamos.services.sim.episodes import make_episode
 from ovamos.services.sim.evaluator import GroundTruth
 from ovamos.services.sim.perception_presets import perception_preset
 from ovamos.services.sim.prior import ObjectPrior
 from ovamos.services.sim.world import Scene
+from ovamos.shared.motion import DriveMode
 
 
 class EpisodeFailed(RuntimeError):

@@ -47,10 +47,10 @@ from ovamos.bench.provenance import code_version
 from ovamos.bench.stats import miss_reasons, paired_differences, policy_scores
 from ovamos.bench.tables import print_table
 from ovamos.services.mapping.render import write_png
-from ovamos.services.planner.agent import DriveMode
 from ovamos.services.sim.generate import home_tier
 from ovamos.services.sim.perception_presets import perception_preset
 from ovamos.services.sim.wheels import Motion
+from ovamos.shared.motion import MOTIONS
 
 TIMING_FIELDS = {"seconds"}  # wall clock: kept out of the comparable JSONL
 
@@ -61,7 +61,6 @@ RUN_SETTINGS = ("seed", "perception", "homes", "max_steps", "base", "motion")
 #: the value of a setting a run.json from before it existed held
 SETTING_DEFAULTS = {"base": "kinematic", "motion": "stepwise"}
 BASES: tuple[str, ...] = get_args(Motion)  # the robots an episode can run on
-MOTIONS: tuple[str, ...] = get_args(DriveMode)  # how the planner drives them
 #: the code version of an episode whose timing line does not name one
 UNRECORDED = "unrecorded"
 

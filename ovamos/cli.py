@@ -291,8 +291,8 @@ def up(profile: Annotated[str, typer.Argument(
                 "Default: as the services' configs say.")] = None,
        log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Run a deployment profile: its router, then its services; restart crashed ones; Ctrl-C stops all."""
-    from ovamos.demo import MOTIONS
     from ovamos.profiles import ProfileError, supervisor_for
+    from ovamos.shared.motion import MOTIONS
     from ovamos.supervisor import SupervisorError, status_table
     setup_logging(json_lines=log_json, level=log_level)
     if motion is not None and motion not in MOTIONS:
@@ -436,8 +436,9 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
              min=1, help="Each task's step limit (default: the paper's 500).")] = None
          ) -> None:
     """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
-    from ovamos.demo import BASES, DEMO_EPISODE, DEMO_SEED, MOTIONS, ROS2_BASE, run_demo
+    from ovamos.demo import BASES, DEMO_EPISODE, DEMO_SEED, ROS2_BASE, run_demo
     from ovamos.services.sim.wheels import CONTINUOUS_BASE
+    from ovamos.shared.motion import MOTIONS
     seed = DEMO_SEED if seed is None else seed
     episode = DEMO_EPISODE if episode is None else episode
     if motion not in MOTIONS:

@@ -35,7 +35,6 @@ from ovamos.bench.episode import scene_mapping
 from ovamos.services.gateway.client import GatewayClient, GatewayError
 from ovamos.services.gateway.models import TaskView
 from ovamos.services.perception.config import PerceptionServiceConfig
-from ovamos.services.planner.agent import DriveMode
 from ovamos.services.sim.episodes import make_episode
 from ovamos.services.sim.prior import ObjectPrior
 from ovamos.services.sim.wheels import Motion
@@ -54,7 +53,6 @@ SERVICES = ("mapping", "perception", "planner", "sim", "gateway")
 ROS2_SERVICES = ("mapping", "perception", "planner", "base_driver", "camera", "gateway")
 ROS2_BASE = "ros2"
 BASES: tuple[str, ...] = (*get_args(Motion), ROS2_BASE)  # the simulated robot's ways to move
-MOTIONS: tuple[str, ...] = get_args(DriveMode)  # how the planner drives it
 
 
 def demo_services(base: str) -> tuple[str, ...]:

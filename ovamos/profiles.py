@@ -20,10 +20,9 @@ from typing import Any
 from pydantic import Field, PrivateAttr, ValidationError, field_validator
 
 from ovamos.registry import SERVICES
-from ovamos.services.planner.agent import DriveMode
-from ovamos.services.sim.wheels import CONTINUOUS_BASE
 from ovamos.shared.config import StrictModel, format_override
 from ovamos.shared.deploy import DEPLOY_DIR
+from ovamos.shared.motion import DriveMode
 from ovamos.supervisor import DEFAULT_LOG_DIR, Backoff, Entry, Supervisor
 
 PROFILE_DIR = DEPLOY_DIR / "profiles"
@@ -188,6 +187,7 @@ def motion_settings(service: str, config: Any, motion: DriveMode) -> dict[str, A
     planner drives that way (``[agent] motion``); the camera and the simulated robot take a frame
     after each command (stepwise) or free-run (continuous); a simulated robot on the kinematic base
     gets a wheeled one for continuous motion (paths are followed by a base controller)."""
+    from ovamos.services.sim.wheels import CONTINUOUS_BASE  # (the simulator's modules: only when asked)
     lock_step = motion == "stepwise"
     if service == "planner":
         return {"agent": {**config.agent.model_dump(mode="json"), "motion": motion}}

@@ -8,8 +8,14 @@ from __future__ import annotations
 
 import math
 from enum import Enum
+from typing import Literal, get_args
 
 from pydantic import BaseModel, ConfigDict
+
+DriveMode = Literal["stepwise", "continuous"]
+"""How the planner drives the robot (``[agent] motion``): a primitive, then the frame after it
+(the paper's), or paths driven while frames free-run."""
+MOTIONS: tuple[str, ...] = get_args(DriveMode)
 
 
 class Action(str, Enum):

@@ -31,7 +31,7 @@ from ovamos.profiles import (
     supervisor_for,
     tcp_address,
 )
-from ovamos.services.planner.agent import DriveMode
+from ovamos.shared.motion import DriveMode
 from ovamos.shared.procs import free_port, kill, loopback
 from ovamos.shared.service import load_config
 from ovamos.supervisor import Backoff, Entry, State, Supervisor, SupervisorError, exit_reason, port_open, status_table

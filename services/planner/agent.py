@@ -25,7 +25,6 @@ import logging
 import math
 from dataclasses import dataclass
 from enum import Enum
-from typing import Literal
 
 import cv2
 import numpy as np
@@ -38,14 +37,12 @@ from ovamos.services.planner.plus import goal_budget, strict_objects
 from ovamos.services.planner.policies import POLICIES
 from ovamos.services.planner.task import SearchTask
 from ovamos.shared.messages import MapSnapshot, ObjectInstance, TargetMiss, TaskStatus
-from ovamos.shared.motion import Action, Pose
+from ovamos.shared.motion import Action, DriveMode, Pose
 from ovamos.shared.robot import PRIMITIVES, ROBOT, Primitives
 
 log = logging.getLogger("ovamos.planner")
 
 
-#: how the planner drives the robot (AgentConfig.motion)
-DriveMode = Literal["stepwise", "continuous"]
 
 
 class AgentConfig(BaseModel):
