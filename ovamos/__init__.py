@@ -8,4 +8,4 @@ profiles, the service registry and the demo. Nothing here is a service; it start
 - :mod:`ovamos.demo`: ``ovamos demo``, the whole system on one machine driven through its HTTP API.
 """
 
-__version__ = "0.38.0"
+__version__ = "0.39.0"
