@@ -109,10 +109,12 @@ def _wall(snap: MapSnapshot, cells: tuple[slice, slice]) -> MapSnapshot:
     return snap.model_copy(update={"obstacle": obstacle})
 
 
-def test_a_path_walled_off_by_the_newest_map_is_decided_on_at_once_and_the_new_one_goes_round() -> None:
+def test_a_path_walled_off_by_the_newest_map_is_decided_on_at_once_and_the_new_one_goes_round(
+        caplog: pytest.LogCaptureFixture) -> None:
     """The first path runs (1, 1) -> (5, 5) over an empty map; a wall seen across it (x = 3, y 2-4)
-    makes the next decision come before the period, and the new path goes round the wall. A wall
-    as long seen off the path (x = 5.5) changes nothing."""
+    makes the next decision come before the period (logged with why), and the new path goes round
+    the wall. A wall as long seen off the path (x = 5.5) changes nothing."""
+    caplog.set_level("INFO", logger="ovamos.planner")
     ex, t = scanned(every_s=10.0)
     first = ex.in_flight.command  # type: ignore[union-attr]
     ex.on_driver(driver(completed=1, active=first.action_id, outcome="done"))
@@ -122,6 +124,7 @@ def test_a_path_walled_off_by_the_newest_map_is_decided_on_at_once_and_the_new_o
     ex.on_snapshot(_wall(snapshot(3, after=1), wall))
     [second] = commands(ex.poll(t + 0.4))
     assert second.action_id == first.action_id + 1 and second.path
+    assert f"path of command {first.action_id} decided on again: the path walled off" in caplog.text
     xs, ys = zip(*[(x, y) for x, y in [(1.0, 1.0), *second.path]])
     crossings = [(x0, y0, x1, y1) for x0, y0, x1, y1 in zip(xs, ys, xs[1:], ys[1:]) if min(x0, x1) < 3.0 < max(x0, x1)]
     for x0, y0, x1, y1 in crossings:  # where the new path crosses x = 3, it is clear of the wall

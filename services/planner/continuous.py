@@ -38,6 +38,9 @@ from ovamos.shared.motion import Action, Pose
 
 Point = tuple[float, float]
 
+PERIOD = "period"
+""":meth:`Redecision.due`'s answer when only ``decide_every_s`` has passed (no event)."""
+
 
 @dataclass(frozen=True)
 class PathStep:
@@ -207,7 +210,7 @@ class Redecision:
                 and math.hypot(goal.x - pose.x, goal.y - pose.y) <= config.object_stop_m:
             return "at the object"
         if now - self.decided_at >= config.decide_every_s:
-            return "period"
+            return PERIOD
         if self.watch.walled_off(snapshot, pose, config.navigation.robot_radius):
             return "the path walled off"
         if self.frontier_then is not None \

@@ -61,7 +61,7 @@ from dataclasses import dataclass
 from pydantic import BaseModel, ConfigDict, Field
 
 from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
-from ovamos.services.planner.continuous import Redecision, booked_step, path_step
+from ovamos.services.planner.continuous import PERIOD, Redecision, booked_step, path_step
 from ovamos.services.planner.task import SearchTask, SearchTaskError
 from ovamos.shared.log import sampled
 from ovamos.shared.messages import (
@@ -326,12 +326,17 @@ class Executive:
         self._event_due = True
 
     def _redecide(self, now: float, flight: _InFlight) -> bool:
-        """A path in flight is due for a new decision (on a map of the driver's session)."""
+        """A path in flight is due for a new decision (on a map of the driver's session). Why is
+        logged unless it is the period's (once a second: the log would hold little else)."""
         snapshot, pose, agent = self.snapshot, self._pose(), self.agent
         if flight.redecision is None or snapshot is None or pose is None or agent is None or self.driver is None \
                 or snapshot.odom_session != self.driver.odom_session or self.driver.backing_off:
             return False
-        return flight.redecision.due(now, snapshot, pose, agent.task.remaining, agent.config) is not None
+        why = flight.redecision.due(now, snapshot, pose, agent.task.remaining, agent.config)
+        if why is not None and why != PERIOD:
+            log.info("step %d: path of command %d decided on again: %s", agent.task.steps,
+                     flight.command.action_id, why)
+        return why is not None
 
     def _decide(self, now: float, d: DriverState) -> list[JsonMessage]:
         assert self.agent is not None
