@@ -32,6 +32,7 @@ import numpy as np
 from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
 from ovamos.services.planner.candidates import frontier_scores
 from ovamos.services.planner.decide import GoalKind, decision_values, explored_window
+from ovamos.services.planner.navigator import NavMap
 from ovamos.services.planner.policies import POLICIES
 from ovamos.shared.messages import MAX_PATH_OBSTACLES, MAX_PATH_POINTS, MapSnapshot
 from ovamos.shared.motion import Action, Pose
@@ -150,15 +151,16 @@ def _sampled(polyline: np.ndarray, spacing: float) -> np.ndarray:
 
 def _blocked(snapshot: MapSnapshot, xy: np.ndarray, radius: float) -> np.ndarray:
     """For each point, whether an obstacle cell lies within ``radius`` of it (off the grid: no)."""
-    res, (ox, oy), obstacle = snapshot.resolution, snapshot.origin, snapshot.obstacle
+    nav = NavMap.from_snapshot(snapshot)
+    res, grid = nav.grid.resolution, nav.grid
     r = math.ceil(radius / res)
     dr, dc = np.mgrid[-r:r + 1, -r:r + 1]
     disc = (dr * dr + dc * dc) * res * res <= radius * radius + 1e-12
-    rows = np.floor((xy[:, 1] - oy) / res).astype(np.int64)[:, None] + dr[disc]
-    cols = np.floor((xy[:, 0] - ox) / res).astype(np.int64)[:, None] + dc[disc]
-    inside = (rows >= 0) & (rows < obstacle.shape[0]) & (cols >= 0) & (cols < obstacle.shape[1])
+    centre_rows, centre_cols = grid.to_cell(xy[:, 0], xy[:, 1])
+    rows, cols = centre_rows[:, None] + dr[disc], centre_cols[:, None] + dc[disc]
+    inside = (rows >= 0) & (rows < grid.rows) & (cols >= 0) & (cols < grid.cols)
     hit = np.zeros(rows.shape, bool)
-    hit[inside] = obstacle[rows[inside], cols[inside]]
+    hit[inside] = nav.obstacle[rows[inside], cols[inside]]
     return hit.any(axis=1)
 
 
