@@ -82,8 +82,12 @@ def alive(pid: int, started: int) -> bool:
 ENDED = "SIGTERM: what this process started is stopped; ending"
 
 
-def survivors(recorded: dict[int, int]) -> dict[int, str]:
-    return {pid: _cmdline(pid) for pid, started in recorded.items() if alive(pid, started)}
+def survivors(recorded: dict[int, int], seen: dict[int, str] | None = None) -> dict[int, str]:
+    """The recorded processes still alive, each with its command line; one that reads empty (an
+    exiting process has released its memory, and with it its command line) with the one ``seen``
+    last, so the resource tracker ending as we look is still known for what it is."""
+    return {pid: _cmdline(pid) or (seen or {}).get(pid, "") for pid, started in recorded.items()
+            if alive(pid, started)}
 
 
 def _resource_tracker(cmdline: str) -> bool:
@@ -100,6 +104,7 @@ class Command:
     folder: Path
     proc: subprocess.Popen = field(init=False)
     recorded: dict[int, int] = field(default_factory=dict)
+    seen: dict[int, str] = field(default_factory=dict)  # pid -> its last non-empty command line
 
     def start(self) -> None:
         self.folder.mkdir(parents=True, exist_ok=True)
@@ -130,20 +135,26 @@ class Command:
             if self.proc.poll() is not None:
                 pytest.fail(f"{self.argv[0]} ended ({self.proc.returncode}) before {what}:\n"
                             f"{self.output()[-3000:]}")
-            self.recorded.update(descendants(self.proc.pid))
+            self.record()
             return predicate()
 
         wait_for(ready, timeout=timeout, what=what, interval=0.2)
 
+    def record(self) -> None:
+        """Every live descendant, and what each runs."""
+        found = descendants(self.proc.pid)
+        self.recorded.update(found)
+        self.seen.update({pid: cmd for pid in found if (cmd := _cmdline(pid))})
+
     def signal_and_wait(self, sig: int) -> int:
         """Record every descendant, send ``sig`` to the command alone, wait for it to exit (still
         recording what it starts meanwhile); its exit code."""
-        self.recorded.update(descendants(self.proc.pid))
+        self.record()
         assert self.recorded, "the command had no children to leave behind"
         os.kill(self.proc.pid, sig)
         deadline = time.monotonic() + STOP_S
         while self.proc.poll() is None:
-            self.recorded.update(descendants(self.proc.pid))
+            self.record()
             if time.monotonic() > deadline:
                 pytest.fail(f"{self.argv[0]} still runs {STOP_S:.0f} s after {signal.Signals(sig).name}:\n"
                             f"{self.output()[-3000:]}")
@@ -159,7 +170,7 @@ class Command:
     def assert_nothing_left(self) -> None:
         """At the command's exit its children are gone (it stopped them); the multiprocessing
         resource tracker, which ends after its last user, goes soon after."""
-        left = survivors(self.recorded)
+        left = survivors(self.recorded, self.seen)
         assert not {p: c for p, c in left.items() if not _resource_tracker(c)}, \
             f"left running after the command ended: {left}\n{self.output()[-3000:]}"
         wait_for(lambda: not survivors(self.recorded), timeout=30,
