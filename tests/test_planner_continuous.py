@@ -14,7 +14,7 @@ import pytest
 
 from ovamos.services.planner.agent import AgentConfig
 from ovamos.services.planner.continuous import PathWatch, obstacles_near
-from ovamos.services.planner.executive import Executive, ExecutiveConfig
+from ovamos.services.planner.executive import BLIND, Executive, ExecutiveConfig
 from ovamos.shared.messages import MAX_PATH_OBSTACLES, DriverState, MapSnapshot, ObjectInstance
 from ovamos.shared.motion import Action, Pose
 from tests.test_planner_executive import commands, driver, odom, snapshot, spec
@@ -59,6 +59,34 @@ def test_the_path_is_kept_alive_then_decided_on_again_while_the_robot_drives() -
     [second] = commands(ex.poll(t + 1.05))
     assert second.action_id == first.action_id + 1 and second.path
     assert ex.task.steps == 2 and ex.task.distance == pytest.approx(0.2)  # type: ignore[union-attr]
+
+
+def test_a_path_due_on_a_map_that_fused_no_frame_since_is_left_to_stop_and_the_next_waits_for_one(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """A camera that stopped, or takes a frame only after each command (lock-stepped): the period
+    comes with nothing new on the map. Deciding again would send the robot on blind, so the
+    keep-alive stops (the driver's deadman ends the path), the planner says why, and the next
+    decision waits for a frame taken after the path; then it goes on. Logged once a task."""
+    caplog.set_level("WARNING", logger="ovamos.planner")
+    ex, t = scanned(every_s=1.0)
+    first = ex.in_flight.command  # type: ignore[union-attr]
+    ex.on_driver(driver(completed=1, active=first.action_id, outcome="done"))
+    assert commands(ex.poll(t + 0.35)) == [first]  # kept alive while it is not due
+    ex.on_odom(odom(x=1.2, yaw=0.5, after=1))
+    for now in (t + 1.05, t + 1.4, t + 2.0):  # due, but the map is the decision's: no command at all
+        assert commands(ex.poll(now)) == []
+    assert ex.waiting == BLIND and ex.blind_stops == 1
+    assert caplog.text.count("has fused no frame since the path was decided") == 1
+    ex.on_driver(driver(completed=first.action_id, outcome="aborted"))  # the deadman
+    ex.on_odom(odom(x=1.25, yaw=0.5, after=first.action_id))
+    assert commands(ex.poll(t + 2.1)) == []
+    assert ex.waiting == f"waiting for the map to fuse a frame taken after command {first.action_id}"
+    ex.on_snapshot(snapshot(2, after=first.action_id))  # the frame a lock-stepped camera takes now
+    [second] = commands(ex.poll(t + 2.2))
+    assert second.action_id == first.action_id + 1 and second.path and ex.waiting == ""
+    ex.on_driver(driver(completed=first.action_id, active=second.action_id, outcome="aborted"))
+    assert commands(ex.poll(t + 3.3)) == [] and ex.blind_stops == 2  # the same again, not logged again
+    assert caplog.text.count("has fused no frame since the path was decided") == 1
 
 
 def test_a_target_confirmed_on_the_way_is_decided_on_at_once() -> None:

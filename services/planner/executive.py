@@ -89,6 +89,10 @@ OLD_MAP = "map from an earlier odometry session: waiting for a new map"
 waiting message goes on with both sessions)."""
 ROBOT_UNREACHABLE = "robot unreachable"
 """Why it waits once every driver's token is gone without a word (the link, or the driver died)."""
+BLIND = ("continuous motion: the map has fused no frame since the path was decided, so the robot "
+         "stops until one comes (has the camera stopped, or does it take a frame only after each "
+         "command? then set lock_step = false on the camera, or start with ovamos up --motion continuous)")
+"""Why a path is left to stop: a decision on a map that saw nothing new would send the robot on blind."""
 DRIVER_OFF = "the robot's driver shut down"
 """Why it waits once the driver said it was going off (``DriverMode.OFF``) and its token went."""
 
@@ -111,6 +115,7 @@ class _InFlight:
     pose: Pose
     sent: float
     redecision: Redecision | None = None  # a path's (continuous motion): when it is decided on again
+    blind: bool = False  # due for a new decision, no frame fused since this one: left to stop
 
 
 class Executive:
@@ -133,7 +138,9 @@ class Executive:
         self._next_id = 1
         self._sessions = SessionFollower(self.config.session_switch, clock=receipt_clock)  # states taken
         self._odom_session: str | None = None  # of the last one taken, kept while it is unreachable
-        self._decided_on = -2       # snapshot seq of the last decision (free-running mode)
+        self._decided_on = -2       # snapshot seq of the last decision
+        self.blind_stops = 0        # paths left to stop for want of a newer map (continuous motion)
+        self._blind_task: str | None = None  # the task the last of them was logged in
         self._event_due = True
         self._last_event = -math.inf
 
@@ -306,7 +313,13 @@ class Executive:
                 return self._wait(f"waiting for odometry after command {action_id}")
             self._book(flight, d.last_outcome == "blocked")
             return self._decide(now, d) if self.task and self.task.state is TaskStatus.SEARCHING else []
-        if self._redecide(now, flight):  # continuous: the path is decided on again while it is driven
+        why = self._redecision(now, flight)  # continuous: the path is decided on again while it is driven
+        if why is not None:
+            if self.snapshot is not None and self.snapshot.seq == self._decided_on:
+                return self._blind(flight)
+            if why != PERIOD:  # (once a second: the log would hold little else)
+                log.info("step %d: path of command %d decided on again: %s", self.agent.task.steps,
+                         flight.command.action_id, why)
             self._book(flight, blocked=False)
             return self._decide(now, d) if self.task and self.task.state is TaskStatus.SEARCHING else []
         if now - flight.sent >= self.config.resend_s:  # lost, or running: the driver's keep-alive
@@ -325,18 +338,27 @@ class Executive:
         self.agent.task.last_action = flight.command.action_id  # reported: a restarted planner goes on after it
         self._event_due = True
 
-    def _redecide(self, now: float, flight: _InFlight) -> bool:
-        """A path in flight is due for a new decision (on a map of the driver's session). Why is
-        logged unless it is the period's (once a second: the log would hold little else)."""
+    def _redecision(self, now: float, flight: _InFlight) -> str | None:
+        """Why a path in flight is due for a new decision (on a map of the driver's session), if it is."""
         snapshot, pose, agent = self.snapshot, self._pose(), self.agent
         if flight.redecision is None or snapshot is None or pose is None or agent is None or self.driver is None \
                 or snapshot.odom_session != self.driver.odom_session or self.driver.backing_off:
-            return False
-        why = flight.redecision.due(now, snapshot, pose, agent.task.remaining, agent.config)
-        if why is not None and why != PERIOD:
-            log.info("step %d: path of command %d decided on again: %s", agent.task.steps,
-                     flight.command.action_id, why)
-        return why is not None
+            return None
+        return flight.redecision.due(now, snapshot, pose, agent.task.remaining, agent.config)
+
+    def _blind(self, flight: _InFlight) -> list[JsonMessage]:
+        """A path due for a new decision on a map that has fused no frame since it was decided: the
+        robot would drive on blind. The keep-alive stops, so the driver's deadman stops the path
+        (booked when the driver reports it), and the next decision waits, as lock-step's do, for a
+        frame taken after it."""
+        if not flight.blind:
+            flight.blind = True
+            self.blind_stops += 1
+            task_id = None if self.task is None else self.task.task_id
+            if task_id != self._blind_task:  # once a task: a camera left lock-stepped would fill the log
+                self._blind_task = task_id
+                log.warning("command %d: %s", flight.command.action_id, BLIND)
+        return self._wait(BLIND)
 
     def _decide(self, now: float, d: DriverState) -> list[JsonMessage]:
         assert self.agent is not None
