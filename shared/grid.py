@@ -52,9 +52,25 @@ class GridGeometry:
         cols, rows = np.meshgrid(np.arange(self.cols), np.arange(self.rows))
         return self.to_world(rows, cols)
 
+    def band(self, points: np.ndarray, half_width: int) -> np.ndarray:
+        """The cells of a line ``2 * half_width + 1`` cells thick along the polyline through
+        ``points`` (K x 2 world x, y; parts off the grid clipped), as a bool mask of the grid. cv2
+        draws a thick line out to its outer edge, so it reaches ``half_width + 1`` cells to either
+        side of the polyline's cells."""
+        rows, cols = self.to_cell(points[:, 0], points[:, 1])
+        mask = np.zeros(self.shape, np.uint8)
+        cv2.polylines(mask, [np.stack([cols, rows], axis=1).astype(np.int32).reshape(-1, 1, 2)], False, 1,
+                      thickness=2 * half_width + 1)
+        return mask.astype(bool)
+
+
+def disc(radius: float, resolution: float) -> np.ndarray:
+    """The cells a disc of ``radius`` covers around a centre cell, a (2r + 1)-square bool kernel
+    (r = radius in cells, rounded up): the one robot footprint on the grid."""
+    r = int(math.ceil(radius / resolution))
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)).astype(bool)
+
 
 def inflate(occupied: np.ndarray, radius: float, resolution: float) -> np.ndarray:
     """Occupied cells grown by ``radius``: where a disc of that radius cannot be centred."""
-    r = int(math.ceil(radius / resolution))
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    return cv2.dilate(occupied.astype(np.uint8), kernel).astype(bool)
+    return cv2.dilate(occupied.astype(np.uint8), disc(radius, resolution).astype(np.uint8)).astype(bool)

@@ -15,6 +15,8 @@ import pytest
 from ovamos.services.planner.agent import AgentConfig
 from ovamos.services.planner.continuous import PathWatch, obstacles_near
 from ovamos.services.planner.executive import BLIND, Executive, ExecutiveConfig
+from ovamos.shared.grid import GridGeometry
+from ovamos.shared.gridpaths import traversable
 from ovamos.shared.messages import MAX_PATH_OBSTACLES, DriverState, MapSnapshot, ObjectInstance
 from ovamos.shared.motion import Action, Pose
 from tests.test_planner_executive import commands, driver, odom, snapshot, spec
@@ -204,3 +206,28 @@ def test_a_path_watch_counts_only_what_is_newly_blocked_ahead() -> None:
     ahead = _wall(beside, (slice(19, 21), slice(79, 81)))  # on the path at x = 4
     assert watch.walled_off(ahead, Pose(x=1.5, y=1.0, yaw=0.0), radius)
     assert not watch.walled_off(ahead, Pose(x=4.5, y=1.0, yaw=0.0), radius)  # already past it
+
+
+@pytest.mark.parametrize("radius", [0.15, 0.18, 0.3])
+def test_a_path_watch_calls_clear_exactly_where_the_navigator_may_plan(radius: float) -> None:
+    """The watch's footprint is the navigator's (``shared.grid.disc``): a sample is clear just
+    where ``traversable`` lets a plan go, on a map of scattered obstacles."""
+    rng = np.random.default_rng(7)
+    snap = snapshot(0)
+    snap = snap.model_copy(update={"obstacle": rng.random(snap.obstacle.shape) < 0.02})
+    path = [(float(x), float(y)) for x, y in rng.uniform(0.5, 5.5, (12, 2))]
+    watch = PathWatch.start(path, Pose(x=1.0, y=1.0, yaw=0.0), snap, radius)
+    rows, cols = np.floor(watch.samples[:, ::-1] / snap.resolution).astype(int).T
+    free = traversable(snap.obstacle, snap.explored, snap.resolution, radius)
+    assert 0 < watch.clear.sum() < len(watch.clear)
+    assert (watch.clear == free[rows, cols]).all()
+
+
+def test_a_band_reaches_one_cell_past_its_half_width_either_side_of_the_polyline() -> None:
+    grid = GridGeometry(0.05, 0.0, 0.0, 40, 60)  # 3 m x 2 m
+    band = grid.band(np.array([[0.5, 1.0], [2.5, 1.0], [2.5, 1.9]]), 2)
+    rows, cols = np.nonzero(band)
+    assert band[20, 10] and band[20, 50] and band[38, 50]  # the vertices' cells
+    assert list(np.nonzero(band[:, 30])[0]) == [17, 18, 19, 20, 21, 22, 23]
+    assert list(np.nonzero(band[30, :])[0]) == [47, 48, 49, 50, 51, 52, 53]
+    assert not band[30, 20] and rows.min() == 17 and cols.min() == 7 and cols.max() == 53

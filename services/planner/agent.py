@@ -26,7 +26,6 @@ import math
 from dataclasses import dataclass
 from enum import Enum
 
-import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -369,14 +368,9 @@ class SearchAgent:
 
     def _swept(self, nav: NavMap) -> np.ndarray:
         """The cells the robot's footprint swept along its trail, plus a cell (mapped obstacles
-        are up to a cell thicker than real ones): it drove there, so nothing stood there then (an
-        obstacle since is bumped into again)."""
-        mask = np.zeros(nav.obstacle.shape, np.uint8)
-        g = nav.grid
-        pts = np.round((np.array(self.trail) - (g.x0, g.y0)) / g.resolution - 0.5).astype(np.int32)
-        r = math.ceil(ROBOT.radius_m / g.resolution) + 1
-        cv2.polylines(mask, [pts.reshape(-1, 1, 2)], False, 1, thickness=2 * r + 1)
-        return mask.astype(bool)
+        are up to a cell thicker than real ones; the band reaches one more): it drove there, so
+        nothing stood there then (an obstacle since is bumped into again)."""
+        return nav.grid.band(np.array(self.trail, float), math.ceil(ROBOT.radius_m / nav.grid.resolution) + 1)
 
     def _boxed_in(self, snapshot: MapSnapshot, pose: Pose) -> bool:
         """No goal to drive to and cut off from most of what was explored, not yet recovering."""

@@ -26,7 +26,6 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
@@ -34,6 +33,7 @@ from ovamos.services.planner.candidates import frontier_scores
 from ovamos.services.planner.decide import GoalKind, decision_values, explored_window
 from ovamos.services.planner.navigator import NavMap
 from ovamos.services.planner.policies import POLICIES
+from ovamos.shared.grid import GridGeometry, disc
 from ovamos.shared.messages import MAX_PATH_OBSTACLES, MAX_PATH_POINTS, MapSnapshot
 from ovamos.shared.motion import Action, Pose
 
@@ -80,9 +80,10 @@ def path_for(agent: SearchAgent, step: Step) -> tuple[tuple[float, float], ...] 
 
 def obstacles_near(snapshot: MapSnapshot, path: Sequence[Point], pose: Pose, within_m: float
                    ) -> tuple[Point, ...]:
-    """The mapped obstacles within ``within_m`` of the path from the robot on, one point per
-    ``2 x 2`` cells that hold one (their obstacle cells' mean), nearest the robot first, at most
-    :data:`MAX_PATH_OBSTACLES` (the near ones matter first: the path is sent again within a second)."""
+    """The mapped obstacles within ``within_m`` (and a cell: ``GridGeometry.band``) of the path
+    from the robot on, one point per ``2 x 2`` cells that hold one (their obstacle cells' mean),
+    nearest the robot first, at most :data:`MAX_PATH_OBSTACLES` (the near ones matter first: the
+    path is sent again within a second)."""
     if within_m <= 0 or not path:
         return ()
     res, (ox, oy), obstacle = snapshot.resolution, snapshot.origin, snapshot.obstacle
@@ -96,10 +97,8 @@ def obstacles_near(snapshot: MapSnapshot, path: Sequence[Point], pose: Pose, wit
     crop = obstacle[r0:r1, c0:c1]
     if not crop.any():
         return ()
-    band = np.zeros(crop.shape, np.uint8)
-    cells = np.round((points - (ox + c0 * res, oy + r0 * res)) / res - 0.5).astype(np.int32)
-    cv2.polylines(band, [cells.reshape(-1, 1, 2)], False, 1, thickness=2 * math.ceil(within_m / res) + 1)
-    rows, cols = np.nonzero(crop & band.astype(bool))
+    window = GridGeometry(res, ox + c0 * res, oy + r0 * res, r1 - r0, c1 - c0)
+    rows, cols = np.nonzero(crop & window.band(points, math.ceil(within_m / res)))
     if not len(rows):
         return ()
     blocks = (rows // 2) * (crop.shape[1] // 2 + 1) + cols // 2
@@ -150,14 +149,15 @@ def _sampled(polyline: np.ndarray, spacing: float) -> np.ndarray:
 
 
 def _blocked(snapshot: MapSnapshot, xy: np.ndarray, radius: float) -> np.ndarray:
-    """For each point, whether an obstacle cell lies within ``radius`` of it (off the grid: no)."""
+    """For each point, whether an obstacle cell lies within ``radius`` of it (off the grid: no): the
+    footprint disc the navigator inflates obstacles by, so a point is clear where it may plan."""
     nav = NavMap.from_snapshot(snapshot)
-    res, grid = nav.grid.resolution, nav.grid
-    r = math.ceil(radius / res)
-    dr, dc = np.mgrid[-r:r + 1, -r:r + 1]
-    disc = (dr * dr + dc * dc) * res * res <= radius * radius + 1e-12
+    grid = nav.grid
+    kernel = disc(radius, grid.resolution)
+    dr, dc = np.nonzero(kernel)
+    r = kernel.shape[0] // 2
     centre_rows, centre_cols = grid.to_cell(xy[:, 0], xy[:, 1])
-    rows, cols = centre_rows[:, None] + dr[disc], centre_cols[:, None] + dc[disc]
+    rows, cols = centre_rows[:, None] + (dr - r), centre_cols[:, None] + (dc - r)
     inside = (rows >= 0) & (rows < grid.rows) & (cols >= 0) & (cols < grid.cols)
     hit = np.zeros(rows.shape, bool)
     hit[inside] = nav.obstacle[rows[inside], cols[inside]]
