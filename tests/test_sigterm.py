@@ -82,12 +82,11 @@ def alive(pid: int, started: int) -> bool:
 ENDED = "SIGTERM: what this process started is stopped; ending"
 
 
-def survivors(recorded: dict[int, int], seen: dict[int, str] | None = None) -> dict[int, str]:
+def survivors(recorded: dict[int, int], seen: dict[int, str]) -> dict[int, str]:
     """The recorded processes still alive, each with its command line; one that reads empty (an
     exiting process has released its memory, and with it its command line) with the one ``seen``
     last, so the resource tracker ending as we look is still known for what it is."""
-    return {pid: _cmdline(pid) or (seen or {}).get(pid, "") for pid, started in recorded.items()
-            if alive(pid, started)}
+    return {pid: _cmdline(pid) or seen.get(pid, "") for pid, started in recorded.items() if alive(pid, started)}
 
 
 def _resource_tracker(cmdline: str) -> bool:
@@ -173,8 +172,8 @@ class Command:
         left = survivors(self.recorded, self.seen)
         assert not {p: c for p, c in left.items() if not _resource_tracker(c)}, \
             f"left running after the command ended: {left}\n{self.output()[-3000:]}"
-        wait_for(lambda: not survivors(self.recorded), timeout=30,
-                 what=f"the resource tracker to end: {survivors(self.recorded)}")
+        wait_for(lambda: not survivors(self.recorded, self.seen), timeout=30,
+                 what=f"the resource tracker to end: {survivors(self.recorded, self.seen)}")
 
     def cleanup(self) -> None:
         """Whatever survived a failing test: the command's group, then each recorded process's."""

@@ -42,8 +42,6 @@ from ovamos.shared.robot import PRIMITIVES, ROBOT, Primitives
 log = logging.getLogger("ovamos.planner")
 
 
-
-
 class AgentConfig(BaseModel):
     """Everything one search needs besides the map: the method's and the controller's parameters."""
 
