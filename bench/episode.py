@@ -23,22 +23,27 @@ from __future__ import annotations
 
 import math
 import time
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from ovamos.bench.continuous import RESEND_S, search_continuously
 from ovamos.bench.funnel import FunnelRecorder, StopRecord, TargetFunnel
 from ovamos.bench.policies import planner_policy
+from ovamos.bench.trajectory import TrajectoryErrors, trajectory_errors
 from ovamos.services.base_driver.config import DriverConfig
 from ovamos.services.mapping.config import MappingConfig
+from ovamos.services.mapping.localization import Localizer
 from ovamos.services.mapping.state import MapState
 from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
 from ovamos.services.planner.policies import OVAMOS
 from ovamos.services.planner.task import SearchTask
 from ovamos.services.sim.episodes import EpisodeSpec
 from ovamos.services.sim.evaluator import GroundTruth, spl
+from ovamos.services.sim.odometry import WheelSlip
 from ovamos.services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
 from ovamos.services.sim.prior import ObjectPrior
 from ovamos.services.sim.render import SceneRenderer
@@ -114,6 +119,10 @@ class EpisodeResult(BaseModel):
     blocked: int
     stops: list[StopRecord]
     trajectory: list[tuple[float, float, float]]
+    believed: list[tuple[float, float, float]] | None = None  # where the robot thought it was at each
+    # trajectory pose (odometry placed in the map): kept where odometry errs, with its errors
+    odometry: TrajectoryErrors | None = None
+    localization: dict[str, int] | None = None  # the map's localizer: matches by verdict
     funnel: list[TargetFunnel] = []  # per target: how far its search got (older files: none)
     search_s: float | None = None  # wheeled bases: simulated seconds from the first command to the last
     seconds: float
@@ -127,6 +136,7 @@ class TaskRun:
     agent: SearchAgent
     funnel: FunnelRecorder
     trajectory: list[tuple[float, float, float]]
+    believed: list[tuple[float, float, float]]
     on_step: Callable[[int, Step], None] | None = None
     stops: list[StopRecord] = field(default_factory=list)
 
@@ -140,8 +150,9 @@ class TaskRun:
 
     def booked(self, world: EpisodeWorld, step: Step) -> None:
         """After the agent booked ``step``: where the robot now truly is, and the caller's hook."""
-        p = world.robot.pose
+        p, b = world.robot.pose, world.pose()
         self.trajectory.append((p.x, p.y, p.yaw))
+        self.believed.append((b.x, b.y, b.yaw))
         if self.on_step is not None:
             self.on_step(self.task.steps, step)
 
@@ -172,11 +183,11 @@ class EpisodeWorld:
     a second task on the same world is a user's repeated request."""
 
     def __init__(self, scene: Scene, truth: GroundTruth, config: EpisodeConfig, start: Pose,
-                 prior: ObjectPrior | None = None) -> None:
+                 prior: ObjectPrior | None = None, odometry_seed: int = 0) -> None:
         self.truth, self.config = truth, config
         self.perception = SimPerception(FrameLabels.of(scene), prior or ObjectPrior.load(), config.perception)
         self.state = MapState(scene_mapping(scene, config.mapping))
-        self.robot, self.wheels = _robot(start, truth, config)
+        self.robot, self.wheels = _robot(start, truth, config, odometry_seed)
         self.renderer = SceneRenderer(scene, config.width, config.height)
         self.scene = scene
         self.clock = None if self.wheels is None else self.wheels.clock  # simulated time on a wheeled base
@@ -198,7 +209,8 @@ class EpisodeWorld:
         task reaches perception, which then re-scores it for the task's targets, and the map adds
         those values (MapState.apply: a frame counts once), to the same map."""
         true, task = self.robot.pose, search.task
-        frame = self.renderer.render(true.x, true.y, true.yaw, seq=self.seq, stamp=stamp, after_action=after_action)
+        frame = self.renderer.render(true.x, true.y, true.yaw, seq=self.seq, stamp=stamp, after_action=after_action,
+                                     posed_at=self._posed_at())
         remaining = task.remaining
         detections = self.perception.detect(frame, remaining)
         search.funnel.frame(task.steps, frame, self.perception.visible_classes(frame), detections)
@@ -210,16 +222,30 @@ class EpisodeWorld:
 
     def command(self, action: Action | None = None, path: tuple[tuple[float, float], ...] = (),
                 obstacles: tuple[tuple[float, float], ...] = ()) -> PlanCommand:
+        """The next command; a path and its obstacles (the planner's, in the map) in the base's
+        odometry frame, as the planner service sends them."""
         self.commands += 1
-        return PlanCommand(action_id=self.commands, stamp=float(self.commands), action=action, path=path,
-                           obstacles=obstacles)
+        odom_T_map = self.state.map_T_odom.inverse()
+        return PlanCommand(action_id=self.commands, stamp=float(self.commands), action=action,
+                           path=tuple(odom_T_map.apply(*p) for p in path),
+                           obstacles=tuple(odom_T_map.apply(*p) for p in obstacles))
 
-    def pose(self) -> Pose:
-        """Where the planner believes the robot is: its odometry (the true pose when kinematic)."""
+    def odometry(self) -> Pose:
+        """What the base's odometry says: the kinematic base's wheels, a wheeled base's driver."""
         if self.wheels is None:
-            return self.robot.pose
+            return self.robot.odom
         odom = self.wheels.driver.odometry()
         return Pose(x=odom.x, y=odom.y, yaw=odom.yaw)
+
+    def _posed_at(self) -> Pose:
+        """Where a frame is posed: by odometry, as a camera service poses it; with ``ideal``
+        odometry at the true pose, which it then is (a wheeled base's encoder ticks would round it,
+        and every result from before odometry errors stays as it was)."""
+        return self.robot.pose if self.config.motion.odometry.ideal else self.odometry()
+
+    def pose(self) -> Pose:
+        """Where the planner believes the robot is: its odometry placed in the map."""
+        return self.state.map_T_odom.compose(self.odometry())
 
     def execute(self, action: Action) -> bool:
         """Run one primitive; False when a move was blocked (counted in :attr:`blocked`)."""
@@ -237,9 +263,11 @@ class EpisodeWorld:
         self.renderer.close()
 
 
-def _robot(start: Pose, truth: GroundTruth, config: EpisodeConfig) -> tuple[SimRobot, SerialSimRobot | WheeledSimRobot | None]:
+def _robot(start: Pose, truth: GroundTruth, config: EpisodeConfig,
+           odometry_seed: int) -> tuple[SimRobot, SerialSimRobot | WheeledSimRobot | None]:
     """The true robot and, on a wheeled base, what moves it (started, enabled, in simulated time)."""
-    robot = SimRobot(start, truth.is_free, base_motion(config.motion, config.base, DriverConfig()))
+    robot = SimRobot(start, truth.is_free, base_motion(config.motion, config.base, DriverConfig()),
+                     WheelSlip.of(config.motion.odometry, odometry_seed))
     if config.base == "kinematic":
         return robot, None
     wheels = wheeled(robot, config.base, clock=SimClock()).start()
@@ -247,12 +275,17 @@ def _robot(start: Pose, truth: GroundTruth, config: EpisodeConfig) -> tuple[SimR
     return robot, wheels
 
 
+def odometry_seed(spec: EpisodeSpec) -> int:
+    """The seed of an episode's odometry errors: its own, whatever else runs beside it."""
+    return zlib.crc32(f"odometry {spec.episode_id} {spec.scene_seed}".encode())
+
+
 def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: EpisodeConfig,
                 prior: ObjectPrior | None = None,
                 on_step: Callable[[int, Step], None] | None = None) -> EpisodeResult:
     """One episode: a fresh world (robot at ``spec.start``, empty map) and one task on it."""
     config = episode_config(config.policy, config)
-    world = EpisodeWorld(scene, truth, config, spec.start, prior)
+    world = EpisodeWorld(scene, truth, config, spec.start, prior, odometry_seed(spec))
     try:
         return run_task(world, spec, on_step)
     finally:
@@ -267,8 +300,9 @@ def run_task(world: EpisodeWorld, spec: EpisodeSpec,
     started = time.perf_counter()
     config, truth, robot = world.config, world.truth, world.robot
     task = SearchTask(spec.episode_id, list(spec.targets), max_steps=spec.max_steps)
+    believed = world.pose()
     search = TaskRun(task, SearchAgent(task, config.agent), FunnelRecorder(world.scene, spec.targets),
-                     [(robot.pose.x, robot.pose.y, robot.pose.yaw)], on_step)
+                     [(robot.pose.x, robot.pose.y, robot.pose.yaw)], [(believed.x, believed.y, believed.yaw)], on_step)
     distance0, blocked0 = robot.distance, world.blocked  # a later task's path and bumps are its own
     began = None if world.clock is None else world.clock()
     if config.agent.motion == "continuous":
@@ -289,18 +323,35 @@ def run_task(world: EpisodeWorld, spec: EpisodeSpec,
         found=found, steps=task.steps, path_m=round(robot.distance - distance0, 4), shortest_m=round(shortest, 4),
         state=task.state.value, reason=task.reason, decisions=search.agent.decisions,
         blocked=world.blocked - blocked0, stops=stops, funnel=search.funnel.result(stops),
-        trajectory=[tuple(round(v, 4) for v in p) for p in search.trajectory],
+        trajectory=_rounded(search.trajectory), **_odometry(config, search, world.state.localizer),
         search_s=search_s, seconds=round(time.perf_counter() - started, 3))
+
+
+def _rounded(poses: list[tuple[float, float, float]]) -> list[tuple[float, float, float]]:
+    return [(round(x, 4), round(y, 4), round(yaw, 4)) for x, y, yaw in poses]
+
+
+def _odometry(config: EpisodeConfig, search: TaskRun, localizer: Localizer | None) -> dict[str, Any]:
+    """Where odometry errs, the believed trajectory and its errors against the true one (evo's);
+    with localization, its matches. Nothing otherwise: those lines stay as they were."""
+    kept: dict[str, Any] = {}
+    if not config.motion.odometry.ideal:  # else the believed trajectory is the true one
+        kept.update(believed=_rounded(search.believed),
+                    odometry=trajectory_errors(search.trajectory, search.believed))
+    if localizer is not None:
+        kept.update(localization=dict(sorted(localizer.counters.items())))
+    return kept
 
 
 def _search_stepwise(world: EpisodeWorld, search: TaskRun) -> None:
     """The lock-step loop: a primitive, the frame after it, perception, fusion, the next decision."""
     task, agent, robot = search.task, search.agent, world.robot
     while task.state is TaskStatus.SEARCHING:
-        pose, true, seq = world.pose(), robot.pose, world.seq
+        true, seq = robot.pose, world.seq
         # lock-step as in the services: frame seq follows command seq (seq commands done)
         snapshot = world.observe(search, stamp=float(seq), after_action=seq)
         assert snapshot.has_seen_after(seq), "the map must have fused the frame after the last command"
+        pose = world.pose()  # in the map as this frame's localization left it
         step = agent.next_step(snapshot, pose)
         if step.action is None:
             break

@@ -22,11 +22,15 @@ from dataclasses import dataclass, field
 from typing import Any, cast
 
 from ovamos.bench.episode import EpisodeConfig, EpisodeResult, episode_config, run_episode
+from ovamos.services.mapping.config import MappingConfig
+from ovamos.services.mapping.localization import LocalizationConfig
 from ovamos.services.planner.agent import AgentConfig
 from ovamos.services.sim.episodes import make_episode
 from ovamos.services.sim.evaluator import GroundTruth
+from ovamos.services.sim.odometry import odometry_errors
 from ovamos.services.sim.perception_presets import perception_preset
 from ovamos.services.sim.prior import ObjectPrior
+from ovamos.services.sim.robot import MotionConfig
 from ovamos.services.sim.world import Scene
 from ovamos.shared.motion import DriveMode
 
@@ -47,6 +51,8 @@ class Job:
     homes: str = "default"
     base: str = "kinematic"
     motion: str = "stepwise"
+    odometry: str = "ideal"
+    localization: bool = False
 
     @property
     def name(self) -> str:
@@ -80,7 +86,9 @@ def run_job(job: Job) -> EpisodeResult:
     if job.max_steps is not None:
         spec = spec.model_copy(update={"max_steps": job.max_steps})
     config = EpisodeConfig(perception=perception_preset(job.perception), base=job.base,
-                           agent=AgentConfig(motion=cast(DriveMode, job.motion)))
+                           agent=AgentConfig(motion=cast(DriveMode, job.motion)),
+                           motion=MotionConfig(odometry=odometry_errors(job.odometry)),
+                           mapping=MappingConfig(localization=LocalizationConfig(enabled=job.localization)))
     return run_episode(spec, scene, truth, episode_config(job.policy, config), load_prior())
 
 
@@ -115,10 +123,11 @@ def finished(job: Job, payload: dict[str, Any]) -> Finished:
 
 def jobs_for(episodes: int, seed: int, policies: Sequence[str], max_steps: int | None = None,
              perception: str = "ideal", homes: str = "default", base: str = "kinematic",
-             motion: str = "stepwise") -> list[Job]:
+             motion: str = "stepwise", odometry: str = "ideal", localization: bool = False) -> list[Job]:
     """Episode-major order: a worker tends to get the policies of one episode in a row (its scene
     is cached), and a run cut short has covered every policy about equally."""
-    return [Job(p, seed, i, max_steps, perception, homes, base, motion) for i in range(episodes) for p in policies]
+    return [Job(p, seed, i, max_steps, perception, homes, base, motion, odometry, localization)
+            for i in range(episodes) for p in policies]
 
 
 def iter_results(jobs: Sequence[Job], workers: int, keep_going: bool = False) -> Iterator[Finished]:

@@ -48,18 +48,22 @@ from ovamos.bench.stats import miss_reasons, paired_differences, policy_scores
 from ovamos.bench.tables import print_table
 from ovamos.services.mapping.render import write_png
 from ovamos.services.sim.generate import home_tier
+from ovamos.services.sim.odometry import odometry_errors
 from ovamos.services.sim.perception_presets import perception_preset
 from ovamos.services.sim.wheels import Motion
 from ovamos.shared.motion import MOTIONS
 
 TIMING_FIELDS = {"seconds"}  # wall clock: kept out of the comparable JSONL
+#: written only where they hold something (odometry errs): lines of ideal odometry stay as they were
+ODOMETRY_FIELDS = ("believed", "odometry", "localization")
 
 EPISODES_FILE, TIMINGS_FILE, SUMMARY_FILE, CHART_FILE, RUN_FILE = (
     "episodes.jsonl", "timings.jsonl", "summary.json", "chart.png", "run.json")
 #: What an episode's outcome depends on besides the code, policy and index: a resumed run must match.
-RUN_SETTINGS = ("seed", "perception", "homes", "max_steps", "base", "motion")
+RUN_SETTINGS = ("seed", "perception", "homes", "max_steps", "base", "motion", "odometry", "localization")
 #: the value of a setting a run.json from before it existed held
-SETTING_DEFAULTS = {"base": "kinematic", "motion": "stepwise"}
+SETTING_DEFAULTS: dict[str, Any] = {"base": "kinematic", "motion": "stepwise", "odometry": "ideal",
+                                    "localization": False}
 BASES: tuple[str, ...] = get_args(Motion)  # the robots an episode can run on
 #: the code version of an episode whose timing line does not name one
 UNRECORDED = "unrecorded"
@@ -79,9 +83,10 @@ def parse_policies(text: str | Sequence[str]) -> tuple[str, ...]:
     return tuple(p for p in POLICY_ORDER if p in names)
 
 
-def check_settings(perception: str, homes: str, base: str = "kinematic", motion: str = "stepwise") -> None:
-    """A perception preset, a home tier, a base and a motion that exist and go together (else a
-    :class:`SearchError` naming them)."""
+def check_settings(perception: str, homes: str, base: str = "kinematic", motion: str = "stepwise",
+                   odometry: str = "ideal") -> None:
+    """A perception preset, a home tier, a base, a motion and an odometry preset that exist and go
+    together (else a :class:`SearchError` naming them)."""
     if base not in BASES:
         raise SearchError(f"unknown base {base!r}: one of {', '.join(BASES)}")
     if motion not in MOTIONS:
@@ -91,6 +96,7 @@ def check_settings(perception: str, homes: str, base: str = "kinematic", motion:
     try:
         perception_preset(perception)
         home_tier(homes)
+        odometry_errors(odometry)
     except ValueError as exc:
         raise SearchError(str(exc)) from None
 
@@ -127,6 +133,8 @@ class SearchRun:
     homes: str = "default"
     base: str = "kinematic"
     motion: str = "stepwise"
+    odometry: str = "ideal"
+    localization: bool = False
     resumed: int = 0  # results read back from the folder, not run (and not timed) by this run
     code: dict[str, int] = field(default_factory=dict)  # episodes per code version that ran them
     failed: list[str] = field(default_factory=list)  # the units that raised (their errors): not in results
@@ -172,11 +180,12 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
                max_steps: int | None = None, progress: Console | None = None, perception: str = "ideal",
                homes: str = "default", out: Path | None = None, resume: bool = False,
                base: str = "kinematic", motion: str = "stepwise", cluster: str | None = None,
-               cluster_config: Path | None = None) -> SearchRun:
+               cluster_config: Path | None = None, odometry: str = "ideal", localization: bool = False) -> SearchRun:
     """Run every (policy, episode) pair with the simulated perception ``perception`` (a preset
     name) in homes of tier ``homes`` on the robot ``base`` (kinematic, or a wheeled base's
     controller and simulated device in simulated time) driven ``motion`` (stepwise, or continuous
-    on a wheeled base); ``max_steps`` overrides the paper's 500 (quick runs and
+    on a wheeled base), its odometry erring as the preset ``odometry`` says, its map built with or
+    without ``localization``; ``max_steps`` overrides the paper's 500 (quick runs and
     tests only: the tables need the paper's limit).
 
     With ``out`` each result is appended to its ``episodes.jsonl`` as it finishes; with ``resume``
@@ -191,17 +200,17 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     if resume and out is None:
         raise SearchError("--resume needs --out DIR: the folder of the run to go on with")
     policies = parse_policies(policies)
-    check_settings(perception, homes, base, motion)
+    check_settings(perception, homes, base, motion, odometry)
     try:
         spec = parse_cluster(cluster, cluster_config, workers) if cluster is not None else None
     except ClusterError as exc:
         raise SearchError(str(exc)) from None
     settings = {"seed": seed, "perception": perception, "homes": homes, "max_steps": max_steps, "base": base,
-                "motion": motion}
+                "motion": motion, "odometry": odometry, "localization": localization}
     kept = held_results(out, settings) if resume and out is not None else []
     done = {(r.policy, _episode_index(r)) for r in kept}  # run.json vouched for their seed
-    jobs = [j for j in jobs_for(episodes, seed, policies, max_steps, perception, homes, base, motion)
-            if (j.policy, j.index) not in done]
+    jobs = [j for j in jobs_for(episodes, seed, policies, max_steps, perception, homes, base, motion, odometry,
+                                localization) if (j.policy, j.index) not in done]
     code = code_version()
     kept_code = _kept_code(out, kept) if out is not None and kept else Counter[str]()
     if progress is not None and kept:
@@ -231,7 +240,7 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     return SearchRun(seed, max([episodes, *(_episode_index(r) + 1 for r in kept)]),
                      parse_policies([*policies, *(r.policy for r in kept)]), workers, max_steps,
                      sort_results(results), time.perf_counter() - started, perception, homes, base, motion,
-                     len(kept), dict(codes), failed, engine)
+                     odometry, localization, len(kept), dict(codes), failed, engine)
 
 
 def _units(jobs: Sequence[Job], workers: int, spec: ClusterSpec | None, stack: ExitStack,
@@ -321,13 +330,14 @@ def summary(run: SearchRun) -> dict[str, Any]:
             "resumed": run.resumed, "code": run.code, "failed": run.failed, "engine": run.engine,
             "seed": run.seed, "episodes": run.episodes, "workers": run.workers,
             "max_steps": run.max_steps, "perception": run.perception, "homes": run.homes, "base": run.base,
-            "motion": run.motion}
+            "motion": run.motion, "odometry": run.odometry, "localization": run.localization}
 
 
 # -- files ----------------------------------------------------------------------------------------
 def jsonl_line(result: EpisodeResult) -> str:
     """One comparable JSONL line: everything but the wall clock."""
-    return result.model_dump_json(exclude=TIMING_FIELDS) + "\n"
+    absent = {name for name in ODOMETRY_FIELDS if getattr(result, name) is None}
+    return result.model_dump_json(exclude=TIMING_FIELDS | absent) + "\n"
 
 
 def read_results(path: Path, torn_tail: bool = False) -> list[EpisodeResult]:
@@ -369,17 +379,18 @@ def find_result(results: Iterable[EpisodeResult], episode_id: str, policy: str) 
 
 def replay(episode_id: str, out: Path, policy: str = "ovamos", source: Path | None = None,
            max_steps: int | None = None, perception: str = "ideal", homes: str = "default",
-           base: str = "kinematic", motion: str = "stepwise") -> tuple[Path, EpisodeResult]:
+           base: str = "kinematic", motion: str = "stepwise", odometry: str = "ideal",
+           localization: bool = False) -> tuple[Path, EpisodeResult]:
     """Draw one episode: re-run it (deterministic), or read it from ``source`` (a JSONL this
     module wrote). The scene is always regenerated from the id; a file whose scene seed differs
     was made by another generator and is refused rather than drawn on the wrong house."""
     seed, index = parse_episode_id(episode_id)
     (policy,) = parse_policies(policy)
-    check_settings(perception, homes, base, motion)
+    check_settings(perception, homes, base, motion, odometry)
     init_worker()
     spec, scene, _ = load_episode(seed, index, homes)
     if source is None:
-        result = run_job(Job(policy, seed, index, max_steps, perception, homes, base, motion))
+        result = run_job(Job(policy, seed, index, max_steps, perception, homes, base, motion, odometry, localization))
     else:
         result = find_result(read_results(source), spec.episode_id, policy)
         if result.scene_seed != spec.scene_seed:
@@ -396,6 +407,7 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
          replay_id: str | None = None, policy: str = "ovamos", source: Path | None = None,
          perception: str = "ideal", homes: str = "default", resume: bool = False, base: str = "kinematic",
          motion: str = "stepwise", cluster: str | None = None, cluster_config: Path | None = None,
+         odometry: str = "ideal", localization: bool = False,
          console: Console | None = None, err: Console | None = None) -> int:
     """``ovamos bench search``: the benchmark, or with ``replay_id`` one episode's picture.
     Raises :class:`SearchError` for bad arguments; returns the exit code."""
@@ -404,7 +416,8 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
     if replay_id is not None:
         if out is None:
             raise SearchError("--replay needs --out DIR for the picture")
-        path, result = replay(replay_id, out, policy, source, max_steps, perception, homes, base, motion)
+        path, result = replay(replay_id, out, policy, source, max_steps, perception, homes, base, motion,
+                              odometry, localization)
         if as_json:
             print(json.dumps({"png": str(path), **result.model_dump(mode="json", exclude={"trajectory"})}))
         else:
@@ -415,7 +428,8 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
     try:
         run = run_search(episodes, seed, parse_policies(policies), workers, max_steps, progress=err,
                          perception=perception, homes=homes, out=out, resume=resume, base=base,
-                         motion=motion, cluster=cluster, cluster_config=cluster_config)
+                         motion=motion, cluster=cluster, cluster_config=cluster_config, odometry=odometry,
+                         localization=localization)
     except KeyboardInterrupt:
         if out is not None and (out / EPISODES_FILE).exists():
             held = len((out / EPISODES_FILE).read_text().splitlines())

@@ -47,6 +47,7 @@ RobotId = Annotated[str, typer.Option("--robot-id", help="Robot whose keys to us
 LogJson = Annotated[bool, typer.Option("--log-json", help="Log JSON lines.")]
 LogLevel = Annotated[str, typer.Option("--log-level")]
 AsJson = Annotated[bool, typer.Option("--json", help="Print one JSON object.")]
+OnOff = Literal["on", "off"]
 OpenTimeout = Annotated[float, typer.Option(
     "--open-timeout", help="Seconds to wait for a router when starting (then it reconnects for ever).")]
 DEMO_OUT = Path("out/demo")
@@ -847,6 +848,10 @@ def bench_search(
         cluster_config: Annotated[Optional[Path], typer.Option(help="TOML file with a [slurm] table for "
                                                                     "--cluster slurm (queue, cores, memory, "
                                                                     "walltime, jobs).")] = None,
+        odometry: Annotated[str, typer.Option(help="How the robot's odometry errs: ideal (exact, as before), "
+                                                   "realistic or hard (services/sim/odometry.py).")] = "ideal",
+        localization: Annotated[OnOff, typer.Option(help="Match each frame against the map, which then lives "
+                                                         "in a frame that odometry drift does not move.")] = "off",
         as_json: AsJson = False) -> None:
     """Search benchmark: SR and MSPL per policy (the paper's Tables I and II), or one episode's picture."""
     from ovamos.bench.search import SearchError
@@ -855,7 +860,8 @@ def bench_search(
         code = search_main(episodes=episodes, seed=seed, policies=policies, workers=workers, as_json=as_json,
                            out=out, max_steps=max_steps, replay_id=replay, policy=policy, source=source,
                            perception=perception, homes=homes, resume=resume, base=base, motion=motion,
-                           cluster=cluster, cluster_config=cluster_config, console=console, err=err)
+                           cluster=cluster, cluster_config=cluster_config, odometry=odometry,
+                           localization=localization == "on", console=console, err=err)
     except SearchError as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)

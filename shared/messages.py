@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from ovamos.shared.codec import DecodeError, body_size, loan, pack, unpack
 from ovamos.shared.detections import Detection
-from ovamos.shared.motion import Action
+from ovamos.shared.motion import IDENTITY, Action, Pose
 from ovamos.shared.robot import Primitives
 
 __all__ = ["DecodeError", "MAX_TEXT_CHARS", "MAX_NAME_CHARS", "MAX_TARGETS", "MAX_FRAME_SHAPE",
@@ -353,6 +353,8 @@ class MapSnapshot(BinaryMessage):
     after_action: int = Field(default=0, ge=0, description="newest after_action of a fused frame")
     odom_session: OdomSession = ""
     stamp: float
+    map_T_odom: Pose = Field(default=IDENTITY, description="where the odometry frame lies in the map: "
+                             "a pose in odometry is map_T_odom.compose(pose) here (localization's)")
     resolution: float = Field(gt=0)
     origin: tuple[float, float]
     layers: tuple[Name, ...] = Field(max_length=MAX_TARGETS)
@@ -364,6 +366,17 @@ class MapSnapshot(BinaryMessage):
     frontiers: np.ndarray
     confidence: np.ndarray | None = None  # per-layer fusion confidence: checkpoints carry it
     searched: np.ndarray | None = None    # per-layer searched area: checkpoints carry it
+
+    def to_map(self, odom: Pose) -> Pose:
+        """A pose of the odometry frame (the driver's) in this map's frame."""
+        return self.map_T_odom.compose(odom)
+
+    def to_odom(self, points: tuple[tuple[float, float], ...]) -> tuple[tuple[float, float], ...]:
+        """Map-frame points (a path, obstacles) in the odometry frame, where the base follows them."""
+        if self.map_T_odom.identity:
+            return points
+        odom_T_map = self.map_T_odom.inverse()
+        return tuple(odom_T_map.apply(x, y) for x, y in points)
 
     def has_seen_after(self, action_id: int) -> bool:
         """Whether the map fused a frame captured after command ``action_id`` completed: the one

@@ -28,12 +28,37 @@ class Action(str, Enum):
 
 
 class Pose(BaseModel):
-    """Planar pose in REP-103: yaw 0 along +x, counter-clockwise positive (radians)."""
+    """Planar pose in REP-103: yaw 0 along +x, counter-clockwise positive (radians); finite, as it
+    travels in messages (a map's ``map_T_odom``)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     x: float
     y: float
     yaw: float = 0.0
+
+    def compose(self, other: Pose) -> Pose:
+        """``self`` * ``other``: ``other`` (a pose in the frame ``self`` places) in ``self``'s parent
+        frame; map_T_odom.compose(odom pose) is the pose in the map."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        return Pose(x=self.x + c * other.x - s * other.y, y=self.y + s * other.x + c * other.y,
+                    yaw=wrap_angle(self.yaw + other.yaw))
+
+    def inverse(self) -> Pose:
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        return Pose(x=-c * self.x - s * self.y, y=s * self.x - c * self.y, yaw=wrap_angle(-self.yaw))
+
+    def apply(self, x: float, y: float) -> tuple[float, float]:
+        """The point (``x``, ``y``) of the frame this pose places, in the parent frame."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        return self.x + c * x - s * y, self.y + s * x + c * y
+
+    @property
+    def identity(self) -> bool:
+        return self.x == 0.0 and self.y == 0.0 and self.yaw == 0.0
+
+
+IDENTITY = Pose(x=0.0, y=0.0, yaw=0.0)
+"""The transform that changes nothing (map_T_odom before any correction)."""
 
 
 def wrap_angle(a: float) -> float:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from pydantic import Field
 
+from ovamos.services.mapping.localization import LocalizationConfig
 from ovamos.shared.config import ServiceConfig
 from ovamos.shared.messages import MAX_MAP_SIDE
 from ovamos.shared.robot import ROBOT
@@ -44,6 +45,9 @@ class MappingConfig(ServiceConfig):
         description="also needed to confirm: hits / views of its place (views within "
                     "object_view_range_m, unoccluded); 0 = off (see services/mapping/objects.py)")
     object_view_range_m: float = Field(default=3.0, gt=0)
+    localization: LocalizationConfig = Field(
+        default_factory=LocalizationConfig, description="frames matched against the map, which then "
+        "lives in a map frame that odometry drift does not move (services/mapping/localization.py)")
     remember_frames: int = Field(
         default=16, ge=1,
         description="the newest fused frames whose targets are remembered: such a frame arriving "

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ovamos.shared.messages import RgbdFrame
+from ovamos.shared.motion import Pose
 
 
 @dataclass(frozen=True)
@@ -23,6 +24,25 @@ class View:
     heading: float         # yaw of the optical axis in the world
     hfov: float
     polygon: np.ndarray    # M x 2 world xy
+
+    def moved(self, transform: Pose) -> View:
+        """The same view seen from ``transform`` * its pose (a localization's correction)."""
+        def apply(points: np.ndarray) -> np.ndarray:
+            c, s = math.cos(transform.yaw), math.sin(transform.yaw)
+            return np.stack([c * points[:, 0] - s * points[:, 1] + transform.x,
+                             s * points[:, 0] + c * points[:, 1] + transform.y], axis=1).astype(points.dtype)
+        return View(apply(self.obstacles), transform.apply(*self.camera), self.heading + transform.yaw,
+                    self.hfov, apply(self.polygon))
+
+
+def placed(frame: RgbdFrame, transform: Pose) -> RgbdFrame:
+    """``frame`` with its camera pose moved by the planar ``transform`` (map_T_odom, a correction)."""
+    if transform.identity:
+        return frame
+    c, s = math.cos(transform.yaw), math.sin(transform.yaw)
+    planar = np.array([[c, -s, 0.0, transform.x], [s, c, 0.0, transform.y], [0.0, 0.0, 1.0, 0.0],
+                       [0.0, 0.0, 0.0, 1.0]])
+    return frame.model_copy(update={"camera_pose": tuple(float(v) for v in (planar @ frame.pose_matrix).ravel())})
 
 
 def project(frame: RgbdFrame, stride: int, depth_range: tuple[float, float],

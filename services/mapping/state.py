@@ -23,11 +23,13 @@ import numpy as np
 
 from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.layers import fov_confidence, fuse
+from ovamos.services.mapping.localization import Localizer
 from ovamos.services.mapping.objects import ObjectMap
-from ovamos.services.mapping.projection import View, project
+from ovamos.services.mapping.projection import View, placed, project
 from ovamos.shared.detections import Detection
 from ovamos.shared.grid import GridGeometry, inflate
 from ovamos.shared.messages import MapSnapshot, PerceptionResult, RgbdFrame
+from ovamos.shared.motion import IDENTITY, Pose
 
 
 class MapState:
@@ -55,12 +57,14 @@ class MapState:
         self.searched: dict[str, np.ndarray] = {}  # per layer: cells seen in a frame scored for it
         self.objects = ObjectMap(c.object_merge_distance_m, c.object_confirm_hits, c.decision_threshold,
                                  **_evidence(c))
+        self.localizer = Localizer(c.localization) if c.localization.enabled else None
         self.seq = -1
         self.after_action = 0  # newest RgbdFrame.after_action fused: the map's causal freshness
         # bounding box (row0, row1, col0, col1) of everything explored: frontier search stays in it
         self._bbox: tuple[int, int, int, int] | None = None
-        # (seq, stamp) of the newest fused frames -> the targets their values were fused for
-        self._fused: dict[tuple[int, float], set[str]] = {}
+        # (seq, stamp) of the newest fused frames -> the targets their values were fused for, and
+        # the frame as it was placed in the map (a second result is fused where the first was)
+        self._fused: dict[tuple[int, float], tuple[set[str], RgbdFrame]] = {}
         for target in targets:
             self.add_layer(target)
 
@@ -99,11 +103,12 @@ class MapState:
         if fused is None:
             self.integrate(frame, scores, detections)
             return True
-        new = {t: s for t, s in (scores or {}).items() if t not in fused}
+        targets, placed = fused
+        new = {t: s for t, s in (scores or {}).items() if t not in targets}
         if new:
-            window, seen, confidence = self._confidence(self._project(frame))
-            self._fuse_evidence(frame, window, seen, confidence, new, [d for d in detections if d.label in new])
-            fused.update(new)
+            window, seen, confidence = self._confidence(self._project(placed))
+            self._fuse_evidence(placed, window, seen, confidence, new, [d for d in detections if d.label in new])
+            targets.update(new)
         return bool(new)
 
     def has_fused(self, frame: RgbdFrame) -> bool:
@@ -113,8 +118,9 @@ class MapState:
     def integrate(self, frame: RgbdFrame, scores: Mapping[str, float] | None = None,
                   detections: Sequence[Detection] = ()) -> None:
         """Fuse one frame: obstacles and explored area always; values, their update counts and
-        searched area, and objects when given."""
-        view = self._project(frame)
+        searched area, and objects when given. The frame is posed by odometry; it is fused where
+        :meth:`place` puts it in the map."""
+        frame, view = self.place(frame)
         self._mark_obstacles(view)
         window, seen, confidence = self._confidence(view)
         if window is not None:
@@ -124,7 +130,7 @@ class MapState:
         self._fuse_evidence(frame, window, seen, confidence, scores, detections)
         self.seq = max(self.seq, frame.seq)
         self.after_action = max(self.after_action, frame.after_action)
-        self._fused[(frame.seq, frame.stamp)] = set(scores or ())
+        self._fused[(frame.seq, frame.stamp)] = (set(scores or ()), frame)
         for key in list(self._fused)[:max(0, len(self._fused) - self.config.remember_frames)]:
             del self._fused[key]
 
@@ -148,6 +154,23 @@ class MapState:
             self.objects.observe(frame, [t for t in scores if t in self.values])
         if detections:
             self.objects.add([d for d in detections if d.label in self.values], frame)
+
+    @property
+    def map_T_odom(self) -> Pose:
+        """Where the odometry frame lies in the map (identity without localization)."""
+        return IDENTITY if self.localizer is None else self.localizer.map_T_odom
+
+    def place(self, frame: RgbdFrame) -> tuple[RgbdFrame, View]:
+        """``frame`` (posed by odometry) placed in the map, with its view: by ``map_T_odom``, then
+        by the localizer's match of its scan against the map (:mod:`.localization`)."""
+        if self.localizer is None:
+            return frame, self._project(frame)
+        frame = placed(frame, self.localizer.map_T_odom)
+        view = self._project(frame)
+        match = self.localizer.match(view.obstacles, view.camera, self.obstacle, self.grid)
+        if match.accepted and not match.correction.identity:
+            frame, view = placed(frame, match.correction), view.moved(match.correction)
+        return frame, view
 
     def _project(self, frame: RgbdFrame) -> View:
         c = self.config
@@ -240,7 +263,7 @@ class MapState:
         confidence = stacked(self.confidence, np.float32) if with_confidence else None
         searched = stacked(self.searched, np.bool_) if with_confidence else None
         return MapSnapshot(seq=self.seq, after_action=self.after_action, odom_session=self.odom_session,
-                           stamp=stamp,
+                           stamp=stamp, map_T_odom=self.map_T_odom,
                            resolution=self.grid.resolution, origin=(self.grid.x0, self.grid.y0),
                            layers=layers, objects=self.objects.instances(),
                            obstacle=self.obstacle.copy(), explored=self.explored.copy(),
@@ -266,6 +289,8 @@ class MapState:
         state.objects = ObjectMap.from_instances(
             snapshot.objects, config.object_merge_distance_m, config.object_confirm_hits,
             config.decision_threshold, **_evidence(config))
+        if state.localizer is not None:
+            state.localizer.map_T_odom = snapshot.map_T_odom
         state.seq = snapshot.seq
         state.after_action = snapshot.after_action
         rows, cols = np.nonzero(state.explored)

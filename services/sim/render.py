@@ -33,6 +33,7 @@ import numpy as np
 from ovamos.services.sim.world import WALL_HEIGHT, WALL_THICKNESS, Scene
 from ovamos.shared.camera import CAMERA_HEIGHT_M, DEPTH_RANGE_M, HFOV_DEG, camera_pose, pinhole
 from ovamos.shared.messages import RgbdFrame
+from ovamos.shared.motion import Pose
 
 # Floor colour per room type (RGBA); unknown types get FLOOR_DEFAULT.
 FLOOR_RGBA: dict[str, tuple[float, float, float, float]] = {
@@ -225,10 +226,11 @@ class SceneRenderer:
         return out
 
     def render(self, x: float, y: float, yaw: float, *, seq: int = 0, stamp: float = 0.0,
-               after_action: int = 0, odom_session: str = "") -> RgbdFrame:
+               after_action: int = 0, odom_session: str = "", posed_at: Pose | None = None) -> RgbdFrame:
         """The frame a level camera at (x, y, ``CAMERA_HEIGHT_M``) sees looking along ``yaw``
         (``after_action``: the last command completed before it; ``odom_session``: the base's,
-        see :class:`RgbdFrame`)."""
+        see :class:`RgbdFrame`), posed where the robot believes it took it (``posed_at``, its
+        odometry, as a camera service poses frames) or, without one, where it truly did."""
         if self._con is None:
             raise RuntimeError("render() after close()")
         mj = self._mj
@@ -260,8 +262,9 @@ class SceneRenderer:
         np.left_shift(seg[..., 2], 16, out=tmp, dtype=np.int32)
         code |= tmp
         np.take(self._segment_lut(), code, out=arrays["instance_ids"], mode="clip")
+        posed = Pose(x=x, y=y, yaw=yaw) if posed_at is None else posed_at
         return RgbdFrame(seq=seq, stamp=stamp, after_action=after_action, odom_session=odom_session,
-                         intrinsics=self.intrinsics, camera_pose=camera_pose(x, y, yaw), **arrays)
+                         intrinsics=self.intrinsics, camera_pose=camera_pose(posed.x, posed.y, posed.yaw), **arrays)
 
     # -- lifetime ----------------------------------------------------------------------------
 

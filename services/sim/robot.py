@@ -12,8 +12,9 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from ovamos.services.sim.odometry import OdometryErrors, WheelSlip, odometry_errors
 from ovamos.shared.motion import Action, Pose, wrap_angle
 from ovamos.shared.robot import PRIMITIVES, ROBOT, Primitives
 
@@ -27,6 +28,13 @@ class MotionConfig(BaseModel):
     wheel_radius_m: float = Field(default=ROBOT.wheel_radius_m, gt=0)
     track_width_m: float = Field(default=ROBOT.track_width_m, gt=0)
     collision_step_m: float = Field(default=0.02, gt=0, description="spacing of collision checks")
+    odometry: OdometryErrors = Field(default_factory=OdometryErrors, description="how the true motion departs "
+                                     "from what the wheels report: a preset (ideal, realistic, hard) or the errors")
+
+    @field_validator("odometry", mode="before")
+    @classmethod
+    def _preset(cls, value: object) -> object:
+        return odometry_errors(value) if isinstance(value, str) else value
 
     @property
     def primitives(self) -> Primitives:
@@ -35,17 +43,34 @@ class MotionConfig(BaseModel):
 
 @dataclass
 class SimRobot:
-    """Moves a pose through free space given by ``is_free(x, y)``."""
+    """Moves a pose through free space given by ``is_free(x, y)``.
+
+    ``pose`` is where the robot truly is; :attr:`odom` where its wheels say it is. Without ``slip``
+    the two are one (the ideal base); with it the true motion is the slip's perturbation of the
+    nominal one (:mod:`ovamos.services.sim.odometry`), and a bump knocks the robot unseen."""
 
     pose: Pose
     is_free: Callable[[float, float], bool]
     config: MotionConfig = field(default_factory=MotionConfig)
+    slip: WheelSlip | None = None
     blocked: int = 0
     distance: float = 0.0
+    _odom: Pose = field(init=False, repr=False)
+    _pushing: bool = field(default=False, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._odom = self.pose
+
+    @property
+    def odom(self) -> Pose:
+        """The pose the wheels report, integrated from the start pose with the nominal geometry."""
+        return self.pose if self.slip is None else self._odom
 
     def apply(self, action: Action) -> bool:
         """Execute one primitive; False when a move was blocked (and not executed)."""
         p, c = self.pose, self.config
+        if self.slip is not None:
+            return self._apply_slipping(action)
         if action is Action.MOVE_FORWARD:
             x = p.x + c.forward_m * math.cos(p.yaw)
             y = p.y + c.forward_m * math.sin(p.yaw)
@@ -59,26 +84,91 @@ class SimRobot:
             self.pose = Pose(x=p.x, y=p.y, yaw=wrap_angle(p.yaw + sign * math.radians(c.turn_deg)))
         return True
 
-    def drive(self, left_rad_s: float, right_rad_s: float, dt: float) -> bool:
-        """Integrate wheel angular velocities for ``dt`` seconds (exact arc); False if blocked."""
-        c, p = self.config, self.pose
-        v = c.wheel_radius_m * (left_rad_s + right_rad_s) / 2
-        w = c.wheel_radius_m * (right_rad_s - left_rad_s) / c.track_width_m
-        yaw = p.yaw + w * dt
-        if abs(w) < 1e-9:
-            x, y = p.x + v * dt * math.cos(p.yaw), p.y + v * dt * math.sin(p.yaw)
+    def _apply_slipping(self, action: Action) -> bool:
+        """:meth:`apply` with odometry errors: the wheels turn as commanded, the robot goes where
+        their true size and slip take it; a blocked move is a bump (the encoders saw it stall)."""
+        c, slip = self.config, self.slip
+        assert slip is not None
+        if action is Action.MOVE_FORWARD:
+            left = right = c.forward_m
+        elif action in (Action.TURN_LEFT, Action.TURN_RIGHT):
+            half = (1.0 if action is Action.TURN_LEFT else -1.0) * math.radians(c.turn_deg) * c.track_width_m / 2
+            left, right = -half, half
         else:
-            x = p.x + v / w * (math.sin(yaw) - math.sin(p.yaw))
-            y = p.y - v / w * (math.cos(yaw) - math.cos(p.yaw))
+            return True
+        p = self.pose
+        true_left, true_right = slip.wheels(left, right)
+        x, y, yaw = integrate(p, *wheel_speeds(true_left, true_right, slip.track(c.track_width_m)), 1.0)
+        if not self._clear(p.x, p.y, x, y):
+            if action is Action.MOVE_FORWARD:
+                self.blocked += 1
+                self._knock()
+                return False
+            x, y = p.x, p.y  # a turn's drift into a wall: it turns in place
+        self.distance += math.hypot(x - p.x, y - p.y)
+        self.pose = _pose((x, y, yaw))
+        self._odom = _pose(integrate(self.odom, *wheel_speeds(left, right, c.track_width_m), 1.0))
+        return True
+
+    def drive(self, left_rad_s: float, right_rad_s: float, dt: float, *, stall: bool = False) -> bool:
+        """Integrate wheel angular velocities for ``dt`` seconds (exact arc); False if blocked.
+        Blocked, the robot stays where it was: turned by the wheels, or not at all when they
+        ``stall`` (a motor controller that stops them, as the simulated devices do)."""
+        c, p = self.config, self.pose
+        r = c.wheel_radius_m
+        if self.slip is None:
+            v, w = r * (left_rad_s + right_rad_s) / 2, r * (right_rad_s - left_rad_s) / c.track_width_m
+        else:
+            left, right = r * left_rad_s * dt, r * right_rad_s * dt
+            true_left, true_right = self.slip.wheels(left, right)
+            v, w = wheel_speeds(true_left / dt, true_right / dt, self.slip.track(c.track_width_m))
+        x, y, yaw = integrate(p, v, w, dt)
         if not self._clear(p.x, p.y, x, y):
             self.blocked += 1
-            self.pose = Pose(x=p.x, y=p.y, yaw=wrap_angle(yaw))
+            self.pose = p if stall else Pose(x=p.x, y=p.y, yaw=wrap_angle(yaw))
+            if not self._pushing:
+                self._knock()
+            self._pushing = True
             return False
+        if self.slip is not None:
+            nominal = wheel_speeds(r * left_rad_s, r * right_rad_s, c.track_width_m)
+            self._odom = _pose(integrate(self.odom, *nominal, dt))
+        self._pushing = False
         self.distance += math.hypot(x - p.x, y - p.y)
         self.pose = Pose(x=x, y=y, yaw=wrap_angle(yaw))
         return True
+
+    def _knock(self) -> None:
+        """A bump's unseen turn and shift (where the shift lands free)."""
+        if self.slip is None:
+            return
+        forward, left, turn = self.slip.bump()
+        p = self.pose
+        x = p.x + forward * math.cos(p.yaw) - left * math.sin(p.yaw)
+        y = p.y + forward * math.sin(p.yaw) + left * math.cos(p.yaw)
+        if not self._clear(p.x, p.y, x, y):
+            x, y = p.x, p.y
+        self.pose = Pose(x=x, y=y, yaw=wrap_angle(p.yaw + turn))
 
     def _clear(self, x0: float, y0: float, x1: float, y1: float) -> bool:
         n = max(1, math.ceil(math.hypot(x1 - x0, y1 - y0) / self.config.collision_step_m))
         return all(self.is_free(x0 + (x1 - x0) * i / n, y0 + (y1 - y0) * i / n)
                    for i in range(1, n + 1))
+
+
+def wheel_speeds(left: float, right: float, track_m: float) -> tuple[float, float]:
+    """(v, w) of a differential drive whose wheels move at ``left`` and ``right`` (m/s)."""
+    return (left + right) / 2, (right - left) / track_m
+
+
+def integrate(p: Pose, v: float, w: float, dt: float) -> tuple[float, float, float]:
+    """The pose after driving at (``v``, ``w``) for ``dt`` from ``p`` on an exact arc (yaw unwrapped)."""
+    yaw = p.yaw + w * dt
+    if abs(w) < 1e-9:
+        return p.x + v * dt * math.cos(p.yaw), p.y + v * dt * math.sin(p.yaw), yaw
+    return (p.x + v / w * (math.sin(yaw) - math.sin(p.yaw)),
+            p.y - v / w * (math.cos(yaw) - math.cos(p.yaw)), yaw)
+
+
+def _pose(xyyaw: tuple[float, float, float]) -> Pose:
+    return Pose(x=xyyaw[0], y=xyyaw[1], yaw=wrap_angle(xyyaw[2]))

@@ -92,10 +92,7 @@ class _WheelDriven(ABC):
     def _move(self, left_rad_s: float, right_rad_s: float, dt: float) -> bool:
         """Move the robot by the wheels' rotation this step; False (a stall) when blocked."""
         with self._lock:
-            before = self.robot.pose
-            moved = self.robot.drive(left_rad_s, right_rad_s, dt)
-            if not moved:
-                self.robot.pose = before
+            moved = self.robot.drive(left_rad_s, right_rad_s, dt, stall=True)
         if not moved:
             self.driver.bump(backward=left_rad_s + right_rad_s < 0)
         return moved
