@@ -43,12 +43,11 @@ from ovamos.services.planner.policies import OVAMOS
 from ovamos.services.planner.task import SearchTask
 from ovamos.services.sim.episodes import EpisodeSpec
 from ovamos.services.sim.evaluator import GroundTruth, spl
-from ovamos.services.sim.odometry import WheelSlip
 from ovamos.services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
 from ovamos.services.sim.prior import ObjectPrior
 from ovamos.services.sim.render import SceneRenderer
 from ovamos.services.sim.robot import MotionConfig, SimRobot
-from ovamos.services.sim.wheels import Motion, SerialSimRobot, WheeledSimRobot, base_motion, wheeled
+from ovamos.services.sim.wheels import Motion, SerialSimRobot, WheeledSimRobot, base_motion, frame_pose, wheeled
 from ovamos.services.sim.world import Scene
 from ovamos.shared.messages import MapSnapshot, PerceptionResult, PlanCommand, TaskStatus
 from ovamos.shared.motion import Action, Pose
@@ -183,11 +182,11 @@ class EpisodeWorld:
     a second task on the same world is a user's repeated request."""
 
     def __init__(self, scene: Scene, truth: GroundTruth, config: EpisodeConfig, start: Pose,
-                 prior: ObjectPrior | None = None, odometry_seed: int = 0) -> None:
+                 prior: ObjectPrior | None = None) -> None:
         self.truth, self.config = truth, config
         self.perception = SimPerception(FrameLabels.of(scene), prior or ObjectPrior.load(), config.perception)
         self.state = MapState(scene_mapping(scene, config.mapping))
-        self.robot, self.wheels = _robot(start, truth, config, odometry_seed)
+        self.robot, self.wheels = _robot(start, truth, config)
         self.renderer = SceneRenderer(scene, config.width, config.height)
         self.scene = scene
         self.clock = None if self.wheels is None else self.wheels.clock  # simulated time on a wheeled base
@@ -238,10 +237,8 @@ class EpisodeWorld:
         return Pose(x=odom.x, y=odom.y, yaw=odom.yaw)
 
     def _posed_at(self) -> Pose:
-        """Where a frame is posed: by odometry, as a camera service poses it; with ``ideal``
-        odometry at the true pose, which it then is (a wheeled base's encoder ticks would round it,
-        and every result from before odometry errors stays as it was)."""
-        return self.robot.pose if self.config.motion.odometry.ideal else self.odometry()
+        """Where a frame is posed: by odometry (:func:`~ovamos.services.sim.wheels.frame_pose`)."""
+        return frame_pose(self.robot, self.wheels)
 
     def pose(self) -> Pose:
         """Where the planner believes the robot is: its odometry placed in the map."""
@@ -263,11 +260,10 @@ class EpisodeWorld:
         self.renderer.close()
 
 
-def _robot(start: Pose, truth: GroundTruth, config: EpisodeConfig,
-           odometry_seed: int) -> tuple[SimRobot, SerialSimRobot | WheeledSimRobot | None]:
+def _robot(start: Pose, truth: GroundTruth,
+           config: EpisodeConfig) -> tuple[SimRobot, SerialSimRobot | WheeledSimRobot | None]:
     """The true robot and, on a wheeled base, what moves it (started, enabled, in simulated time)."""
-    robot = SimRobot(start, truth.is_free, base_motion(config.motion, config.base, DriverConfig()),
-                     WheelSlip.of(config.motion.odometry, odometry_seed))
+    robot = SimRobot(start, truth.is_free, base_motion(config.motion, config.base, DriverConfig()))
     if config.base == "kinematic":
         return robot, None
     wheels = wheeled(robot, config.base, clock=SimClock()).start()
@@ -285,7 +281,8 @@ def run_episode(spec: EpisodeSpec, scene: Scene, truth: GroundTruth, config: Epi
                 on_step: Callable[[int, Step], None] | None = None) -> EpisodeResult:
     """One episode: a fresh world (robot at ``spec.start``, empty map) and one task on it."""
     config = episode_config(config.policy, config)
-    world = EpisodeWorld(scene, truth, config, spec.start, prior, odometry_seed(spec))
+    config = config.model_copy(update={"motion": config.motion.model_copy(update={"odometry_seed": odometry_seed(spec)})})
+    world = EpisodeWorld(scene, truth, config, spec.start, prior)
     try:
         return run_task(world, spec, on_step)
     finally:

@@ -434,10 +434,15 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
                                  "ovamos.demo.FLEET_EPISODES, which the method solves; else EPISODE, "
                                  "EPISODE+1, ...).")] = 1,
          max_steps: Annotated[Optional[int], typer.Option(
-             min=1, help="Each task's step limit (default: the paper's 500).")] = None
+             min=1, help="Each task's step limit (default: the paper's 500).")] = None,
+         odometry: Annotated[str, typer.Option(help="How the simulated robot's odometry errs: ideal (exact), "
+                                                    "realistic or hard (services/sim/odometry.py).")] = "ideal",
+         localization: Annotated[OnOff, typer.Option(help="The map matches each frame against itself, in a "
+                                                          "frame odometry drift does not move.")] = "off"
          ) -> None:
     """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
     from ovamos.demo import BASES, DEMO_EPISODE, DEMO_SEED, ROS2_BASE, run_demo
+    from ovamos.services.sim.odometry import ODOMETRY_PRESET_NAMES
     from ovamos.services.sim.wheels import CONTINUOUS_BASE
     from ovamos.shared.motion import MOTIONS
     seed = DEMO_SEED if seed is None else seed
@@ -450,13 +455,16 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
                     f"choose --base {CONTINUOUS_BASE}, opencr, odrive or ros2")
     if base not in BASES:
         raise _fail(f"--base {base!r}: one of {', '.join(BASES)}")
+    if odometry not in ODOMETRY_PRESET_NAMES:
+        raise _fail(f"--odometry {odometry!r}: one of {', '.join(ODOMETRY_PRESET_NAMES)}")
     if base == ROS2_BASE:
         _into_loopback_namespace(robots)
     try:
         code = run_demo(console, out_dir=out, seed=seed, episode=episode, targets=targets,
                         keep_running=keep_running, timeout_s=timeout, base=base,
                         record=out / "run.mcap" if record else None, robots=robots, max_steps=max_steps,
-                        motion=motion, publish=lambda router, gateway: Deployment(router, gateway, os.getpid()).published(
+                        motion=motion, odometry=odometry, localization=localization == "on",
+                        publish=lambda router, gateway: Deployment(router, gateway, os.getpid()).published(
                             out / ENDPOINTS_FILE))
     except (TimeoutError, OSError) as exc:
         raise _fail(str(exc)) from None

@@ -98,19 +98,23 @@ def suggested_targets(seed: int, episode: int, searched: Sequence[str], count: i
 
 
 def _robot_configs(folder: Path, seed: int, episode: int, *, width: int, height: int, base: str,
-                   motion: str = "stepwise", checkpoint: str = "map.ckpt") -> dict[str, dict[str, Any]]:
+                   motion: str = "stepwise", checkpoint: str = "map.ckpt", odometry: str = "ideal",
+                   localization: bool = False) -> dict[str, dict[str, Any]]:
     """The per-robot services' configs for a robot in episode (``seed``, ``episode``): lock-step frames
-    stepwise, free-running ones (``frame_hz``) when the robot drives continuously."""
+    stepwise, free-running ones (``frame_hz``) when the robot drives continuously; the simulated
+    robot's odometry erring as the preset ``odometry`` says, the map localizing or not."""
     _, scene, _ = make_episode(seed, episode)
     mapping = scene_mapping(scene)
     episode_keys = {"episode_seed": seed, "episode_index": episode}
     lock_step = motion == "stepwise"
     robot = {"mapping": {"grid_cells": mapping.grid_cells, "center": list(mapping.center), "publish_hz": 5.0,
-                         "checkpoint_path": str(folder / checkpoint)}}
+                         "checkpoint_path": str(folder / checkpoint), "localization": {"enabled": localization}}}
+    body = {"odometry": odometry, "odometry_seed": seed * 1000 + episode}
     if base != ROS2_BASE:
-        return {**robot, "sim": {**episode_keys, "motion": base, "lock_step": lock_step, "width": width, "height": height}}
+        return {**robot, "sim": {**episode_keys, "motion": base, "lock_step": lock_step, "width": width,
+                                 "height": height, "robot": body}}
     from ovamos.services.sim.ros2_robot import BUMP_TOPIC, INSTANCE_IDS_TOPIC
-    return {**robot, "ros2_robot": {**episode_keys, "width": width, "height": height},
+    return {**robot, "ros2_robot": {**episode_keys, "width": width, "height": height, "robot": body},
             # the base's topics and geometry are the defaults, as the simulated robot's, which
             # also reports contact on BUMP_TOPIC
             "base_driver": {"driver": {"hardware": "ros2", "command_timeout_s": 0.5,
@@ -128,14 +132,15 @@ def _write(folder: Path, configs: dict[str, dict[str, Any]]) -> dict[str, Path]:
 
 
 def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_port: int,
-                  width: int = 320, height: int = 240, base: str = "kinematic", motion: str = "stepwise"
-                  ) -> dict[str, Path]:
+                  width: int = 320, height: int = 240, base: str = "kinematic", motion: str = "stepwise",
+                  odometry: str = "ideal", localization: bool = False) -> dict[str, Path]:
     """One JSON config per service, all describing the same episode (scene, start pose); ``base``
     is how the simulated robot moves (see ``SimServiceConfig.motion``), ``motion`` how the planner
-    drives it (``[agent] motion``)."""
+    drives it (``[agent] motion``), ``odometry`` how its odometry errs, ``localization`` whether the
+    map localizes."""
     episode_keys = {"episode_seed": seed, "episode_index": episode}
     return _write(folder, {**_robot_configs(folder, seed, episode, width=width, height=height, base=base,
-                                            motion=motion),
+                                            motion=motion, odometry=odometry, localization=localization),
                            "perception": {"backend": "sim", "sim": episode_keys},
                            "planner": _planner_config(motion),
                            "gateway": {"port": http_port, "robots": [robot_id],
@@ -156,8 +161,8 @@ def fleet_episodes(seed: int, episode: int, robots: int) -> dict[str, int]:
 
 
 def write_fleet_configs(folder: Path, *, seed: int, episodes: dict[str, int], http_port: int,
-                        width: int = 320, height: int = 240, base: str = "kinematic", motion: str = "stepwise"
-                        ) -> dict[str, Path]:
+                        width: int = 320, height: int = 240, base: str = "kinematic", motion: str = "stepwise",
+                        odometry: str = "ideal", localization: bool = False) -> dict[str, Path]:
     """A fleet's configs (:mod:`ovamos.fleet`): ``mapping-R`` and ``sim-R`` per robot R, each
     robot in its own home (``episodes[R]``); one ``perception`` that batches across the robots,
     reading each robot's frames in its scene; one ``planner`` config and one ``gateway`` for all."""
@@ -166,7 +171,8 @@ def write_fleet_configs(folder: Path, *, seed: int, episodes: dict[str, int], ht
     configs: dict[str, dict[str, Any]] = {}
     for robot, home in homes.items():
         for name, config in _robot_configs(folder, seed, home["episode_index"], width=width, height=height,
-                                           base=base, motion=motion, checkpoint=f"map-{robot}.ckpt").items():
+                                           base=base, motion=motion, checkpoint=f"map-{robot}.ckpt",
+                                           odometry=odometry, localization=localization).items():
             configs[f"{name}-{robot}"] = config
     perception = PerceptionServiceConfig(backend="sim", batch_size=len(robots), batch_wait_ms=10.0)
     configs["perception"] = {**perception.model_dump(mode="json", include={"backend", "batch_size", "batch_wait_ms"}),
@@ -259,10 +265,11 @@ def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode:
              targets: list[str] | None = None, robot_id: str = "sim", keep_running: bool = False,
              timeout_s: float | None = None, base: str = "kinematic", record: Path | None = None,
              robots: int = 1, publish: Publish | None = None, max_steps: int | None = None,
-             motion: str = "stepwise") -> int:
+             motion: str = "stepwise", odometry: str = "ideal", localization: bool = False) -> int:
     """Run the demo; ``record``: the MCAP file to record the run to (None: no recording);
     ``max_steps``: each task's step limit (None: the gateway's default, the paper's 500); ``motion``:
-    stepwise or continuous (a wheeled ``base`` only).
+    stepwise or continuous (a wheeled ``base`` only); ``odometry``: how the simulated robot's
+    odometry errs (a preset); ``localization``: whether the map localizes.
 
     ``robots`` > 1: a fleet (:func:`write_fleet_configs`), robot i searching episode
     ``episode + i`` (its own home) for that episode's targets (or ``targets``), all at once.
@@ -274,11 +281,13 @@ def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode:
     url, router = f"http://127.0.0.1:{http_port}", loopback(zenoh_port)
     if robots == 1:
         configs = write_configs(out_dir / "config", seed=seed, episode=episode, robot_id=robot_id,
-                                http_port=http_port, base=base, motion=motion)
+                                http_port=http_port, base=base, motion=motion, odometry=odometry,
+                                localization=localization)
         entries = demo_entries(configs, robot_id=robot_id, zenoh_port=zenoh_port, record=record, base=base)
     else:
         configs = write_fleet_configs(out_dir / "config", seed=seed, episodes=episodes,
-                                      http_port=http_port, base=base, motion=motion)
+                                      http_port=http_port, base=base, motion=motion, odometry=odometry,
+                                      localization=localization)
         entries = fleet_entries(configs, robots=fleet_ids, zenoh_port=zenoh_port, record=record)
     for robot, e in episodes.items():
         console.print(f"{robot}: episode {seed}-{e}: {', '.join(tasks[robot])}")

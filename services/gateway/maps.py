@@ -88,7 +88,8 @@ def map_view(snapshot: MapSnapshot, task: TaskRecord | None, *, layer: str | Non
     r0, r1, c0, c1 = box = crop_box(snapshot, np.asarray(points, float).reshape(-1, 2), margin_cells)
     res, (x0, y0) = snapshot.resolution, snapshot.origin
     image = base64.b64encode(_png(map_raster(snapshot, heat, box))).decode()
-    return MapView(seq=snapshot.seq, odom_session=snapshot.odom_session, stamp=snapshot.stamp,
+    return MapView(seq=snapshot.seq, odom_session=snapshot.odom_session,
+                   map_T_odom=Pose(**snapshot.map_T_odom.model_dump()), stamp=snapshot.stamp,
                    resolution=res, x0=x0 + c0 * res, y0=y0 + r0 * res, width=c1 - c0, height=r1 - r0,
                    image=f"data:image/png;base64,{image}", layers=list(snapshot.layers), layer=layer,
                    frontiers=[(float(x), float(y)) for x, y in snapshot.frontiers],

@@ -204,6 +204,8 @@ class MapView(BaseModel):
     seq: int = Field(description="the newest frame the map fused")
     odom_session: str = Field(description="the odometry session the map belongs to (its frames' "
                                           "odometry frame; a driver restart starts a new map)")
+    map_T_odom: Pose = Field(default_factory=lambda: Pose(x=0.0, y=0.0, yaw=0.0), description="where that odometry frame lies in the map: "
+                             "localization's correction of odometry's drift (identity without it)")
     stamp: float
     resolution: float
     x0: float

@@ -82,7 +82,7 @@ def robot_map_view(robot_id: str, gw: GW, layer: str | None = None) -> MapView:
     task = latest[0] if latest else None
     searching = task is not None and task.status is TaskStatus.SEARCHING
     try:
-        return map_view(snapshot, task, layer=layer, robot=robot_pose(gw, robot_id),
+        return map_view(snapshot, task, layer=layer, robot=robot_pose(gw, robot_id, snapshot),
                         goal=gw.manager.goal(robot_id, task.id) if searching else None,
                         searching=gw.view(task).remaining if searching else ())
     except ValueError as exc:

@@ -38,6 +38,7 @@ from ovamos.services.gateway.sse import TaskWatchers, task_stream
 from ovamos.services.gateway.store import TaskRecord, TaskStore
 from ovamos.services.gateway.tasks import GatewayBusy, TaskConflict, TaskManager
 from ovamos.shared.messages import MapSnapshot, TaskStatus
+from ovamos.shared.motion import Pose as MotionPose
 
 
 @dataclass
@@ -153,10 +154,17 @@ def health(gw: GW) -> Health:
     return Health(robots=robots, counters=gw.manager.counters())
 
 
-def robot_pose(gw: Gateway, robot_id: str) -> Pose | None:
-    """The robot's pose from its latest odometry (None before any)."""
+def robot_pose(gw: Gateway, robot_id: str, snapshot: MapSnapshot | None = None) -> Pose | None:
+    """The robot's pose from its latest odometry (None before any); placed in ``snapshot``'s map
+    (localization's ``map_T_odom``) when given and of the same odometry session."""
     odom = gw.monitor.odometry(robot_id)
-    return None if odom is None else Pose(x=odom.message.x, y=odom.message.y, yaw=odom.message.yaw)
+    if odom is None:
+        return None
+    o = odom.message
+    at = MotionPose(x=o.x, y=o.y, yaw=o.yaw)
+    if snapshot is not None and snapshot.odom_session == o.odom_session:
+        at = snapshot.to_map(at)
+    return Pose(x=at.x, y=at.y, yaw=at.yaw)
 
 
 @router.get("/robots/{robot_id}/map.png", response_class=Response, responses={
@@ -174,7 +182,7 @@ def robot_map(robot_id: str, gw: GW, layer: str | None = None) -> Response:
     latest = gw.store.list(robot_id, limit=1)
     task = latest[0] if latest else None
     try:
-        png = map_png(snapshot, layer=layer, task=task, robot=robot_pose(gw, robot_id),
+        png = map_png(snapshot, layer=layer, task=task, robot=robot_pose(gw, robot_id, snapshot),
                       goal=gw.manager.goal(robot_id, task.id) if task is not None
                       and task.status is TaskStatus.SEARCHING else None)
     except ValueError as exc:

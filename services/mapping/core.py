@@ -224,7 +224,15 @@ class MappingCore:
                 "objects": len(self.state.objects.instances()),
                 "pending_frames": len(self._frames), "pending_results": len(self._results),
                 "other_session_dropped": dict(self.other_session), "repeated_frames": self.repeated,
-                "sessions": self._sessions.info()}
+                "sessions": self._sessions.info(), **self._localization()}
+
+    def _localization(self) -> dict[str, Any]:
+        """The localizer's matches by verdict and where it has the odometry frame (absent without one)."""
+        localizer = self.state.localizer
+        if localizer is None:
+            return {}
+        t = localizer.map_T_odom
+        return {"localization": {**localizer.counters, "map_T_odom": [round(t.x, 3), round(t.y, 3), round(t.yaw, 4)]}}
 
 
 def _trim(pending: dict[int, Any], limit: int) -> None:

@@ -31,7 +31,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from ovamos.shared.grid import GridGeometry
-from ovamos.shared.motion import IDENTITY, Pose
+from ovamos.shared.motion import IDENTITY, Pose, wrap_angle
 
 __all__ = ["LocalizationConfig", "Localizer", "Match"]
 
@@ -53,14 +53,55 @@ class LocalizationConfig(BaseModel):
     fine_m: float = Field(default=0.1, gt=0, description="second pass and inliers: points within this "
                           "of a mapped obstacle")
     iterations: int = Field(default=8, ge=1, description="Gauss-Newton iterations per pass")
-    min_inlier_ratio: float = Field(default=0.7, ge=0, le=1, description="fewer scan points on mapped "
+    min_inlier_ratio: float = Field(default=0.4, ge=0, le=1, description="fewer scan points on mapped "
                                     "obstacles after the match: refused (a place not mapped yet)")
-    min_constraint: float = Field(default=0.05, ge=0, description="the smallest eigenvalue of the match's "
+    min_constraint: float = Field(default=0.01, ge=0, description="the smallest eigenvalue of the match's "
                                   "normal equations per inlier (rotation over a 1 m lever): below it, "
                                   "the scan fixes the pose in one direction only (a blank wall)")
-    max_step_m: float = Field(default=0.05, gt=0, description="an accepted correction moves the map by "
+    max_step_m: float = Field(default=0.10, gt=0, description="an accepted correction moves the map by "
                               "at most this a frame")
-    max_step_deg: float = Field(default=2.0, gt=0)
+    max_step_deg: float = Field(default=5.0, gt=0)
+    scan_sigma_m: float = Field(default=0.02, gt=0, description="how far a scan point may lie from where the "
+                                "map has its wall (a cell's rasterization, depth noise)")
+    scan_independent_points: int = Field(default=20, ge=1, description="how many of a scan's points count as "
+                                         "independent evidence (the rest sample the same walls)")
+    odometry_sigma_m: float = Field(default=0.01, gt=0, description="odometry's error since the last accepted "
+                                    "match, at the least; grows by odometry_sigma_per_m of the ground covered")
+    odometry_sigma_per_m: float = Field(default=0.05, ge=0)
+    odometry_sigma_deg: float = Field(default=0.5, gt=0, description="its heading error at the least; grows by "
+                                      "odometry_sigma_deg_per_turn_deg of the turns and _per_m of the ground")
+    odometry_sigma_deg_per_turn_deg: float = Field(default=0.03, ge=0)
+    odometry_sigma_deg_per_m: float = Field(default=2.0, ge=0)
+
+
+class ObstaclePoints:
+    """Where the points that made each obstacle cell fell in it: the map marks whole cells, and
+    a wall whose face lies on a cell's edge would otherwise pull every scan half a cell to the
+    cells' middles. Kept beside the obstacle grid while the map localizes (a checkpoint does not
+    keep it: a resumed map matches against cell centres until its cells are seen again)."""
+
+    def __init__(self, grid: GridGeometry) -> None:
+        self.grid = grid
+        self.offsets = np.zeros((*grid.shape, 2), np.float32)  # sums of offsets from the cells' corners
+        self.hits = np.zeros(grid.shape, np.uint32)
+
+    def add(self, points: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> None:
+        """``points`` (N x 2 world xy) that fell in the cells (``rows``, ``cols``), all on the grid."""
+        g = self.grid
+        offsets = points - np.stack([g.x0 + cols * g.resolution, g.y0 + rows * g.resolution], axis=1)
+        np.add.at(self.offsets, (rows, cols), offsets.astype(np.float32))
+        np.add.at(self.hits, (rows, cols), 1)
+
+    def centres(self, window: tuple[slice, slice]) -> np.ndarray:
+        """World xy of the mean point of each cell of ``window`` (its middle where none fell)."""
+        g = self.grid
+        rows, cols = window
+        hits = self.hits[rows, cols]
+        mean = np.where(hits[..., None] > 0, self.offsets[rows, cols] / np.maximum(hits, 1)[..., None],
+                        g.resolution / 2)
+        xs = g.x0 + np.arange(cols.start, cols.stop) * g.resolution
+        ys = g.y0 + np.arange(rows.start, rows.stop) * g.resolution
+        return np.stack([mean[..., 0] + xs[None, :], mean[..., 1] + ys[:, None]], axis=-1)
 
 
 @dataclass(frozen=True)
@@ -88,44 +129,66 @@ class Localizer:
         self.map_T_odom = IDENTITY
         self.counters: Counter[str] = Counter()
         self.last: Match | None = None
+        self._odom: Pose | None = None  # the odometry of the last frame matched
+        self._moved_m = self._turned_rad = 0.0  # odometry's motion since the last accepted match
 
     def to_map(self, odom: Pose) -> Pose:
         return self.map_T_odom.compose(odom)
 
     def match(self, points: np.ndarray, camera: tuple[float, float], obstacle: np.ndarray,
-              grid: GridGeometry) -> Match:
+              explored: np.ndarray, cells: ObstaclePoints, odom: Pose) -> Match:
         """Match ``points`` (N x 2 map xy of the scan, placed by the current ``map_T_odom``) seen
-        from ``camera`` against ``obstacle`` (the map's grid, before this frame is fused), and on
-        success move ``map_T_odom`` by the correction (bounded). Counted by verdict."""
-        m = self._match(points, camera, obstacle, grid)
+        from ``camera`` against ``obstacle`` (the map's grid, before this frame is fused; only the
+        points by ``explored`` floor count, the rest were never seen from where they could be
+        compared; ``cells``: where in its obstacle cells the map's points fell), and on
+        success move ``map_T_odom`` by the correction (bounded). ``odom``: where odometry has the
+        camera, which says how far odometry has gone since the last accepted match (how much it
+        may have drifted). Counted by verdict."""
+        if self._odom is not None:
+            self._moved_m += math.hypot(odom.x - self._odom.x, odom.y - self._odom.y)
+            self._turned_rad += abs(wrap_angle(odom.yaw - self._odom.yaw))
+        self._odom = odom
+        m = self._match(points, camera, obstacle, explored, cells)
         if m.accepted:
             self.map_T_odom = m.correction.compose(self.map_T_odom)
             self.counters["clamped"] += m.clamped
+            self._moved_m = self._turned_rad = 0.0
         self.counters[m.verdict] += 1
         self.last = m
         return m
 
     def _match(self, points: np.ndarray, camera: tuple[float, float], obstacle: np.ndarray,
-               grid: GridGeometry) -> Match:
-        c = self.config
+               explored: np.ndarray, cells: ObstaclePoints) -> Match:
+        c, grid = self.config, cells.grid
         scan = _thin(points, grid.resolution / 2, c.max_points)
         if len(scan) < c.min_points:
             return Match("few_points", points=len(scan))
         window = _window(scan, c.coarse_m + 2 * grid.resolution, grid)
         if window is None or np.count_nonzero(obstacle[window]) < c.min_map_cells:
             return Match("no_map", points=len(scan))
-        fields = _Fields(obstacle, window, grid, c.coarse_m)
+        fields = _Fields(obstacle, window, grid, c.coarse_m, cells.centres(window))
+        total = len(scan)
+        # a wall seen for the first time, beside a mapped one, would pull the scan along that one
+        scan = scan[fields.seen(scan, explored[window])]
+        if len(scan) < c.min_points:
+            return Match("few_inliers", points=total, inlier_ratio=len(scan) / total)
         centre = np.asarray(camera, dtype=np.float64)
+        prior = self._prior()
+        # the first pass reaches as far as odometry may have drifted, no farther: points beyond
+        # what it can explain (a wall seen for the first time beside a mapped one) must not pull
+        reach = float(np.clip(3 / math.sqrt(prior[0]), c.fine_m, c.coarse_m))
         delta = np.zeros(3)  # (tx, ty, theta): p' = R(theta) (p - centre) + centre + t
-        for fine, cap in ((False, c.coarse_m), (True, c.fine_m)):
+        for fine, cap in ((False, reach), (True, c.fine_m)):
             use = fields.sample(_moved(scan, centre, delta), False)[0] < cap
             if np.count_nonzero(use) < c.min_points:
                 return Match("few_inliers", points=len(scan), inlier_ratio=float(np.mean(use)))
-            delta = _descend(fields, scan[use], centre, delta, fine, c.iterations)
+            weight = c.scan_independent_points / (np.count_nonzero(use) * c.scan_sigma_m ** 2)
+            delta = _descend(fields, scan[use], centre, delta, fine, c.iterations, weight, prior)
         moved = _moved(scan, centre, delta)
         near = fields.sample(moved, False)[0] < c.fine_m
         ratio = float(np.mean(near))
-        constraint = _constraint(fields.sample(moved[near], True)[1], moved[near] - centre - delta[:2])
+        normals = _normal_equations(fields.normals(moved[near]), moved[near] - centre - delta[:2])
+        constraint = float(np.linalg.eigvalsh(normals)[0])
         if ratio < c.min_inlier_ratio:
             return Match("few_inliers", points=len(scan), inlier_ratio=ratio, constraint=constraint)
         if constraint < c.min_constraint:
@@ -133,21 +196,31 @@ class Localizer:
         delta, clamped = _bounded(delta, c.max_step_m, math.radians(c.max_step_deg))
         return Match("matched", _as_pose(delta, centre), len(scan), ratio, constraint, clamped)
 
+    def _prior(self) -> np.ndarray:
+        """Odometry's word as the information (1 / variance) of (tx, ty, theta) about its pose:
+        how far it may have drifted since the last accepted match."""
+        c = self.config
+        sigma_m = c.odometry_sigma_m + c.odometry_sigma_per_m * self._moved_m
+        sigma_rad = math.radians(c.odometry_sigma_deg + c.odometry_sigma_deg_per_turn_deg * math.degrees(
+            self._turned_rad) + c.odometry_sigma_deg_per_m * self._moved_m)
+        return np.array([sigma_m ** -2, sigma_m ** -2, sigma_rad ** -2])
+
 
 def _descend(fields: _Fields, points: np.ndarray, centre: np.ndarray, delta: np.ndarray, fine: bool,
-             iterations: int) -> np.ndarray:
-    """Gauss-Newton on one field from ``delta``, each step halved until the cost falls (the field
-    is bilinear between cells, so a full step can overshoot); stops when no step helps."""
+             iterations: int, weight: float, prior: np.ndarray) -> np.ndarray:
+    """Gauss-Newton on ``weight`` * (the points' distances to the walls)^2 + delta' diag(prior) delta
+    (odometry's word against moving at all), each step halved until the cost falls (the field is
+    bilinear between cells, so a full step can overshoot); stops when no step helps."""
     def cost(d: np.ndarray) -> float:
         value = fields.sample(_moved(points, centre, d), fine)[0]
-        return float(value @ value)
+        return float(weight * (value @ value) + d @ (prior * d))
 
     current = cost(delta)
     for _ in range(iterations):
         moved = _moved(points, centre, delta)
         value, grad = fields.sample(moved, fine)
         jac = _jacobian(grad, moved - centre - delta[:2])
-        step = np.linalg.lstsq(jac.T @ jac, -jac.T @ value, rcond=None)[0]
+        step = np.linalg.solve(weight * (jac.T @ jac) + np.diag(prior), -(weight * (jac.T @ value) + prior * delta))
         for scale in (1.0, 0.5, 0.25, 0.125):
             trial = delta + scale * step
             trial_cost = cost(trial)
@@ -162,31 +235,38 @@ def _descend(fields: _Fields, points: np.ndarray, centre: np.ndarray, delta: np.
 
 
 class _Fields:
-    """Two fields over a window of the map, sampled bilinearly with their gradients at any point:
-    the distance to the nearest mapped obstacle (metres, truncated at ``far``: the coarse pass and
-    the inlier test) and one minus the obstacle grid blurred by a cell over its largest value two
-    cells round (the fine pass: zero on the middle of a wall's cells however thick they are, where
-    the distance is flat zero, so Gauss-Newton meets a zero residual there)."""
+    """What a scan is matched against, over a window of the map. Coarse: the distance to the
+    nearest mapped obstacle cell (metres, truncated at ``far``), sampled bilinearly with its
+    gradient (a wide basin; also the inlier test). Fine: each point's distance along the wall's
+    normal to the mean point of its nearest obstacle cell (point-to-plane, as ICP's; the normal
+    from the structure tensor of the obstacle grid), so the match is not held to cell middles."""
 
     def __init__(self, obstacle: np.ndarray, window: tuple[slice, slice], grid: GridGeometry,
-                 far: float) -> None:
+                 far: float, centres: np.ndarray) -> None:
         rows, cols = window
         occupied = obstacle[rows, cols]
-        dist = cv2.distanceTransform((~occupied).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        free = (~occupied).astype(np.uint8)
+        dist, labels = cv2.distanceTransformWithLabels(free, cv2.DIST_L2, cv2.DIST_MASK_5,
+                                                       labelType=cv2.DIST_LABEL_PIXEL)
         self.coarse = np.minimum(dist.astype(np.float64) * grid.resolution, far)
+        self.gradient = np.gradient(self.coarse, grid.resolution)
+        # labels number the obstacle cells in raster order: the nearest one's mean point and normal
+        self.labels = labels
         blurred = cv2.GaussianBlur(occupied.astype(np.float64), (0, 0), 1.0)
-        ridge = cv2.dilate(blurred, np.ones((5, 5), np.uint8))  # the nearest wall's middle, two cells round
-        self.fine = 1.0 - blurred / np.maximum(ridge, 1e-6)
-        self.gradients = {False: np.gradient(self.coarse, grid.resolution),
-                          True: np.gradient(self.fine, grid.resolution)}
+        gy, gx = np.gradient(blurred)
+        tensor = [cv2.GaussianBlur(g, (0, 0), 1.5)[occupied] for g in (gx * gx, gx * gy, gy * gy)]
+        self.targets = np.vstack([np.zeros((1, 2)), centres[occupied]])  # label 0: none
+        self.wall_normals = np.vstack([np.zeros((1, 2)), _principal_axis(*tensor)])
         self.x0 = grid.x0 + (cols.start + 0.5) * grid.resolution  # the first cell's centre
         self.y0 = grid.y0 + (rows.start + 0.5) * grid.resolution
         self.resolution = grid.resolution
 
     def sample(self, points: np.ndarray, fine: bool) -> tuple[np.ndarray, np.ndarray]:
-        """The field (N) and its gradient (N x 2, d/dx, d/dy) at ``points``; points off the
-        window read as far, with no gradient."""
-        field = self.fine if fine else self.coarse
+        """The residual (N) and its gradient (N x 2, d/dx, d/dy) at ``points``: the coarse field,
+        or the fine point-to-plane distance; points off the window read as far, with no gradient."""
+        if fine:
+            return self._to_walls(points)
+        field = self.coarse
         h, w = field.shape
         fx = (points[:, 0] - self.x0) / self.resolution
         fy = (points[:, 1] - self.y0) / self.resolution
@@ -200,23 +280,62 @@ class _Fields:
             bottom = grid[r0 + 1, c0] * (1 - ax) + grid[r0 + 1, c0 + 1] * ax
             return top * (1 - ay) + bottom * ay
 
-        gy, gx = self.gradients[fine]
+        gy, gx = self.gradient
         value = np.where(inside, bilinear(field), np.inf)
         grad = np.stack([bilinear(gx), bilinear(gy)], axis=1)
         grad[~inside] = 0.0
         return value, grad
 
+    def _cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The label of each point's nearest obstacle cell (0 off the window)."""
+        h, w = self.labels.shape
+        col = np.rint((points[:, 0] - self.x0) / self.resolution).astype(np.int64)
+        row = np.rint((points[:, 1] - self.y0) / self.resolution).astype(np.int64)
+        inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        label = np.zeros(len(points), np.int64)
+        label[inside] = self.labels[row[inside], col[inside]]
+        return label, inside
 
-def _constraint(grad: np.ndarray, rel: np.ndarray) -> float:
-    """How well points on walls with these gradients fix the pose: the smallest eigenvalue of
-    the normal equations of their unit normals (rotation over a 1 m lever), per point; a blank
-    wall fixes nothing along itself and gives about zero."""
-    norm = np.linalg.norm(grad, axis=1)
-    ok = norm > 1e-9
-    if np.count_nonzero(ok) < 3:
-        return 0.0
-    jac = _jacobian(grad[ok] / norm[ok, None], rel[ok])
-    return float(np.linalg.eigvalsh(jac.T @ jac)[0] / np.count_nonzero(ok))
+    def _to_walls(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        label, inside = self._cells(points)
+        normal = self.wall_normals[label]
+        value = np.einsum("ij,ij->i", points - self.targets[label], normal)
+        return np.where(inside, value, np.inf), np.where(inside[:, None], normal, 0.0)
+
+    def seen(self, points: np.ndarray, explored: np.ndarray) -> np.ndarray:
+        """Which points lie by floor the map has seen (within two cells), where a map would have
+        its walls: a point elsewhere was out of every earlier view."""
+        near = cv2.dilate(explored.astype(np.uint8), np.ones((5, 5), np.uint8))
+        h, w = near.shape
+        col = np.rint((points[:, 0] - self.x0) / self.resolution).astype(np.int64)
+        row = np.rint((points[:, 1] - self.y0) / self.resolution).astype(np.int64)
+        inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        seen = np.zeros(len(points), bool)
+        seen[inside] = near[row[inside], col[inside]].astype(bool)
+        return seen
+
+    def normals(self, points: np.ndarray) -> np.ndarray:
+        """The unit normal (N x 2) of the wall nearest each point (zero where the map is flat:
+        nothing there fixes the pose)."""
+        label, inside = self._cells(points)
+        return np.where(inside[:, None], self.wall_normals[label], 0.0)
+
+
+def _principal_axis(jxx: np.ndarray, jxy: np.ndarray, jyy: np.ndarray) -> np.ndarray:
+    """The unit main axis of each 2 x 2 structure tensor (zero where it is flat)."""
+    angle = 0.5 * np.arctan2(2 * jxy, jxx - jyy)
+    strength = np.hypot(jxx - jyy, 2 * jxy) > 1e-9
+    return np.stack([np.cos(angle), np.sin(angle)], axis=1) * strength[:, None]
+
+
+def _normal_equations(normals: np.ndarray, rel: np.ndarray) -> np.ndarray:
+    """How well points on walls with these unit normals fix the pose: their normal equations
+    (rotation over a 1 m lever), per point. Its smallest eigenvalue is about zero for a blank
+    wall, which fixes nothing along itself."""
+    if len(normals) < 3:
+        return np.zeros((3, 3))
+    jac = _jacobian(normals, rel)
+    return np.asarray(jac.T @ jac / len(normals))
 
 
 def _thin(points: np.ndarray, cell: float, limit: int) -> np.ndarray:

@@ -35,6 +35,12 @@ class View:
                     self.hfov, apply(self.polygon))
 
 
+def planar_pose(frame: RgbdFrame) -> Pose:
+    """Where ``frame``'s camera stands on the floor and the heading of its optical axis."""
+    pose = frame.pose_matrix
+    return Pose(x=float(pose[0, 3]), y=float(pose[1, 3]), yaw=math.atan2(pose[1, 2], pose[0, 2]))
+
+
 def placed(frame: RgbdFrame, transform: Pose) -> RgbdFrame:
     """``frame`` with its camera pose moved by the planar ``transform`` (map_T_odom, a correction)."""
     if transform.identity:

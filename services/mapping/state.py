@@ -23,9 +23,9 @@ import numpy as np
 
 from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.layers import fov_confidence, fuse
-from ovamos.services.mapping.localization import Localizer
+from ovamos.services.mapping.localization import Localizer, ObstaclePoints
 from ovamos.services.mapping.objects import ObjectMap
-from ovamos.services.mapping.projection import View, placed, project
+from ovamos.services.mapping.projection import View, placed, planar_pose, project
 from ovamos.shared.detections import Detection
 from ovamos.shared.grid import GridGeometry, inflate
 from ovamos.shared.messages import MapSnapshot, PerceptionResult, RgbdFrame
@@ -58,6 +58,7 @@ class MapState:
         self.objects = ObjectMap(c.object_merge_distance_m, c.object_confirm_hits, c.decision_threshold,
                                  **_evidence(c))
         self.localizer = Localizer(c.localization) if c.localization.enabled else None
+        self.obstacle_points = ObstaclePoints(self.grid) if self.localizer is not None else None
         self.seq = -1
         self.after_action = 0  # newest RgbdFrame.after_action fused: the map's causal freshness
         # bounding box (row0, row1, col0, col1) of everything explored: frontier search stays in it
@@ -165,9 +166,12 @@ class MapState:
         by the localizer's match of its scan against the map (:mod:`.localization`)."""
         if self.localizer is None:
             return frame, self._project(frame)
+        odom = planar_pose(frame)
         frame = placed(frame, self.localizer.map_T_odom)
         view = self._project(frame)
-        match = self.localizer.match(view.obstacles, view.camera, self.obstacle, self.grid)
+        assert self.obstacle_points is not None
+        match = self.localizer.match(view.obstacles, view.camera, self.obstacle, self.explored,
+                                     self.obstacle_points, odom)
         if match.accepted and not match.correction.identity:
             frame, view = placed(frame, match.correction), view.moved(match.correction)
         return frame, view
@@ -196,6 +200,8 @@ class MapState:
         rows, cols = self.grid.to_cell(view.obstacles[:, 0], view.obstacles[:, 1])
         inside = (rows >= 0) & (rows < self.grid.rows) & (cols >= 0) & (cols < self.grid.cols)
         self.obstacle[rows[inside], cols[inside]] = True
+        if self.obstacle_points is not None:
+            self.obstacle_points.add(view.obstacles[inside], rows[inside], cols[inside])
 
     def _view_cells(self, view: View) -> tuple[tuple[slice, slice] | None, np.ndarray, np.ndarray]:
         """The window of cells around the view polygon, which of them it covers, and their

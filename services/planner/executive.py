@@ -392,9 +392,11 @@ class Executive:
             self._event_due = True
             return trace
         drive = path_step(self.agent, step, snapshot, pose, now) if self.config.agent.motion == "continuous" else None
+        # a path is decided in the map and followed in the base's odometry frame
         command = PlanCommand(action_id=self._next_id, stamp=self._wall_clock(), task_id=self.task.task_id if self.task
-                              else None, action=None if drive else step.action, path=drive.path if drive else (),
-                              obstacles=drive.obstacles if drive else ())
+                              else None, action=None if drive else step.action,
+                              path=snapshot.to_odom(drive.path) if drive else (),
+                              obstacles=snapshot.to_odom(drive.obstacles) if drive else ())
         self._next_id += 1
         self.in_flight = _InFlight(command, step, pose, now, drive.redecision if drive else None)
         if step.reason is Reason.FOUND:
@@ -419,5 +421,10 @@ class Executive:
         return []
 
     def _pose(self) -> Pose | None:
+        """The robot in the map: its odometry placed by the map's ``map_T_odom`` (localization's)."""
         o = self.odom
-        return None if o is None else Pose(x=o.x, y=o.y, yaw=o.yaw)
+        if o is None:
+            return None
+        pose = Pose(x=o.x, y=o.y, yaw=o.yaw)
+        s = self.snapshot
+        return pose if s is None or s.odom_session != o.odom_session else s.to_map(pose)

@@ -1,4 +1,4 @@
-"""The ideal base of the simulator: a primitive is executed exactly and at once.
+"""The simplest base of the simulator: a primitive is executed at once (exactly, unless the robot's odometry errs).
 
 Used for lock-step runs that must be deterministic (same seed, same
 trajectory in one process or over Zenoh) and for fast demos; the ``odrive``
@@ -85,9 +85,9 @@ class KinematicBase:
     has_pose = True  # an ideal base knows its pose from the start
 
     def odometry(self) -> Odometry:
-        """The exact pose: an ideal base has perfect odometry."""
+        """What the wheels report: the true pose unless the robot's odometry errs."""
         with self._lock:
-            p = self.robot.pose
+            p = self.robot.odom
             self._odom_seq += 1
             return Odometry(seq=self._odom_seq, stamp=time.time(), odom_session=self.odom_session,
                             x=p.x, y=p.y, yaw=p.yaw, after_action=self._completed[0])

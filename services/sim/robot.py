@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from ovamos.services.base_driver.kinematics import integrate_arc
 from ovamos.services.sim.odometry import OdometryErrors, WheelSlip, odometry_errors
 from ovamos.shared.motion import Action, Pose, wrap_angle
 from ovamos.shared.robot import PRIMITIVES, ROBOT, Primitives
@@ -30,6 +31,8 @@ class MotionConfig(BaseModel):
     collision_step_m: float = Field(default=0.02, gt=0, description="spacing of collision checks")
     odometry: OdometryErrors = Field(default_factory=OdometryErrors, description="how the true motion departs "
                                      "from what the wheels report: a preset (ideal, realistic, hard) or the errors")
+    odometry_seed: int = Field(default=0, description="the seed of those errors (a robot's systematic ones and "
+                               "its slip): the same seed, the same drift")
 
     @field_validator("odometry", mode="before")
     @classmethod
@@ -45,9 +48,9 @@ class MotionConfig(BaseModel):
 class SimRobot:
     """Moves a pose through free space given by ``is_free(x, y)``.
 
-    ``pose`` is where the robot truly is; :attr:`odom` where its wheels say it is. Without ``slip``
-    the two are one (the ideal base); with it the true motion is the slip's perturbation of the
-    nominal one (:mod:`ovamos.services.sim.odometry`), and a bump knocks the robot unseen."""
+    ``pose`` is where the robot truly is; :attr:`odom` where its wheels say it is. With ``ideal``
+    odometry errors (the config's) the two are one; else the true motion is the slip's perturbation
+    of the nominal one (:mod:`ovamos.services.sim.odometry`), and a bump knocks the robot unseen."""
 
     pose: Pose
     is_free: Callable[[float, float], bool]
@@ -60,6 +63,8 @@ class SimRobot:
 
     def __post_init__(self) -> None:
         self._odom = self.pose
+        if self.slip is None:
+            self.slip = WheelSlip.of(self.config.odometry, self.config.odometry_seed)
 
     @property
     def odom(self) -> Pose:
@@ -97,17 +102,16 @@ class SimRobot:
         else:
             return True
         p = self.pose
-        true_left, true_right = slip.wheels(left, right)
-        x, y, yaw = integrate(p, *wheel_speeds(true_left, true_right, slip.track(c.track_width_m)), 1.0)
-        if not self._clear(p.x, p.y, x, y):
+        true = integrate_arc(p, *slip.wheels(left, right), slip.track(c.track_width_m))
+        if not self._clear(p.x, p.y, true.x, true.y):
             if action is Action.MOVE_FORWARD:
                 self.blocked += 1
                 self._knock()
                 return False
-            x, y = p.x, p.y  # a turn's drift into a wall: it turns in place
-        self.distance += math.hypot(x - p.x, y - p.y)
-        self.pose = _pose((x, y, yaw))
-        self._odom = _pose(integrate(self.odom, *wheel_speeds(left, right, c.track_width_m), 1.0))
+            true = Pose(x=p.x, y=p.y, yaw=true.yaw)  # a turn's drift into a wall: it turns in place
+        self.distance += math.hypot(true.x - p.x, true.y - p.y)
+        self.pose = true
+        self._odom = integrate_arc(self._odom, left, right, c.track_width_m)
         return True
 
     def drive(self, left_rad_s: float, right_rad_s: float, dt: float, *, stall: bool = False) -> bool:
@@ -115,28 +119,36 @@ class SimRobot:
         Blocked, the robot stays where it was: turned by the wheels, or not at all when they
         ``stall`` (a motor controller that stops them, as the simulated devices do)."""
         c, p = self.config, self.pose
-        r = c.wheel_radius_m
+        left, right = c.wheel_radius_m * left_rad_s * dt, c.wheel_radius_m * right_rad_s * dt
         if self.slip is None:
-            v, w = r * (left_rad_s + right_rad_s) / 2, r * (right_rad_s - left_rad_s) / c.track_width_m
+            true = self._ideal_arc(left_rad_s, right_rad_s, dt)
         else:
-            left, right = r * left_rad_s * dt, r * right_rad_s * dt
-            true_left, true_right = self.slip.wheels(left, right)
-            v, w = wheel_speeds(true_left / dt, true_right / dt, self.slip.track(c.track_width_m))
-        x, y, yaw = integrate(p, v, w, dt)
-        if not self._clear(p.x, p.y, x, y):
+            true = integrate_arc(p, *self.slip.wheels(left, right), self.slip.track(c.track_width_m))
+        if not self._clear(p.x, p.y, true.x, true.y):
             self.blocked += 1
-            self.pose = p if stall else Pose(x=p.x, y=p.y, yaw=wrap_angle(yaw))
+            self.pose = p if stall else Pose(x=p.x, y=p.y, yaw=true.yaw)
             if not self._pushing:
                 self._knock()
             self._pushing = True
             return False
         if self.slip is not None:
-            nominal = wheel_speeds(r * left_rad_s, r * right_rad_s, c.track_width_m)
-            self._odom = _pose(integrate(self.odom, *nominal, dt))
+            self._odom = integrate_arc(self._odom, left, right, c.track_width_m)
         self._pushing = False
-        self.distance += math.hypot(x - p.x, y - p.y)
-        self.pose = Pose(x=x, y=y, yaw=wrap_angle(yaw))
+        self.distance += math.hypot(true.x - p.x, true.y - p.y)
+        self.pose = true
         return True
+
+    def _ideal_arc(self, left_rad_s: float, right_rad_s: float, dt: float) -> Pose:
+        """The exact arc from body velocities, as every run before odometry errors computed it
+        (:func:`integrate_arc` from wheel travel differs in the last bits, and would change them)."""
+        c, p = self.config, self.pose
+        v = c.wheel_radius_m * (left_rad_s + right_rad_s) / 2
+        w = c.wheel_radius_m * (right_rad_s - left_rad_s) / c.track_width_m
+        yaw = p.yaw + w * dt
+        if abs(w) < 1e-9:
+            return Pose(x=p.x + v * dt * math.cos(p.yaw), y=p.y + v * dt * math.sin(p.yaw), yaw=wrap_angle(yaw))
+        return Pose(x=p.x + v / w * (math.sin(yaw) - math.sin(p.yaw)),
+                    y=p.y - v / w * (math.cos(yaw) - math.cos(p.yaw)), yaw=wrap_angle(yaw))
 
     def _knock(self) -> None:
         """A bump's unseen turn and shift (where the shift lands free)."""
@@ -144,31 +156,11 @@ class SimRobot:
             return
         forward, left, turn = self.slip.bump()
         p = self.pose
-        x = p.x + forward * math.cos(p.yaw) - left * math.sin(p.yaw)
-        y = p.y + forward * math.sin(p.yaw) + left * math.cos(p.yaw)
-        if not self._clear(p.x, p.y, x, y):
-            x, y = p.x, p.y
-        self.pose = Pose(x=x, y=y, yaw=wrap_angle(p.yaw + turn))
+        knocked = p.compose(Pose(x=forward, y=left, yaw=turn))
+        self.pose = knocked if self._clear(p.x, p.y, knocked.x, knocked.y) else Pose(x=p.x, y=p.y, yaw=knocked.yaw)
 
     def _clear(self, x0: float, y0: float, x1: float, y1: float) -> bool:
         n = max(1, math.ceil(math.hypot(x1 - x0, y1 - y0) / self.config.collision_step_m))
         return all(self.is_free(x0 + (x1 - x0) * i / n, y0 + (y1 - y0) * i / n)
                    for i in range(1, n + 1))
 
-
-def wheel_speeds(left: float, right: float, track_m: float) -> tuple[float, float]:
-    """(v, w) of a differential drive whose wheels move at ``left`` and ``right`` (m/s)."""
-    return (left + right) / 2, (right - left) / track_m
-
-
-def integrate(p: Pose, v: float, w: float, dt: float) -> tuple[float, float, float]:
-    """The pose after driving at (``v``, ``w``) for ``dt`` from ``p`` on an exact arc (yaw unwrapped)."""
-    yaw = p.yaw + w * dt
-    if abs(w) < 1e-9:
-        return p.x + v * dt * math.cos(p.yaw), p.y + v * dt * math.sin(p.yaw), yaw
-    return (p.x + v / w * (math.sin(yaw) - math.sin(p.yaw)),
-            p.y - v / w * (math.cos(yaw) - math.cos(p.yaw)), yaw)
-
-
-def _pose(xyyaw: tuple[float, float, float]) -> Pose:
-    return Pose(x=xyyaw[0], y=xyyaw[1], yaw=wrap_angle(xyyaw[2]))

@@ -11,8 +11,9 @@ a detector. The camera images of one frame share one stamp, the time its pose wa
 The base behaves as a Create 3: velocity is applied at once (the controller ramps it) and held
 until commands stop for ``command_timeout_s``, then it stops by itself; a move into an obstacle
 leaves the robot where it touched and says so on ``bump`` (``std_msgs/Bool``, as a bridge of a
-Create 3's hazard detection would: the driver ends the move blocked). Odometry is the true pose in the
-scene's frame, so the map and the simulated perception agree on where things are.
+Create 3's hazard detection would: the driver ends the move blocked). Odometry starts at the true pose
+in the scene's frame, so the map and the simulated perception agree on where things are, and is
+the true pose unless the robot's odometry errs (``robot.odometry``).
 
 One process, one ROS node (:func:`ovamos.shared.ros2.node`), loopback-only DDS unless told otherwise. The
 renderer owns an OpenGL context, so the loop that moves the robot and renders runs on the main
@@ -38,7 +39,7 @@ from ovamos.services.base_driver.ros2.config import Ros2BaseConfig
 from ovamos.services.camera.ros2 import Ros2CameraConfig
 from ovamos.services.sim.episodes import make_episode
 from ovamos.services.sim.render import SceneRenderer
-from ovamos.services.sim.robot import SimRobot
+from ovamos.services.sim.robot import MotionConfig, SimRobot
 from ovamos.shared.config import StrictModel
 from ovamos.shared.motion import Pose
 from ovamos.shared.ros2 import node
@@ -75,6 +76,8 @@ class Ros2SimRobotConfig(StrictModel):
     base: Ros2BaseConfig = Field(default_factory=lambda: Ros2BaseConfig(bump=BUMP_TOPIC),
                                  description="the base's topics, as the ros2 base driver is told them "
                                  "(with bump: where contact is reported)")
+    robot: MotionConfig = Field(default_factory=MotionConfig, description="wheel geometry and how its "
+                                "odometry errs (odometry.odometry: ideal, realistic, hard)")
 
 
 class Ros2SimRobot:
@@ -84,7 +87,7 @@ class Ros2SimRobot:
     def __init__(self, config: Ros2SimRobotConfig) -> None:
         self.config = config
         spec, scene, truth = make_episode(config.episode_seed, config.episode_index)
-        self.robot = SimRobot(spec.start, truth.is_free)
+        self.robot = SimRobot(spec.start, truth.is_free, config.robot)
         self.geometry = Geometry(self.robot.config.wheel_radius_m, self.robot.config.track_width_m)
         self.renderer = SceneRenderer(scene, config.width, config.height)
         self._lock = threading.Lock()
@@ -180,7 +183,9 @@ class Ros2SimRobot:
     def _publish_odom(self) -> None:
         from nav_msgs.msg import Odometry
 
-        pose, linear, angular = self.pose()
+        _, linear, angular = self.pose()
+        with self._lock:
+            pose = self.robot.odom  # what the wheels report
         msg = _header(Odometry(), FRAME_IDS["odom"], self._ros.get_clock().now().to_msg())
         msg.child_frame_id = FRAME_IDS["base"]
         msg.pose.pose.position.x, msg.pose.pose.position.y = pose.x, pose.y

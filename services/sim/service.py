@@ -1,5 +1,8 @@
 """The simulated robot service ("sim"): camera frames from the true pose, and a base that moves.
 
+Frames are posed by odometry, as a camera service poses them; the robot's odometry errs as
+``robot.odometry`` says (ideal by default: odometry is the true pose).
+
 It stands in for the robot's camera and base driver at once, speaking the
 base driver's keys (it *is* a :class:`BaseDriverService` whose base is
 simulated): ``plan/command`` and ``driver/estop`` in, ``odom``,
@@ -42,7 +45,7 @@ from ovamos.services.sim.config import SimServiceConfig
 from ovamos.services.sim.kinematic import KinematicBase
 from ovamos.services.sim.render import SceneRenderer
 from ovamos.services.sim.robot import SimRobot
-from ovamos.services.sim.wheels import SerialSimRobot, WheeledSimRobot, base_motion, wheeled
+from ovamos.services.sim.wheels import SerialSimRobot, WheeledSimRobot, base_motion, frame_pose, wheeled
 from ovamos.shared.bus import BusCore
 from ovamos.shared.messages import RgbdFrame
 from ovamos.shared.motion import Pose
@@ -94,9 +97,12 @@ class SimRobotService(BaseDriverService):
         return self._kinematic.robot
 
     def _render(self, after_action: int) -> RgbdFrame:
+        """A frame from where the robot truly is, posed where its odometry says it is."""
         p = self._pose()
+        robot = self._wheels.robot if self._wheels is not None else self.base_robot
         frame = self.renderer.render(p.x, p.y, p.yaw, seq=self._next_seq, stamp=time.time(),
-                                     after_action=after_action, odom_session=self.base.odom_session)
+                                     after_action=after_action, odom_session=self.base.odom_session,
+                                     posed_at=frame_pose(robot, self._wheels))
         self._next_seq += 1
         return frame
 

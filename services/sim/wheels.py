@@ -231,6 +231,17 @@ def base_motion(motion: MotionConfig, base: str, driver: DriverConfig) -> Motion
     return motion.model_copy(update={"wheel_radius_m": radius, "track_width_m": track})
 
 
+def frame_pose(robot: SimRobot, wheels: _WheelDriven | None) -> Pose:
+    """Where the simulated camera poses a frame: by odometry, as a camera service does (the
+    kinematic base's, or the driver's of a wheeled one). With ``ideal`` odometry errors at the true
+    pose, which odometry then is: a wheeled driver's encoder ticks would round it, and runs from
+    before odometry errors existed stay as they were."""
+    if wheels is None or robot.slip is None:
+        return robot.odom
+    odom = wheels.driver.odometry()
+    return Pose(x=odom.x, y=odom.y, yaw=odom.yaw)
+
+
 def wheeled(robot: SimRobot, base: str, driver: DriverConfig | None = None, axes: SimAxisConfig | None = None,
             clock: SimClock | None = None) -> SerialSimRobot | WheeledSimRobot:
     """What moves ``robot`` on the wheeled ``base`` (not started; ``axes``: the ODrives' only)."""

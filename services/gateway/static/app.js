@@ -508,10 +508,17 @@ async function loadMap() {
     drawMap();
     const steps = state.views.get(view.task_id);
     $("map-status").textContent = `map of frame ${view.seq}` + (steps ? `, step ${steps.steps}` : "") +
-      (view.odom_session ? `, odometry session ${view.odom_session}` : "");
+      (view.odom_session ? `, odometry session ${view.odom_session}` : "") + localized(view.map_T_odom);
   } finally {
     state.mapBusy = false;
   }
+}
+
+// localization's correction of odometry's drift: where the odometry frame lies in the map
+function localized(t) {
+  if (!t || (t.x === 0 && t.y === 0 && t.yaw === 0)) return "";
+  const deg = (t.yaw * 180) / Math.PI;
+  return `, odometry corrected by ${Math.hypot(t.x, t.y).toFixed(2)} m, ${deg.toFixed(1)}\u00b0`;
 }
 
 function setLayers(layers) {
