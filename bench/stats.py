@@ -16,7 +16,9 @@ from ovamos.shared.messages import Miss
 def policy_scores(results: Sequence[EpisodeResult]) -> dict[str, dict[str, float | int]]:
     """Per policy (paper order): SR in %, MSPL, episodes, the % of all targets found (a
     finer signal than SR when few episodes succeed), wrong STOPs, the mean steps an episode and, on a
-    wheeled base, the median and 90th percentile search time (simulated seconds)."""
+    wheeled base, the median and 90th percentile search time (simulated seconds); where odometry
+    erred, the median and 95th percentile of the episodes' median trajectory error (ATE, metres)
+    and the median relative error (RPE over 10 steps, metres and degrees)."""
     scores: dict[str, dict[str, float | int]] = {}
     for policy in sorted({r.policy for r in results}, key=policy_rank):
         mine = [r for r in results if r.policy == policy]
@@ -31,6 +33,13 @@ def policy_scores(results: Sequence[EpisodeResult]) -> dict[str, dict[str, float
         if len(times) == len(mine):  # a wheeled base's run: search time in simulated seconds
             scores[policy] |= {"median_search_s": round(float(np.median(times)), 1),
                                "p90_search_s": round(float(np.percentile(times, 90)), 1)}
+        errors = [r.odometry for r in mine if r.odometry is not None]
+        if len(errors) == len(mine):  # odometry erred: how far the belief was from the truth
+            ate = [e.ate_median_m for e in errors]
+            scores[policy] |= {"ate_median_m": round(float(np.median(ate)), 3),
+                               "ate_p95_m": round(float(np.percentile(ate, 95)), 3),
+                               "rpe_median_m": round(float(np.median([e.rpe_trans_median_m for e in errors])), 4),
+                               "rpe_median_deg": round(float(np.median([e.rpe_rot_median_deg for e in errors])), 3)}
     return scores
 
 

@@ -24,14 +24,18 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
     limit = "" if result.get("max_steps") is None else f", max {result['max_steps']} steps (quick run)"
     limit += f", {result.get('perception', 'ideal')} perception, {result.get('homes', 'default')} homes"
     limit += f", {result.get('base', 'kinematic')} base, {result.get('motion', 'stepwise')}"
+    if result.get("odometry", "ideal") != "ideal" or result.get("localization"):
+        limit += f", {result.get('odometry', 'ideal')} odometry, localization {'on' if result.get('localization') else 'off'}"
     for title, rows in (("Table I: comparison with baselines", TABLE_I),
                         ("Table II: ablations", TABLE_II), ("Ours: OVAMOS-plus and its ablations", TABLE_PLUS)):
         present = [p for p in rows if p in scores]
         if not present or (rows is TABLE_PLUS and OVAMOS_PLUS.name not in scores):
             continue
         timed = all("median_search_s" in scores[p] for p in present)  # a wheeled base: simulated time
+        drifted = all("ate_median_m" in scores[p] for p in present)  # odometry erred: how far off
         table = Table("method", "episodes", "SR", "MSPL", "targets found", "wrong STOPs", "steps",
-                      *(("search s (median / p90)",) if timed else ()), "paper SR", "paper MSPL",
+                      *(("search s (median / p90)",) if timed else ()),
+                      *(("ATE m (median / p95)", "RPE (10 steps)") if drifted else ()), "paper SR", "paper MSPL",
                       title=f"{title} (seed {result['seed']}{limit})")
         for policy in present:
             s = scores[policy]
@@ -41,6 +45,8 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
             table.add_row(label, str(s["episodes"]), f"{s['sr']:.1f}%", f"{s['mspl']:.3f}",
                           f"{s['targets_found']:.1f}%", str(s.get("wrong_stops", "")), f"{s.get('steps', 0):.0f}",
                           *((f"{s['median_search_s']:.0f} / {s['p90_search_s']:.0f}",) if timed else ()),
+                          *((f"{s['ate_median_m']:.3f} / {s['ate_p95_m']:.3f}",
+                             f"{s['rpe_median_m']:.3f} m, {s['rpe_median_deg']:.2f} deg") if drifted else ()),
                           paper_sr, paper_mspl)
         console.print(table)
     for key, name in (("vs_ovamos", "OVAMOS"), ("vs_plus", "OVAMOS-plus")):

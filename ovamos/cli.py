@@ -684,6 +684,17 @@ def bench_mapping(frames: Annotated[int, typer.Option(help="Frames per run.")] =
     _report(result, as_json, print_table)
 
 
+@bench_app.command("localization")
+def bench_localization(frames: Annotated[int, typer.Option(help="Frames per run.")] = 60,
+                       runs: Annotated[int, typer.Option(help="Runs (the median is reported).")] = 3,
+                       as_json: AsJson = False
+                       ) -> None:
+    """Milliseconds per 640x480 frame for matching it against the map (median, p95)."""
+    from ovamos.bench.localization import print_table, run_benchmark
+    result = run_benchmark(frames=frames, runs=runs, progress=None if as_json else err)
+    _report(result, as_json, print_table)
+
+
 @bench_app.command("planner")
 def bench_planner(runs: Annotated[int, typer.Option(help="Instances per size (median).")] = 5,
                   as_json: AsJson = False

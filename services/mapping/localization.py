@@ -55,7 +55,7 @@ class LocalizationConfig(BaseModel):
     iterations: int = Field(default=8, ge=1, description="Gauss-Newton iterations per pass")
     min_inlier_ratio: float = Field(default=0.4, ge=0, le=1, description="fewer scan points on mapped "
                                     "obstacles after the match: refused (a place not mapped yet)")
-    min_constraint: float = Field(default=0.01, ge=0, description="the smallest eigenvalue of the match's "
+    min_constraint: float = Field(default=0.02, ge=0, description="the smallest eigenvalue of the match's "
                                   "normal equations per inlier (rotation over a 1 m lever): below it, "
                                   "the scan fixes the pose in one direction only (a blank wall)")
     max_step_m: float = Field(default=0.10, gt=0, description="an accepted correction moves the map by "
@@ -68,10 +68,10 @@ class LocalizationConfig(BaseModel):
     odometry_sigma_m: float = Field(default=0.01, gt=0, description="odometry's error since the last accepted "
                                     "match, at the least; grows by odometry_sigma_per_m of the ground covered")
     odometry_sigma_per_m: float = Field(default=0.05, ge=0)
-    odometry_sigma_deg: float = Field(default=0.5, gt=0, description="its heading error at the least; grows by "
+    odometry_sigma_deg: float = Field(default=1.0, gt=0, description="its heading error at the least; grows by "
                                       "odometry_sigma_deg_per_turn_deg of the turns and _per_m of the ground")
     odometry_sigma_deg_per_turn_deg: float = Field(default=0.03, ge=0)
-    odometry_sigma_deg_per_m: float = Field(default=2.0, ge=0)
+    odometry_sigma_deg_per_m: float = Field(default=4.0, ge=0)
 
 
 class ObstaclePoints:
@@ -85,12 +85,18 @@ class ObstaclePoints:
         self.offsets = np.zeros((*grid.shape, 2), np.float32)  # sums of offsets from the cells' corners
         self.hits = np.zeros(grid.shape, np.uint32)
 
-    def add(self, points: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> None:
-        """``points`` (N x 2 world xy) that fell in the cells (``rows``, ``cols``), all on the grid."""
+    def add(self, points: np.ndarray, rows: np.ndarray, cols: np.ndarray, limit: int = 4000) -> None:
+        """``points`` (N x 2 world xy) that fell in the cells (``rows``, ``cols``), all on the grid;
+        an even sample of ``limit`` of them (a frame has tens of thousands: a mean needs fewer)."""
+        if len(points) > limit:
+            pick = np.linspace(0, len(points) - 1, limit).astype(np.int64)
+            points, rows, cols = points[pick], rows[pick], cols[pick]
         g = self.grid
         offsets = points - np.stack([g.x0 + cols * g.resolution, g.y0 + rows * g.resolution], axis=1)
-        np.add.at(self.offsets, (rows, cols), offsets.astype(np.float32))
-        np.add.at(self.hits, (rows, cols), 1)
+        cells, which = np.unique(rows * g.cols + cols, return_inverse=True)
+        sums = np.stack([np.bincount(which, offsets[:, k], len(cells)) for k in (0, 1)], axis=1)
+        self.offsets.reshape(-1, 2)[cells] += sums.astype(np.float32)
+        self.hits.reshape(-1)[cells] += np.bincount(which, minlength=len(cells)).astype(np.uint32)
 
     def centres(self, window: tuple[slice, slice]) -> np.ndarray:
         """World xy of the mean point of each cell of ``window`` (its middle where none fell)."""
