@@ -38,7 +38,7 @@ def _walk(truth: GroundTruth, steps: int) -> list[tuple[Pose, Pose]]:
     pick = int(rng.integers(len(rows)))
     x, y = truth.grid.to_world(rows[pick], cols[pick])
     robot = SimRobot(Pose(x=float(x), y=float(y), yaw=0.0), truth.is_free,
-                     MotionConfig(odometry="realistic", odometry_seed=WALK_SEED))  # type: ignore[arg-type]
+                     MotionConfig(odometry="realistic", odometry_seed=WALK_SEED))
     poses = [(robot.pose, robot.odom)]
     for step in range(steps - 1):
         if step < 12:
@@ -69,7 +69,7 @@ def _run(frames: list[Any]) -> tuple[list[float], Counter[str]]:
         times.append(time.perf_counter() - start)
         return result
 
-    localizer.match = timed  # type: ignore[method-assign]
+    localizer.match = timed
     for frame in frames:
         state.integrate(frame)
     return times, localizer.counters

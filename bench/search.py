@@ -46,6 +46,7 @@ from ovamos.bench.policies import DEFAULT_POLICIES, POLICY_ORDER
 from ovamos.bench.provenance import code_version
 from ovamos.bench.stats import miss_reasons, paired_differences, policy_scores
 from ovamos.bench.tables import print_table
+from ovamos.bench.trajectory import write_tum
 from ovamos.services.mapping.render import write_png
 from ovamos.services.sim.generate import home_tier
 from ovamos.services.sim.odometry import odometry_errors
@@ -57,8 +58,8 @@ TIMING_FIELDS = {"seconds"}  # wall clock: kept out of the comparable JSONL
 #: written only where they hold something (odometry errs): lines of ideal odometry stay as they were
 ODOMETRY_FIELDS = ("believed", "odometry", "localization")
 
-EPISODES_FILE, TIMINGS_FILE, SUMMARY_FILE, CHART_FILE, RUN_FILE = (
-    "episodes.jsonl", "timings.jsonl", "summary.json", "chart.png", "run.json")
+EPISODES_FILE, TIMINGS_FILE, SUMMARY_FILE, CHART_FILE, RUN_FILE, TRAJECTORIES = (
+    "episodes.jsonl", "timings.jsonl", "summary.json", "chart.png", "run.json", "trajectories")
 #: What an episode's outcome depends on besides the code, policy and index: a resumed run must match.
 RUN_SETTINGS = ("seed", "perception", "homes", "max_steps", "base", "motion", "odometry", "localization")
 #: the value of a setting a run.json from before it existed held
@@ -362,12 +363,24 @@ def read_results(path: Path, torn_tail: bool = False) -> list[EpisodeResult]:
 
 def write_outputs(out: Path, run: SearchRun, result: dict[str, Any]) -> list[Path]:
     """episodes.jsonl sorted (comparable across runs), summary.json and chart.png; timings.jsonl
-    was written as the episodes finished."""
+    was written as the episodes finished; where odometry erred, each episode's true and believed
+    trajectories in TUM format (``trajectories/POLICY-EPISODE-{true,believed}.tum``, for evo's own
+    command line and other SLAM tools)."""
     out.mkdir(parents=True, exist_ok=True)
     episodes, summary_file = out / EPISODES_FILE, out / SUMMARY_FILE
     episodes.write_text("".join(jsonl_line(r) for r in run.results))
     summary_file.write_text(json.dumps(result, indent=2) + "\n")
-    return [episodes, out / TIMINGS_FILE, summary_file, write_png(out / CHART_FILE, draw_chart(result["policies"]))]
+    written = [episodes, out / TIMINGS_FILE, summary_file, write_png(out / CHART_FILE, draw_chart(result["policies"]))]
+    drifted = [r for r in run.results if r.believed is not None]
+    if drifted:
+        folder = out / TRAJECTORIES
+        folder.mkdir(exist_ok=True)
+        for r in drifted:
+            assert r.believed is not None
+            write_tum(folder / f"{r.policy}-{r.episode_id}-true.tum", r.trajectory)
+            write_tum(folder / f"{r.policy}-{r.episode_id}-believed.tum", r.believed)
+        written.append(folder)
+    return written
 
 
 def find_result(results: Iterable[EpisodeResult], episode_id: str, policy: str) -> EpisodeResult:

@@ -17,13 +17,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from evo.core.metrics import APE, RPE, PoseRelation, StatisticsType
-from evo.core.trajectory import PoseTrajectory3D
-from evo.core.units import Unit
-from evo.tools.file_interface import write_tum_trajectory_file
 from pydantic import BaseModel
+
+if TYPE_CHECKING:  # evo (and the scipy it loads, ~0.8 s) is imported where an error is computed
+    from evo.core.metrics import PoseRelation
+    from evo.core.trajectory import PoseTrajectory3D
 
 Planar = tuple[float, float, float]
 
@@ -50,6 +51,7 @@ def trajectory_errors(true: Sequence[Planar], estimated: Sequence[Planar], rpe_d
         raise ValueError(f"trajectories must be aligned pose by pose: {len(true)} true vs {len(estimated)} estimated")
     if rpe_delta < 1:
         raise ValueError(f"rpe_delta must be at least 1 pose, got {rpe_delta}")
+    from evo.core.metrics import APE, PoseRelation, StatisticsType
     ref, est = _trajectory(true), _trajectory(estimated)
     ate = APE(PoseRelation.translation_part)
     ate.process_data((ref, est))
@@ -69,12 +71,14 @@ def write_tum(path: Path, poses: Sequence[Planar], stamps: Sequence[float] | Non
     command line and most SLAM tools read; ``stamps`` default to the index in seconds."""
     if stamps is not None and len(stamps) != len(poses):
         raise ValueError(f"one stamp per pose: {len(stamps)} stamps for {len(poses)} poses")
+    from evo.tools.file_interface import write_tum_trajectory_file
     write_tum_trajectory_file(path, _trajectory(poses, stamps))
 
 
 def _trajectory(poses: Sequence[Planar], stamps: Sequence[float] | None = None) -> PoseTrajectory3D:
     """Planar poses as evo's SE(3) trajectory: z = 0, yaw as a rotation about z. A NaN would come
     out as a NaN error that compares false with everything, so it is refused here."""
+    from evo.core.trajectory import PoseTrajectory3D
     planar = np.asarray(poses, dtype=float)
     if planar.ndim != 2 or planar.shape[0] == 0 or planar.shape[1] != 3:
         raise ValueError(f"poses must be a non-empty sequence of (x, y, yaw), got shape {planar.shape}")
@@ -89,6 +93,8 @@ def _trajectory(poses: Sequence[Planar], stamps: Sequence[float] | None = None) 
 
 
 def _rpe_median(ref: PoseTrajectory3D, est: PoseTrajectory3D, relation: PoseRelation, delta: int) -> float:
+    from evo.core.metrics import RPE, StatisticsType
+    from evo.core.units import Unit
     rpe = RPE(relation, delta=delta, delta_unit=Unit.frames, all_pairs=False)
     rpe.process_data((ref, est))
     return float(rpe.get_statistic(StatisticsType.median))

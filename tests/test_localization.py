@@ -4,16 +4,25 @@ odometry single-walled where the raw odometry frame doubles it."""
 
 from __future__ import annotations
 
+import json
 import math
+import re
+import subprocess
+import sys
 from collections.abc import Iterator
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
+from ovamos.demo import DEMO_EPISODE, DEMO_SEED
+from ovamos.services.mapping.checkpoint import load_checkpoint
 from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.localization import LocalizationConfig, Localizer, ObstaclePoints
 from ovamos.services.mapping.projection import View, planar_pose, project
 from ovamos.services.mapping.state import MapState
+from ovamos.services.sim.episodes import make_episode
 from ovamos.services.sim.render import SceneRenderer
 from ovamos.services.sim.world import Room, Scene, Wall
 from ovamos.shared.camera import camera_pose
@@ -189,3 +198,37 @@ def test_map_t_odom_travels_in_the_snapshot_and_back_through_a_checkpoint(render
     (back,) = snapshot.to_odom(((1.0, 1.0),))
     again = snapshot.map_T_odom.apply(*back)
     assert again == pytest.approx((1.0, 1.0))
+
+
+DRIFT_LINE = re.compile(r"after command (\d+): truly at \(([-\d.]+), ([-\d.]+), [-\d.]+ deg\), "
+                        r"odometry says \(([-\d.]+), ([-\d.]+), [-\d.]+ deg\)")
+
+
+@pytest.mark.system
+def test_a_search_over_zenoh_with_hard_odometry_keeps_its_walls_single_and_stops_beside_its_target(
+        tmp_path: Path) -> None:
+    """``ovamos demo --odometry hard --localization on``: every service a process over Zenoh, the
+    simulated robot's odometry drifting; the map's obstacles stay on the true ones (the raw odometry
+    frame, tried by hand: 85 %, with twice the obstacle cells) and the STOP, judged where the robot
+    truly is, is within 1 m of the target."""
+    out = tmp_path / "demo"
+    done = subprocess.run([sys.executable, "-m", "ovamos.cli", "demo", "--odometry", "hard", "--localization", "on",
+                           "--target", "floor_lamp", "--out", str(out), "--no-record", "--timeout", "300"],
+                          capture_output=True, text=True, timeout=420)
+    assert done.returncode == 0, (done.stdout[-1500:], done.stderr[-1500:])
+    task = json.loads((out / "demo_report.json").read_text())["task"]
+    assert task["status"] == "done" and [f["label"] for f in task["found"]] == ["floor_lamp"]
+    drift = [(int(a), float(x), float(y), float(ox), float(oy))
+             for a, x, y, ox, oy in DRIFT_LINE.findall((out / "logs" / "sim.log").read_text())]
+    assert max(math.hypot(x - ox, y - oy) for _, x, y, ox, oy in drift) > 0.05  # odometry drifted
+    _, _, truth = make_episode(DEMO_SEED, DEMO_EPISODE)
+    _, x, y, _, _ = drift[-1]  # after the last command, the STOP
+    assert truth.stop("floor_lamp", x, y).success
+    mapping = MappingConfig.model_validate({k: v for k, v in json.loads((out / "config" / "mapping.json").read_text())
+                                            .items() if k in MappingConfig.model_fields})
+    state = load_checkpoint(out / "config" / "map.ckpt", mapping)
+    assert not state.map_T_odom.identity  # the map corrected odometry
+    near = cv2.dilate(truth.occupied.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)  # two cells
+    rows, cols = np.nonzero(state.obstacle)
+    r, c = truth.grid.to_cell(*state.grid.to_world(rows, cols))
+    assert float(np.mean(near[r, c])) > 0.95

@@ -3,10 +3,22 @@ wheels say by the preset's errors, on every simulated base, the same way for the
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import pytest
 
+from ovamos.bench.search import (
+    EPISODES_FILE,
+    ODOMETRY_FIELDS,
+    RUN_FILE,
+    TRAJECTORIES,
+    SearchError,
+    run_search,
+    summary,
+    write_outputs,
+)
 from ovamos.services.base_driver.config import DriverConfig
 from ovamos.services.sim.odometry import ODOMETRY_PRESETS, OdometryErrors, WheelSlip, odometry_errors
 from ovamos.services.sim.robot import MotionConfig, SimRobot
@@ -37,7 +49,7 @@ def _expected_turn_ratio(slip: WheelSlip) -> float:
 def test_presets_are_named_and_ideal_has_no_errors() -> None:
     assert set(ODOMETRY_PRESETS) == {"ideal", "realistic", "hard"}
     assert odometry_errors("ideal").ideal and not odometry_errors("hard").ideal
-    assert MotionConfig(odometry="realistic").odometry == ODOMETRY_PRESETS["realistic"]  # type: ignore[arg-type]
+    assert MotionConfig(odometry="realistic").odometry == ODOMETRY_PRESETS["realistic"]
     with pytest.raises(ValueError, match="unknown odometry preset 'carpet'"):
         odometry_errors("carpet")
     ideal = SimRobot(START, open_space)
@@ -131,3 +143,29 @@ def test_a_bump_knocks_the_robot_where_the_wheels_do_not_see_it() -> None:
     assert not wall.apply(Action.MOVE_FORWARD)
     assert wall.odom == START  # the encoders saw the wheels stall
     assert wall.pose != START and wall.pose.x < 0.1
+
+
+def test_ideal_odometry_keeps_an_episode_line_as_it_was_and_drift_adds_its_errors(tmp_path: Path) -> None:
+    """``--odometry ideal``: no slip, frames posed at the true pose, nothing new in the line (the
+    lines are byte for byte those from before odometry errors: checked by hand, see the method).
+    ``--odometry hard --localization on``: the believed trajectory, its errors (evo) and the
+    localizer's verdicts in the line, ATE in the summary, both trajectories as TUM files."""
+    ideal = run_search(1, 1, ("ovamos",), workers=1, max_steps=20, out=tmp_path / "ideal")
+    line = json.loads((tmp_path / "ideal" / EPISODES_FILE).read_text())
+    assert not set(ODOMETRY_FIELDS) & set(line) and ideal.results[0].believed is None
+    assert "ate_median_m" not in summary(ideal)["policies"]["ovamos"]
+
+    hard = run_search(1, 1, ("ovamos",), workers=1, max_steps=20, odometry="hard", localization=True,
+                      out=tmp_path / "hard")
+    (result,) = hard.results
+    assert result.believed is not None and len(result.believed) == len(result.trajectory)
+    assert result.believed != result.trajectory and result.odometry is not None and result.odometry.poses == 21
+    assert result.localization is not None and result.localization.get("matched", 0) > 0
+    scores = summary(hard)["policies"]["ovamos"]
+    assert scores["ate_median_m"] == pytest.approx(result.odometry.ate_median_m, abs=1e-3)
+    write_outputs(tmp_path / "hard", hard, summary(hard))
+    tum = tmp_path / "hard" / TRAJECTORIES / f"ovamos-{result.episode_id}-believed.tum"
+    assert len(tum.read_text().splitlines()) == 21
+    assert json.loads((tmp_path / "hard" / RUN_FILE).read_text())["odometry"] == "hard"
+    with pytest.raises(SearchError, match="unknown odometry preset 'gravel'"):
+        run_search(1, 1, ("ovamos",), workers=1, max_steps=5, odometry="gravel")

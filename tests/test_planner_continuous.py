@@ -231,3 +231,26 @@ def test_a_band_reaches_one_cell_past_its_half_width_either_side_of_the_polyline
     assert list(np.nonzero(band[:, 30])[0]) == [17, 18, 19, 20, 21, 22, 23]
     assert list(np.nonzero(band[30, :])[0]) == [47, 48, 49, 50, 51, 52, 53]
     assert not band[30, 20] and rows.min() == 17 and cols.min() == 7 and cols.max() == 53
+
+
+def test_a_localized_map_is_planned_in_and_the_path_goes_to_the_base_in_its_odometry_frame() -> None:
+    """With ``map_T_odom`` (localization's correction) the robot is where the map has it: its
+    odometry placed in the map; the path is decided there and sent back in the odometry frame,
+    where the base follows it."""
+    shift = Pose(x=0.4, y=-0.3, yaw=0.2)
+    ex = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=0, motion="continuous"), resend_s=0.3))
+    ex.on_task(spec())
+    ex.on_driver(driver())
+    ex.on_snapshot(snapshot(0).model_copy(update={"map_T_odom": shift}))
+    ex.on_odom(odom(x=1.0, y=1.5))
+    [path] = commands(ex.poll(0.0))
+    in_map = shift.compose(Pose(x=1.0, y=1.5))
+    assert ex.in_flight is not None and ex.in_flight.pose == in_map  # decided where the map has the robot
+    event = ex.event()
+    assert (event.x, event.y) == (in_map.x, in_map.y)  # and reported there
+    goal = ex.agent.goal  # type: ignore[union-attr]
+    assert goal is not None
+    end_in_map = shift.apply(*path.path[-1])  # the base's last waypoint, placed in the map
+    assert abs(end_in_map[0] - goal.x) < 0.3 and abs(end_in_map[1] - goal.y) < 0.3
+    end = path.path[-1]
+    assert math.hypot(end[0] - goal.x, end[1] - goal.y) > 0.3  # as sent it is not in the map's frame

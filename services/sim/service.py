@@ -37,6 +37,7 @@ service's main thread (``start`` and ``tick``).
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
@@ -120,10 +121,21 @@ class SimRobotService(BaseDriverService):
             if now - self._frame_at >= 1.0 / self.config.frame_hz:
                 self._publish_frame(self._render(state.last_completed))
         elif state.last_completed > self._frame.after_action:
+            self._log_drift(state.last_completed)
             self._publish_frame(self._render(state.last_completed))
         elif now - self._frame_at >= self.config.republish_s:
             self._publish_frame(self._frame)  # same seq, for late subscribers
         self.publish(state)
+
+    def _log_drift(self, action_id: int) -> None:
+        """Where the simulator has the robot after a command, and where its odometry does: what a
+        rehearsal with odometry errors drifted by (only the simulator knows the first)."""
+        robot = self._wheels.robot if self._wheels is not None else self.base_robot
+        if robot.slip is None:
+            return
+        true, odom = self._pose(), frame_pose(robot, self._wheels)
+        self.log.info("after command %d: truly at (%.3f, %.3f, %.1f deg), odometry says (%.3f, %.3f, %.1f deg)",
+                      action_id, true.x, true.y, math.degrees(true.yaw), odom.x, odom.y, math.degrees(odom.yaw))
 
     def info(self) -> dict[str, Any]:
         info = dict(super().info())
