@@ -2,7 +2,8 @@
 ``ros2 bag``.
 
 From the robot's map snapshots, odometry and the planner's decisions it publishes, in the
-``odom`` frame (the frame of our odometry and map) under ``prefix``:
+map's frame (``frame_id``: the odometry frame, unless the map localizes; the path's odometry is
+placed in it by the snapshot's ``map_T_odom``) under ``prefix``:
 
 * ``<prefix>/map``: ``nav_msgs/OccupancyGrid`` of the obstacles (:func:`convert.occupancy`);
   ``<prefix>/value/<target>``: one per value layer, the map the planner decides on for it.
@@ -28,6 +29,7 @@ from ovamos.services.rosview.config import RosViewConfig
 from ovamos.services.rosview.convert import Mark, marks, occupancy, value_cells
 from ovamos.shared.bus import BusCore
 from ovamos.shared.messages import DecisionTrace, MapSnapshot, Odometry
+from ovamos.shared.motion import Pose
 from ovamos.shared.ros2 import Ros2Unavailable, node
 from ovamos.shared.service import Service
 
@@ -60,8 +62,10 @@ class RosViewService(Service):
         self.wire({"map_snapshot": self._on_snapshot, "odom": self._on_odom, "plan_trace": self._on_trace})
 
     def _on_snapshot(self, snapshot: MapSnapshot) -> None:
+        moved = self._snapshot is None or self._snapshot.map_T_odom != snapshot.map_T_odom
         self._snapshot = snapshot
         self._changed["map"] = self._changed["markers"] = True
+        self._changed["path"] = self._changed["path"] or (moved and bool(self._path))
 
     def _on_trace(self, trace: DecisionTrace) -> None:
         self._trace = trace
@@ -121,11 +125,15 @@ class RosViewService(Service):
         from geometry_msgs.msg import PoseStamped
         from nav_msgs.msg import Path
         path = self._header(Path())
+        snap = self._snapshot
         for odom in self._path:
+            at = Pose(x=odom.x, y=odom.y, yaw=odom.yaw)
+            if snap is not None and snap.odom_session == odom.odom_session:
+                at = snap.to_map(at)  # where the map has it (localization's map_T_odom)
             pose = PoseStamped()
             pose.header.frame_id = self.config.frame_id
-            pose.pose.position.x, pose.pose.position.y = odom.x, odom.y
-            pose.pose.orientation.z, pose.pose.orientation.w = math.sin(odom.yaw / 2), math.cos(odom.yaw / 2)
+            pose.pose.position.x, pose.pose.position.y = at.x, at.y
+            pose.pose.orientation.z, pose.pose.orientation.w = math.sin(at.yaw / 2), math.cos(at.yaw / 2)
             path.poses.append(pose)
         self._publisher("path", Path, latched=True).publish(path)
         self._count("path")
