@@ -209,7 +209,7 @@ class EpisodeWorld:
         those values (MapState.apply: a frame counts once), to the same map."""
         true, task = self.robot.pose, search.task
         frame = self.renderer.render(true.x, true.y, true.yaw, seq=self.seq, stamp=stamp, after_action=after_action,
-                                     posed_at=self._posed_at())
+                                     posed_at=frame_pose(self.robot, self.wheels))
         remaining = task.remaining
         detections = self.perception.detect(frame, remaining)
         search.funnel.frame(task.steps, frame, self.perception.visible_classes(frame), detections)
@@ -231,14 +231,7 @@ class EpisodeWorld:
 
     def odometry(self) -> Pose:
         """What the base's odometry says: the kinematic base's wheels, a wheeled base's driver."""
-        if self.wheels is None:
-            return self.robot.odom
-        odom = self.wheels.driver.odometry()
-        return Pose(x=odom.x, y=odom.y, yaw=odom.yaw)
-
-    def _posed_at(self) -> Pose:
-        """Where a frame is posed: by odometry (:func:`~ovamos.services.sim.wheels.frame_pose`)."""
-        return frame_pose(self.robot, self.wheels)
+        return self.robot.odom if self.wheels is None else self.wheels.odometry()
 
     def pose(self) -> Pose:
         """Where the planner believes the robot is: its odometry placed in the map."""

@@ -89,6 +89,11 @@ class _WheelDriven(ABC):
         with self._lock:
             return self.robot.pose
 
+    def odometry(self) -> Pose:
+        """Where the driver's odometry (its encoders, integrated) has the robot."""
+        odom = self.driver.odometry()
+        return Pose(x=odom.x, y=odom.y, yaw=odom.yaw)
+
     def _move(self, left_rad_s: float, right_rad_s: float, dt: float) -> bool:
         """Move the robot by the wheels' rotation this step; False (a stall) when blocked."""
         with self._lock:
@@ -236,10 +241,7 @@ def frame_pose(robot: SimRobot, wheels: _WheelDriven | None) -> Pose:
     kinematic base's, or the driver's of a wheeled one). With ``ideal`` odometry errors at the true
     pose, which odometry then is: a wheeled driver's encoder ticks would round it, and runs from
     before odometry errors existed stay as they were."""
-    if wheels is None or robot.slip is None:
-        return robot.odom
-    odom = wheels.driver.odometry()
-    return Pose(x=odom.x, y=odom.y, yaw=odom.yaw)
+    return robot.odom if wheels is None or robot.slip is None else wheels.odometry()
 
 
 def wheeled(robot: SimRobot, base: str, driver: DriverConfig | None = None, axes: SimAxisConfig | None = None,
