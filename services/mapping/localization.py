@@ -185,13 +185,13 @@ class Localizer:
         reach = float(np.clip(3 / math.sqrt(prior[0]), c.fine_m, c.coarse_m))
         delta = np.zeros(3)  # (tx, ty, theta): p' = R(theta) (p - centre) + centre + t
         for fine, cap in ((False, reach), (True, c.fine_m)):
-            use = fields.sample(_moved(scan, centre, delta), False)[0] < cap
+            use = fields.value(_moved(scan, centre, delta), False) < cap
             if np.count_nonzero(use) < c.min_points:
                 return Match("few_inliers", points=len(scan), inlier_ratio=float(np.mean(use)))
             weight = c.scan_independent_points / (np.count_nonzero(use) * c.scan_sigma_m ** 2)
             delta = _descend(fields, scan[use], centre, delta, fine, c.iterations, weight, prior)
         moved = _moved(scan, centre, delta)
-        near = fields.sample(moved, False)[0] < c.fine_m
+        near = fields.value(moved, False) < c.fine_m
         ratio = float(np.mean(near))
         normals = _normal_equations(fields.normals(moved[near]), moved[near] - centre - delta[:2])
         constraint = float(np.linalg.eigvalsh(normals)[0])
@@ -218,7 +218,7 @@ def _descend(fields: _Fields, points: np.ndarray, centre: np.ndarray, delta: np.
     (odometry's word against moving at all), each step halved until the cost falls (the field is
     bilinear between cells, so a full step can overshoot); stops when no step helps."""
     def cost(d: np.ndarray) -> float:
-        value = fields.sample(_moved(points, centre, d), fine)[0]
+        value = fields.value(_moved(points, centre, d), fine)
         return float(weight * (value @ value) + d @ (prior * d))
 
     current = cost(delta)
@@ -272,6 +272,15 @@ class _Fields:
         or the fine point-to-plane distance; points off the window read as far, with no gradient."""
         if fine:
             return self._to_walls(points)
+        value, grad = self._coarse(points, True)
+        assert grad is not None
+        return value, grad
+
+    def value(self, points: np.ndarray, fine: bool) -> np.ndarray:
+        """:meth:`sample`'s residual alone (a cost, an inlier test: no gradient to interpolate)."""
+        return self._to_walls(points)[0] if fine else self._coarse(points, False)[0]
+
+    def _coarse(self, points: np.ndarray, gradient: bool) -> tuple[np.ndarray, np.ndarray | None]:
         field = self.coarse
         h, w = field.shape
         fx = (points[:, 0] - self.x0) / self.resolution
@@ -286,8 +295,10 @@ class _Fields:
             bottom = grid[r0 + 1, c0] * (1 - ax) + grid[r0 + 1, c0 + 1] * ax
             return top * (1 - ay) + bottom * ay
 
-        gy, gx = self.gradient
         value = np.where(inside, bilinear(field), np.inf)
+        if not gradient:
+            return value, None
+        gy, gx = self.gradient
         grad = np.stack([bilinear(gx), bilinear(gy)], axis=1)
         grad[~inside] = 0.0
         return value, grad
