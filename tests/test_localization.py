@@ -232,3 +232,14 @@ def test_a_search_over_zenoh_with_hard_odometry_keeps_its_walls_single_and_stops
     rows, cols = np.nonzero(state.obstacle)
     r, c = truth.grid.to_cell(*state.grid.to_world(rows, cols))
     assert float(np.mean(near[r, c])) > 0.95
+
+
+def test_a_pose_composed_with_its_inverse_is_the_identity_and_points_follow_the_same_transform() -> None:
+    a, b = Pose(x=1.0, y=-2.0, yaw=0.7), Pose(x=0.3, y=0.4, yaw=-2.9)
+    ident = a.compose(a.inverse())
+    assert (ident.x, ident.y, ident.yaw) == pytest.approx((0.0, 0.0, 0.0), abs=1e-12)
+    ab = a.compose(b)
+    assert (ab.x, ab.y) == pytest.approx(a.apply(b.x, b.y))
+    assert ab.yaw == pytest.approx(math.remainder(a.yaw + b.yaw, 2 * math.pi))
+    with pytest.raises(ValueError):
+        Pose(x=float("nan"), y=0.0)  # a NaN pose never travels in a map
