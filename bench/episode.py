@@ -11,7 +11,9 @@ lock-step with the kinematic robot follows the same trajectory.
 On a wheeled ``base`` a primitive is the real base controller driving that base's simulated
 device in simulated time (:mod:`ovamos.services.sim.wheels`): it lands where the wheels took it, the
 camera sees from the true pose and the planner decides on the base's odometry, as in
-``ovamos demo --base B``.
+``ovamos demo --base B``. With odometry errors (``motion.odometry``) frames are posed by odometry
+and the planner's pose is odometry placed in the map (by localization's ``map_T_odom``, when the
+map localizes); STOPs are judged where the robot truly is.
 
 The protocol is the paper's: targets from the episode, a STOP counts when a true
 instance of its target is within 1 m (the ground truth's geodesic check), the
@@ -202,7 +204,9 @@ class EpisodeWorld:
             self.wheels.driver.submit(self.keep_alive)  # a duplicate: the driver's keep-alive
 
     def observe(self, search: TaskRun, stamp: float, after_action: int) -> MapSnapshot:
-        """Frame :attr:`seq` (the caller counts it) from where the robot truly is, perceived for the task's remaining targets and fused.
+        """Frame :attr:`seq` (the caller counts it) from where the robot truly is, posed by its
+        odometry (as a camera service poses it), perceived for the task's remaining targets and
+        fused (where localization places it, when the map localizes).
 
         Every frame for the remaining targets, the first view too: the services map it before the
         task reaches perception, which then re-scores it for the task's targets, and the map adds

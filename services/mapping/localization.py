@@ -6,17 +6,17 @@ in the map by the current ``map_T_odom``, and its 2D scan (the depth points in t
 which the map marks anyway) is matched against the map's obstacles; the match corrects
 ``map_T_odom`` and the frame is fused where it was taken.
 
-The matcher is a scan-to-map Gauss-Newton on a distance field (Hector SLAM's and Cartographer's
-way): the map is a grid already, so the field is one ``cv2.distanceTransform`` of a window
-around the scan, and a match costs well under a millisecond of numpy. Two passes: the field
-truncated far (a wide basin, for a drift of a decimetre or more) and then near (precision;
-points that meet nothing mapped are left out). A match is refused, and odometry kept, when it
-cannot be trusted: too few points (no depth, a wall closer than the camera's minimum range),
-too few of them on mapped obstacles (a new room), or a scan that constrains the pose in one
-direction only (a blank wall, a featureless corridor): the smallest eigenvalue of its
-normal equations, per point, says so. An accepted correction moves the map by at most
-``max_step_m`` / ``max_step_deg`` a frame, so one bad match cannot throw the map away.
-Why this and not Open3D's ICP or KISS-ICP: docs/method.md (#localization).
+The matcher is a scan-to-map Gauss-Newton over (x, y, yaw) about the camera, with odometry's
+word in the cost (a prior whose spread grows with the ground and turns covered since the last
+accepted match). Two passes: on the distance transform of the obstacle grid in a window round the
+scan (a basin as wide as odometry may have drifted), then point-to-plane against where the map's
+points fell in each obstacle cell (:class:`ObstaclePoints`), with the wall's normal from the grid's
+structure tensor. A match is refused, and odometry kept, when it cannot be trusted: too few points
+(no depth, a wall closer than the camera's minimum range), too few of them on mapped obstacles (a
+new room), or a scan that constrains the pose in one direction only (a blank wall, a featureless
+corridor): the smallest eigenvalue of its normal equations, per point, says so. An accepted
+correction moves the map by at most ``max_step_m`` / ``max_step_deg`` a frame, so one bad match
+cannot throw the map away. Why this and not Open3D's ICP or KISS-ICP: docs/method.md (#localization).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from ovamos.shared.grid import GridGeometry
 from ovamos.shared.motion import IDENTITY, Pose, wrap_angle
 
-__all__ = ["LocalizationConfig", "Localizer", "Match"]
+__all__ = ["LocalizationConfig", "Localizer", "Match", "ObstaclePoints"]
 
 Verdict = Literal["matched", "no_map", "few_points", "few_inliers", "degenerate"]
 
