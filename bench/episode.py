@@ -52,7 +52,7 @@ from ovamos.services.sim.robot import MotionConfig, SimRobot
 from ovamos.services.sim.wheels import Motion, SerialSimRobot, WheeledSimRobot, base_motion, frame_pose, wheeled
 from ovamos.services.sim.world import Scene
 from ovamos.shared.messages import MapSnapshot, PerceptionResult, PlanCommand, TaskStatus
-from ovamos.shared.motion import Action, Pose
+from ovamos.shared.motion import Action, Pose, to_odom
 from ovamos.shared.simtime import SimClock
 
 MAP_MARGIN_M = 2.0
@@ -228,10 +228,9 @@ class EpisodeWorld:
         """The next command; a path and its obstacles (the planner's, in the map) in the base's
         odometry frame, as the planner service sends them."""
         self.commands += 1
-        odom_T_map = self.state.map_T_odom.inverse()
         return PlanCommand(action_id=self.commands, stamp=float(self.commands), action=action,
-                           path=tuple(odom_T_map.apply(*p) for p in path),
-                           obstacles=tuple(odom_T_map.apply(*p) for p in obstacles))
+                           path=to_odom(self.state.map_T_odom, path),
+                           obstacles=to_odom(self.state.map_T_odom, obstacles))
 
     def odometry(self) -> Pose:
         """What the base's odometry says: the kinematic base's wheels, a wheeled base's driver."""
@@ -257,8 +256,7 @@ class EpisodeWorld:
         self.renderer.close()
 
 
-def _robot(start: Pose, truth: GroundTruth,
-           config: EpisodeConfig) -> tuple[SimRobot, SerialSimRobot | WheeledSimRobot | None]:
+def _robot(start: Pose, truth: GroundTruth, config: EpisodeConfig) -> tuple[SimRobot, SerialSimRobot | WheeledSimRobot | None]:
     """The true robot and, on a wheeled base, what moves it (started, enabled, in simulated time)."""
     robot = SimRobot(start, truth.is_free, base_motion(config.motion, config.base, DriverConfig()))
     if config.base == "kinematic":

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from ovamos.shared.codec import DecodeError, body_size, loan, pack, unpack
 from ovamos.shared.detections import Detection
-from ovamos.shared.motion import IDENTITY, Action, Pose
+from ovamos.shared.motion import IDENTITY, Action, Pose, to_odom
 from ovamos.shared.robot import Primitives
 
 __all__ = ["DecodeError", "MAX_TEXT_CHARS", "MAX_NAME_CHARS", "MAX_TARGETS", "MAX_FRAME_SHAPE",
@@ -373,10 +373,7 @@ class MapSnapshot(BinaryMessage):
 
     def to_odom(self, points: tuple[tuple[float, float], ...]) -> tuple[tuple[float, float], ...]:
         """Map-frame points (a path, obstacles) in the odometry frame, where the base follows them."""
-        if self.map_T_odom.identity:
-            return points
-        odom_T_map = self.map_T_odom.inverse()
-        return tuple(odom_T_map.apply(x, y) for x, y in points)
+        return to_odom(self.map_T_odom, points)
 
     def has_seen_after(self, action_id: int) -> bool:
         """Whether the map fused a frame captured after command ``action_id`` completed: the one

@@ -61,6 +61,14 @@ IDENTITY = Pose(x=0.0, y=0.0, yaw=0.0)
 """The transform that changes nothing (map_T_odom before any correction)."""
 
 
+def to_odom(map_T_odom: Pose, points: tuple[tuple[float, float], ...]) -> tuple[tuple[float, float], ...]:
+    """Map-frame points (a path, its obstacles) in the odometry frame, where the base follows them."""
+    if map_T_odom.identity:
+        return points
+    odom_T_map = map_T_odom.inverse()
+    return tuple(odom_T_map.apply(x, y) for x, y in points)
+
+
 def wrap_angle(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 

@@ -98,16 +98,17 @@ class ObstaclePoints:
         self.offsets.reshape(-1, 2)[cells] += sums.astype(np.float32)
         self.hits.reshape(-1)[cells] += np.bincount(which, minlength=len(cells)).astype(np.uint32)
 
-    def centres(self, window: tuple[slice, slice]) -> np.ndarray:
-        """World xy of the mean point of each cell of ``window`` (its middle where none fell)."""
+    def centres(self, window: tuple[slice, slice], occupied: np.ndarray) -> np.ndarray:
+        """World xy (N x 2, raster order) of the mean point of each ``occupied`` cell of ``window``
+        (its middle where none fell)."""
         g = self.grid
-        rows, cols = window
+        rows, cols = np.nonzero(occupied)
+        rows, cols = rows + window[0].start, cols + window[1].start
         hits = self.hits[rows, cols]
-        mean = np.where(hits[..., None] > 0, self.offsets[rows, cols] / np.maximum(hits, 1)[..., None],
+        mean = np.where(hits[:, None] > 0, self.offsets[rows, cols] / np.maximum(hits, 1)[:, None],
                         g.resolution / 2)
-        xs = g.x0 + np.arange(cols.start, cols.stop) * g.resolution
-        ys = g.y0 + np.arange(rows.start, rows.stop) * g.resolution
-        return np.stack([mean[..., 0] + xs[None, :], mean[..., 1] + ys[:, None]], axis=-1)
+        return np.stack([mean[:, 0] + (g.x0 + cols * g.resolution), mean[:, 1] + (g.y0 + rows * g.resolution)],
+                        axis=1)
 
 
 @dataclass(frozen=True)
@@ -137,9 +138,6 @@ class Localizer:
         self.last: Match | None = None
         self._odom: Pose | None = None  # the odometry of the last frame matched
         self._moved_m = self._turned_rad = 0.0  # odometry's motion since the last accepted match
-
-    def to_map(self, odom: Pose) -> Pose:
-        return self.map_T_odom.compose(odom)
 
     def match(self, points: np.ndarray, camera: tuple[float, float], obstacle: np.ndarray,
               explored: np.ndarray, cells: ObstaclePoints, odom: Pose) -> Match:
@@ -172,7 +170,7 @@ class Localizer:
         window = _window(scan, c.coarse_m + 2 * grid.resolution, grid)
         if window is None or np.count_nonzero(obstacle[window]) < c.min_map_cells:
             return Match("no_map", points=len(scan))
-        fields = _Fields(obstacle, window, grid, c.coarse_m, cells.centres(window))
+        fields = _Fields(obstacle, window, grid, c.coarse_m, cells)
         total = len(scan)
         # a wall seen for the first time, beside a mapped one, would pull the scan along that one
         scan = scan[fields.seen(scan, explored[window])]
@@ -248,7 +246,7 @@ class _Fields:
     from the structure tensor of the obstacle grid), so the match is not held to cell middles."""
 
     def __init__(self, obstacle: np.ndarray, window: tuple[slice, slice], grid: GridGeometry,
-                 far: float, centres: np.ndarray) -> None:
+                 far: float, cells: ObstaclePoints) -> None:
         rows, cols = window
         occupied = obstacle[rows, cols]
         free = (~occupied).astype(np.uint8)
@@ -261,7 +259,7 @@ class _Fields:
         blurred = cv2.GaussianBlur(occupied.astype(np.float64), (0, 0), 1.0)
         gy, gx = np.gradient(blurred)
         tensor = [cv2.GaussianBlur(g, (0, 0), 1.5)[occupied] for g in (gx * gx, gx * gy, gy * gy)]
-        self.targets = np.vstack([np.zeros((1, 2)), centres[occupied]])  # label 0: none
+        self.targets = np.vstack([np.zeros((1, 2)), cells.centres(window, occupied)])  # label 0: none
         self.wall_normals = np.vstack([np.zeros((1, 2)), _principal_axis(*tensor)])
         self.x0 = grid.x0 + (cols.start + 0.5) * grid.resolution  # the first cell's centre
         self.y0 = grid.y0 + (rows.start + 0.5) * grid.resolution
