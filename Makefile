@@ -10,32 +10,34 @@ PIP    := $(PY) -m pip -q --disable-pip-version-check
 $(PY):
 	$(PYTHON) -m venv $(VENV)
 
+# The extras `make test` installs, and the README's by-hand install line (tests/test_install.py
+# holds the two together): everything, for the tests, the docs and the benchmarks.
+EXTRAS := dev,docs,sim,perception,camera,ros2,cluster
+# torch, pinned and installed first: from PyPI, Linux's build is the CUDA one (what a GPU laptop
+# wants); TORCH_INDEX=https://download.pytorch.org/whl/cpu takes PyTorch's CPU-only build (a CI box,
+# a robot), as PyTorch's own instructions give it. A bare "torch" requirement in the extras would
+# pull the newest CUDA build instead. (Here a local wheel folder serves the CPU build for the line as it is.)
+TORCH       ?= torch==2.13.0
+TORCH_INDEX ?=
+
 # Re-install when the dependency list (pyproject.toml, the extras named here) changes.
-# torch first, pinned: its CPU build (a bare "torch" requirement would pull a multi-GB CUDA one).
 $(VENV)/.installed: pyproject.toml setup.py Makefile | $(PY)
-	@echo "installing into $(VENV) (first time: a few minutes): torch (CPU build)"
-	$(PIP) install torch==2.13.0
-	@echo "installing ovamos and its extras (dev, docs, sim, perception, camera, ros2)"
-	$(PIP) install -e '.[dev,docs,sim,perception,camera,ros2,cluster]'
+	@echo "installing into $(VENV) (first time: a few minutes): $(TORCH)$(if $(TORCH_INDEX), from $(TORCH_INDEX))"
+	$(PIP) install $(TORCH) $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
+	@echo "installing ovamos and its extras ($(EXTRAS))"
+	$(PIP) install -e '.[$(EXTRAS)]'
+	touch $@ $(VENV)/.installed-demo
+
+# The demo needs the simulator and nothing else: no torch (its perception is the simulated one),
+# no browser, no ROS.
+$(VENV)/.installed-demo: pyproject.toml setup.py Makefile | $(PY)
+	@echo "installing ovamos and the simulator into $(VENV) (first time: a minute or two)"
+	$(PIP) install -e '.[sim]'
 	touch $@
 
-# System libraries from Debian/Ubuntu packages, installed when missing (with sudo
-# when not root and sudo exists): the simulator renders headless through EGL
-# (Mesa's software rasteriser when there is no GPU), and pyrealsense2 (the camera
-# service's RealSense backend) loads libusb-1.0; the operator page's tests drive
-# Debian's chromium through chromium-driver (selenium).
-SUDO := $(shell [ "$$(id -u)" -ne 0 ] && command -v sudo >/dev/null && echo sudo)
+# System libraries from Debian/Ubuntu packages, installed when missing: tools/syslibs.sh says which.
 syslibs:
-	@libs="$$( { ldconfig -p 2>/dev/null || /sbin/ldconfig -p; } )"; pkgs=""; \
-	echo "$$libs" | grep -q libEGL.so.1 || pkgs="$$pkgs libegl1 libgl1-mesa-dri libgles2"; \
-	echo "$$libs" | grep -q libusb-1.0.so.0 || pkgs="$$pkgs libusb-1.0-0"; \
-	command -v chromium >/dev/null || pkgs="$$pkgs chromium"; \
-	command -v chromedriver >/dev/null || pkgs="$$pkgs chromium-driver"; \
-	if [ -n "$$pkgs" ]; then \
-	  echo "missing system packages: installing$$pkgs"; \
-	  $(SUDO) apt-get update && \
-	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends $$pkgs; \
-	fi
+	@tools/syslibs.sh test
 
 # Two tiers. `make test`: the fast tier (cores, adapters on the fake bus and in-process Zenoh, the
 # codec, one end-to-end demo): every test not marked `system`, plus the `demo` one. `make test-all`:
@@ -44,8 +46,12 @@ syslibs:
 test: $(VENV)/.installed syslibs
 	$(PY) -m pytest -q -m "not system or demo"
 
+# test-all: the tests on WORKERS processes (most of their time is waiting on the processes they start),
+# then the `serial` ones alone (real-time devices and deadlines, which a loaded machine would miss).
+WORKERS ?= 3
 test-all: $(VENV)/.installed syslibs lint
-	$(PY) -m pytest -q --durations=25
+	$(PY) -m pytest -q -n $(WORKERS) --dist worksteal -m "not serial" --durations=25
+	$(PY) -m pytest -q -m serial --durations=5
 	@if unshare --net --mount true 2>/dev/null; then $(PY) -m ovamos.shared.dds -- $(PY) -m pytest -q --durations=10 tests/ros2; \
 	else echo "tests/ros2 skipped: unshare --net --mount needs root (they load DDS)"; fi
 
@@ -58,7 +64,8 @@ docs: $(VENV)/.installed
 	$(PY) tools/gen_reference.py
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict
 
-demo: $(VENV)/.installed syslibs
+demo: $(VENV)/.installed-demo
+	@tools/syslibs.sh demo
 	$(VENV)/bin/ovamos demo
 
 bench: $(VENV)/.installed syslibs

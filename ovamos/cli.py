@@ -16,8 +16,10 @@ from typing import TYPE_CHECKING, Annotated, Literal, Optional
 import numpy as np
 import typer
 import zenoh
+from rich import box
 from rich.console import Console
-from rich.table import Table
+from rich.markup import escape
+from rich.table import Column, Table
 
 from ovamos import __version__
 from ovamos.bench.policies import DEFAULT_POLICIES, POLICY_ORDER
@@ -27,6 +29,7 @@ from ovamos.shared.zconfig import DEFAULT_ENDPOINT, Mode, ZenohConfigError, buil
 
 if TYPE_CHECKING:
     from ovamos.services.sim.world import Scene
+    from ovamos.shared.status import LiveService
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="OVAMOS multi-object search over Zenoh.")
@@ -38,7 +41,7 @@ certs_app = typer.Typer(no_args_is_help=True,
                         help="Certificates for the laptop-robot link (mTLS): a CA, then one per role.")
 app.add_typer(certs_app, name="certs")
 console = Console()
-err = Console(stderr=True)
+err = Console(stderr=True, soft_wrap=True)  # no line breaks inserted: a path in a message stays whole, to copy
 
 ZenohFile = Annotated[Optional[Path], typer.Option("--zenoh", help="Zenoh config (json5).")]
 Connect = Annotated[Optional[list[str]], typer.Option(help="Endpoint to connect to (repeatable).")]
@@ -60,7 +63,7 @@ Endpoints = Annotated[Optional[Path], typer.Option(
 
 
 def _fail(message: str) -> typer.Exit:
-    err.print(f"[red]error:[/red] {message}")
+    err.print(f"[red]error:[/red] {escape(message)}")
     return typer.Exit(2)
 
 
@@ -271,9 +274,17 @@ def run(service: Annotated[str, typer.Argument(help="Service to run.")],
         raise _fail(str(exc)) from None
 
 
+def _shipped_profiles() -> str:
+    """The shipped profiles' names, for --help (read from deploy/profiles, so none is left out)."""
+    from ovamos.shared.deploy import DEPLOY_DIR
+    return " | ".join(sorted(p.stem for p in (DEPLOY_DIR / "profiles").glob("*.toml")))
+
+
+ProfileName = Annotated[str, typer.Argument(help=f"{_shipped_profiles()}, or a profile .toml file.")]
+
+
 @app.command()
-def up(profile: Annotated[str, typer.Argument(
-        help="all | laptop | robot | laptop-secure | robot-secure, or a profile .toml file.")],
+def up(profile: ProfileName,
        log_dir: Annotated[Path, typer.Option(help="Each process's output goes to LOG_DIR/NAME.log.")]
        = Path("state/logs"),
        connect_laptop: Annotated[Optional[str], typer.Option(
@@ -284,8 +295,8 @@ def up(profile: Annotated[str, typer.Argument(
            help="Secure profiles: the folder with ca.pem and this host's NAME.pem / NAME.key.")]
        = Path("state/certs"),
        listen_link: Annotated[Optional[str], typer.Option(
-           "--listen-link", help="Secure profiles: HOST:PORT of the router's TLS listener (this host's "
-                                 "address on the robot network).")] = None,
+           "--listen-link", help="HOST:PORT where the router also listens for the other host: the laptop's "
+                                 "address on the robot network (TLS for a secure profile).")] = None,
        motion: Annotated[Optional[str], typer.Option(
            help="stepwise or continuous: how the robot drives (the planner's [agent] motion; the camera and "
                 "the simulated robot lock-step or free-running). Give it on every host of a deployment. "
@@ -305,6 +316,66 @@ def up(profile: Annotated[str, typer.Argument(
     except (ProfileError, SupervisorError) as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)
+
+
+@app.command()
+def doctor(profile: ProfileName = "all",
+           other_host: Annotated[Optional[str], typer.Option(
+               "--other-host", help="HOST:PORT of the other host's router (from the robot: the laptop's, as "
+                                    "--connect-laptop): is it reachable, and do the clocks agree?")] = None,
+           certs: Certs = None,
+           load_models: Annotated[bool, typer.Option(
+               help="Load the perception weights and time a frame on this device (seconds to a minute).")] = True,
+           max_clock_offset: Annotated[float, typer.Option(
+               help="Seconds the two hosts' clocks may disagree.")] = 0.1,
+           as_json: AsJson = False) -> None:
+    """Check this host as PROFILE will use it: extras, GPU and weights, camera, base, ports, the other
+    host and its clock, certificates, disk; each check with the command that fixes it (exit 1 on a fail)."""
+    from ovamos.doctor import DoctorOptions, diagnose
+    from ovamos.doctor import as_json as doctor_json
+    checks = diagnose(profile, DoctorOptions(other_host=other_host, certs=certs, load_models=load_models,
+                                             max_clock_offset_s=max_clock_offset))
+    if as_json:
+        print(json.dumps(doctor_json(checks)))
+    else:
+        colour = {"pass": "green", "warn": "yellow", "fail": "red", "skip": "dim"}
+        table = Table("check", "", Column("found, and the fix", overflow="fold"), title=f"ovamos doctor {profile}",
+                      box=box.SIMPLE_HEAD, pad_edge=False)
+        for c in checks:
+            table.add_row(c.name, f"[{colour[c.status]}]{c.status}[/]",
+                          escape(c.detail) + (f"\n[cyan]fix:[/] {escape(c.fix)}" if c.fix else ""))
+        console.print(table)
+    raise typer.Exit(1 if any(c.status == "fail" for c in checks) else 0)
+
+
+@app.command("drive")
+def drive_once(action: Annotated[str, typer.Argument(help="forward | left | right: one primitive (0.25 m or "
+                                                         "30 deg as shipped).")],
+               robot_id: RobotId = "robot1", zenoh_file: ZenohFile = None, connect: Connect = None,
+               endpoints: Endpoints = None,
+               timeout: Annotated[float, typer.Option(help="Seconds to wait for the base, and for the move.")]
+               = 30.0) -> None:
+    """Drive one primitive on a robot with no planner running, and say how far its odometry has it go
+    (the first run: hold it against a tape measure)."""
+    from ovamos.drive import DriveError, drive
+    from ovamos.shared.bus import Bus
+    from ovamos.shared.motion import Action
+    actions = {"forward": Action.MOVE_FORWARD, "left": Action.TURN_LEFT, "right": Action.TURN_RIGHT}
+    if action not in actions:
+        raise _fail(f"ACTION {action!r}: one of {', '.join(actions)}")
+    cfg = _tool_config(zenoh_file, connect, endpoints, timeout, "client")
+    try:
+        bus = Bus.open(cfg, robot_id, "drive")
+    except ZenohConfigError as exc:
+        raise _fail(str(exc)) from None
+    try:
+        driven = drive(bus, actions[action], timeout)
+    except DriveError as exc:
+        raise _fail(str(exc)) from None
+    finally:
+        bus.close()
+    console.print(f"{driven.action.value}: {driven.outcome} in {driven.seconds:.1f} s; odometry: "
+                  f"{driven.distance_m:.3f} m, {driven.turned_deg:+.1f} deg")
 
 
 @app.command()
@@ -353,17 +424,26 @@ def status(robot_id: RobotId = "*", zenoh_file: ZenohFile = None, connect: Conne
         print(json.dumps([{"robot_id": s.robot_id, "service": s.service, "instance": s.instance,
                            "stats": s.stats.model_dump() if s.stats else None} for s in services]))
         return
-    table = Table("robot", "service", "instance", "pid", "received", "dropped", "malformed",
-                  "errors", "published", "denied", title=f"{len(services)} live service instance(s)")
+    console.print(live_table(services))
+
+
+def live_table(services: list[LiveService]) -> Table:
+    """``ovamos status`` for people, readable on an 80-column terminal: one row per instance (the
+    instance after ``#`` where it is not the usual ``0``), its counters summed over its keys."""
+    table = Table("robot", Column("service", no_wrap=True, min_width=11), "pid",
+                  *(Column(name, justify="right") for name in ("in", "out", "dropped", "bad", "errors", "denied")),
+                  title=f"{len(services)} live service instance(s)", box=box.SIMPLE_HEAD, collapse_padding=True,
+                  pad_edge=False, caption="in / out: messages received / published; bad: malformed (refused "
+                                          "undecoded); denied: refused by the ACL")
     for s in services:
         totals = [0] * 6
         if s.stats:
             for c in s.stats.counters.values():
-                totals = [a + b for a, b in zip(totals, (c.received, c.dropped, c.malformed,
-                                                          c.errors, c.published, c.denied))]
-        table.add_row(s.robot_id, s.service, s.instance, str(s.stats.pid) if s.stats else "?",
-                      *map(str, totals))
-    console.print(table)
+                totals = [a + b for a, b in zip(totals, (c.received, c.published, c.dropped, c.malformed,
+                                                          c.errors, c.denied))]
+        table.add_row(s.robot_id, s.service if s.instance == "0" else f"{s.service}#{s.instance}",
+                      str(s.stats.pid) if s.stats else "?", *map(str, totals))
+    return table
 
 
 def _port_lines(ports: list[dict], note: str = "") -> list[str]:
@@ -437,11 +517,13 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
              min=1, help="Each task's step limit (default: the paper's 500).")] = None,
          odometry: Annotated[str, typer.Option(help="How the simulated robot's odometry errs: ideal (exact), "
                                                     "realistic or hard (services/sim/odometry.py).")] = "ideal",
-         localization: Annotated[OnOff, typer.Option(help="The map matches each frame against itself, in a "
-                                                          "frame odometry drift does not move.")] = "off"
+         localization: Annotated[str, typer.Option(help="off; on: the map matches each frame against itself, "
+                                                        "in a frame odometry drift does not move; base: the map "
+                                                        "follows the robot's own localization (--base ros2: its "
+                                                        "stand-in for AMCL on amcl_pose).")] = "off"
          ) -> None:
     """Every service and the simulated robot as processes over Zenoh; a task submitted over HTTP."""
-    from ovamos.demo import BASES, DEMO_EPISODE, DEMO_SEED, ROS2_BASE, run_demo
+    from ovamos.demo import BASES, DEMO_EPISODE, DEMO_SEED, LOCALIZATIONS, ROS2_BASE, run_demo
     from ovamos.services.sim.odometry import ODOMETRY_PRESET_NAMES
     from ovamos.services.sim.wheels import CONTINUOUS_BASE
     from ovamos.shared.motion import MOTIONS
@@ -457,13 +539,18 @@ def demo(seed: Annotated[Optional[int], typer.Option(help="Episode set seed (def
         raise _fail(f"--base {base!r}: one of {', '.join(BASES)}")
     if odometry not in ODOMETRY_PRESET_NAMES:
         raise _fail(f"--odometry {odometry!r}: one of {', '.join(ODOMETRY_PRESET_NAMES)}")
+    if localization not in LOCALIZATIONS:
+        raise _fail(f"--localization {localization!r}: one of {', '.join(LOCALIZATIONS)}")
+    if localization == "base" and base != ROS2_BASE:
+        raise _fail(f"--localization base follows a ROS 2 robot's own localization: only with --base {ROS2_BASE} "
+                    "(the other simulated bases have none; --localization on matches scans instead)")
     if base == ROS2_BASE:
         _into_loopback_namespace(robots)
     try:
         code = run_demo(console, out_dir=out, seed=seed, episode=episode, targets=targets,
                         keep_running=keep_running, timeout_s=timeout, base=base,
                         record=out / "run.mcap" if record else None, robots=robots, max_steps=max_steps,
-                        motion=motion, odometry=odometry, localization=localization == "on",
+                        motion=motion, odometry=odometry, localization=localization,
                         publish=lambda router, gateway: Deployment(router, gateway, os.getpid()).published(
                             out / ENDPOINTS_FILE))
     except (TimeoutError, OSError) as exc:
@@ -596,16 +683,48 @@ def view(robot_id: RobotId = "robot1", keys_: KeyNames = None,
 
 @app.command("map")
 def map_png(out: Annotated[Path, typer.Option(help="PNG to write.")],
-            robot_id: RobotId = "robot1", zenoh_file: ZenohFile = None, connect: Connect = None,
-            endpoints: Endpoints = None,
+            robot_id: Annotated[Optional[str], typer.Option(
+                "--robot-id", help="The robot (default: the gateway's one robot; over Zenoh: robot1).")] = None,
+            gateway: Annotated[Optional[str], typer.Option(
+                help=f"Gateway URL (default: the running demo's, else {DEFAULT_GATEWAY}).")] = None,
+            token: Annotated[Optional[str], typer.Option(envvar="OVAMOS_GATEWAY_TOKEN")] = None,
+            zenoh_file: ZenohFile = None, connect: Connect = None, endpoints: Endpoints = None,
             layer: Annotated[Optional[str], typer.Option(help="One target's layer (default: all).")] = None,
             timeout: Annotated[float, typer.Option(
-                help="Seconds to wait for a router, then as long for the map.")] = 5.0) -> None:
-    """Fetch the mapping service's current map and draw it (obstacles, values, frontiers, objects)."""
+                help="Seconds to wait for the gateway (or a router, then as long for the map).")] = 5.0) -> None:
+    """Draw the robot's current map as the operator's page does: obstacles, values, frontiers, objects,
+    and the latest task's path, targets and found objects with the robot (from the gateway). With
+    --connect / --zenoh: the mapping service's snapshot alone, without the task and the robot."""
+    if zenoh_file is not None or connect:
+        if gateway is not None:
+            raise _fail("--gateway or --connect / --zenoh, not both")
+        _map_from_zenoh(out, robot_id or "robot1", _tool_config(zenoh_file, connect, None, timeout, "client"),
+                        layer, timeout)
+        return
+    from ovamos.services.gateway.client import GatewayClient, GatewayError
+    url = _deployment_endpoint(endpoints, gateway is not None, "gateway", DEFAULT_GATEWAY) or gateway
+    try:
+        with GatewayClient(url, token, timeout_s=timeout) as client:
+            if robot_id is None:
+                robots = list(client.health()["robots"])
+                if len(robots) != 1:
+                    raise _fail(f"the gateway at {url} serves robots {', '.join(robots)}: pick one with --robot-id")
+                robot_id = robots[0]
+            png = client.map_png(robot_id, layer)
+    except GatewayError as exc:
+        raise _fail(str(exc)) from None
+    try:
+        out.write_bytes(png)
+    except OSError as exc:
+        raise _fail(f"cannot write {out}: {exc}") from None
+    console.print(f"map of {robot_id} from {url} -> {out}")
+
+
+def _map_from_zenoh(out: Path, robot_id: str, cfg: zenoh.Config, layer: str | None, timeout: float) -> None:
+    """``ovamos map`` without a gateway: the mapping service's snapshot, drawn alone."""
     from ovamos.services.mapping.render import render_map, write_png
     from ovamos.shared import keys
     from ovamos.shared.messages import DecodeError, MapSnapshot
-    cfg = _tool_config(zenoh_file, connect, endpoints, timeout, "client")
     try:
         session = open_session(cfg)
     except ZenohConfigError as exc:
@@ -621,7 +740,8 @@ def map_png(out: Annotated[Path, typer.Option(help="PNG to write.")],
     finally:
         session.close()
     console.print(f"map of {robot_id} (last frame {snapshot.seq}, layers {', '.join(snapshot.layers) or '-'}, "
-                  f"{len(snapshot.frontiers)} frontiers, {len(snapshot.objects)} objects) -> {out}")
+                  f"{len(snapshot.frontiers)} frontiers, {len(snapshot.objects)} objects; no task, no robot: "
+                  f"the gateway draws those) -> {out}")
 
 
 def _report(result: dict, as_json: bool, print_table: Callable[[Console, dict], None]) -> None:

@@ -50,8 +50,11 @@ STARTUP_TIMEOUT_S = 90.0
 SERVICES = ("mapping", "perception", "planner", "sim", "gateway")
 #: with ``--base ros2`` the robot is a ROS 2 one (:mod:`ovamos.services.sim.ros2_robot`), driven and seen
 #: through the ros2 base driver and camera
-ROS2_SERVICES = ("mapping", "perception", "planner", "base_driver", "camera", "gateway")
+ROS2_SERVICES = ("mapping", "perception", "planner", "base_driver", "camera", "rosview", "gateway")
 ROS2_BASE = "ros2"
+LOCALIZATIONS = ("off", "on", "base")
+"""``--localization``: none; the map matches each frame's scan against itself; the map follows the
+ROS 2 robot's own localization (its stand-in for AMCL, :data:`ROS2_BASE` only)."""
 BASES: tuple[str, ...] = (*get_args(Motion), ROS2_BASE)  # the simulated robot's ways to move
 
 
@@ -99,7 +102,7 @@ def suggested_targets(seed: int, episode: int, searched: Sequence[str], count: i
 
 def _robot_configs(folder: Path, seed: int, episode: int, *, width: int, height: int, base: str,
                    motion: str = "stepwise", checkpoint: str = "map.ckpt", odometry: str = "ideal",
-                   localization: bool = False) -> dict[str, dict[str, Any]]:
+                   localization: str = "off") -> dict[str, dict[str, Any]]:
     """The per-robot services' configs for a robot in episode (``seed``, ``episode``): lock-step frames
     stepwise, free-running ones (``frame_hz``) when the robot drives continuously; the simulated
     robot's odometry erring as the preset ``odometry`` says, the map localizing or not."""
@@ -108,17 +111,20 @@ def _robot_configs(folder: Path, seed: int, episode: int, *, width: int, height:
     episode_keys = {"episode_seed": seed, "episode_index": episode}
     lock_step = motion == "stepwise"
     robot = {"mapping": {"grid_cells": mapping.grid_cells, "center": list(mapping.center), "publish_hz": 5.0,
-                         "checkpoint_path": str(folder / checkpoint), "localization": {"enabled": localization}}}
+                         "checkpoint_path": str(folder / checkpoint),
+                         "localization": {"enabled": localization != "off",
+                                          "source": "base" if localization == "base" else "scan"}}}
     body = {"odometry": odometry, "odometry_seed": seed * 1000 + episode}
     if base != ROS2_BASE:
         return {**robot, "sim": {**episode_keys, "motion": base, "lock_step": lock_step, "width": width,
                                  "height": height, "robot": body}}
-    from ovamos.services.sim.ros2_robot import BUMP_TOPIC, INSTANCE_IDS_TOPIC
-    return {**robot, "ros2_robot": {**episode_keys, "width": width, "height": height, "robot": body},
-            # the base's topics and geometry are the defaults, as the simulated robot's, which
-            # also reports contact on BUMP_TOPIC
-            "base_driver": {"driver": {"hardware": "ros2", "command_timeout_s": 0.5,
-                                       "ros2": {"bump": BUMP_TOPIC}}},
+    from ovamos.services.sim.ros2_robot import BUMP_TOPIC, INSTANCE_IDS_TOPIC, MAP_POSE_TOPIC
+    # the base's topics and geometry are the defaults, as the simulated robot's, which also
+    # reports contact on BUMP_TOPIC and, localizing, its pose on MAP_POSE_TOPIC
+    topics = {"bump": BUMP_TOPIC, **({"localization": MAP_POSE_TOPIC} if localization == "base" else {})}
+    return {**robot, "ros2_robot": {**episode_keys, "width": width, "height": height, "robot": body, "base": topics},
+            "base_driver": {"driver": {"hardware": "ros2", "command_timeout_s": 0.5, "ros2": topics}},
+            "rosview": {},  # the search on /ovamos/*, for RViz (deploy/ros2/ovamos.rviz)
             "camera": {"backend": "ros2", "lock_step": lock_step, "ros2": {"instance_ids": INSTANCE_IDS_TOPIC}}}
 
 
@@ -133,11 +139,11 @@ def _write(folder: Path, configs: dict[str, dict[str, Any]]) -> dict[str, Path]:
 
 def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_port: int,
                   width: int = 320, height: int = 240, base: str = "kinematic", motion: str = "stepwise",
-                  odometry: str = "ideal", localization: bool = False) -> dict[str, Path]:
+                  odometry: str = "ideal", localization: str = "off") -> dict[str, Path]:
     """One JSON config per service, all describing the same episode (scene, start pose); ``base``
     is how the simulated robot moves (see ``SimServiceConfig.motion``), ``motion`` how the planner
     drives it (``[agent] motion``), ``odometry`` how its odometry errs, ``localization`` whether the
-    map localizes."""
+    map localizes (:data:`LOCALIZATIONS`)."""
     episode_keys = {"episode_seed": seed, "episode_index": episode}
     return _write(folder, {**_robot_configs(folder, seed, episode, width=width, height=height, base=base,
                                             motion=motion, odometry=odometry, localization=localization),
@@ -162,7 +168,7 @@ def fleet_episodes(seed: int, episode: int, robots: int) -> dict[str, int]:
 
 def write_fleet_configs(folder: Path, *, seed: int, episodes: dict[str, int], http_port: int,
                         width: int = 320, height: int = 240, base: str = "kinematic", motion: str = "stepwise",
-                        odometry: str = "ideal", localization: bool = False) -> dict[str, Path]:
+                        odometry: str = "ideal", localization: str = "off") -> dict[str, Path]:
     """A fleet's configs (:mod:`ovamos.fleet`): ``mapping-R`` and ``sim-R`` per robot R, each
     robot in its own home (``episodes[R]``); one ``perception`` that batches across the robots,
     reading each robot's frames in its scene; one ``planner`` config and one ``gateway`` for all."""
@@ -265,11 +271,12 @@ def run_demo(console: Console, *, out_dir: Path, seed: int = DEMO_SEED, episode:
              targets: list[str] | None = None, robot_id: str = "sim", keep_running: bool = False,
              timeout_s: float | None = None, base: str = "kinematic", record: Path | None = None,
              robots: int = 1, publish: Publish | None = None, max_steps: int | None = None,
-             motion: str = "stepwise", odometry: str = "ideal", localization: bool = False) -> int:
+             motion: str = "stepwise", odometry: str = "ideal", localization: str = "off") -> int:
     """Run the demo; ``record``: the MCAP file to record the run to (None: no recording);
     ``max_steps``: each task's step limit (None: the gateway's default, the paper's 500); ``motion``:
     stepwise or continuous (a wheeled ``base`` only); ``odometry``: how the simulated robot's
-    odometry errs (a preset); ``localization``: whether the map localizes.
+    odometry errs (a preset); ``localization``: whether the map localizes, and how
+    (:data:`LOCALIZATIONS`).
 
     ``robots`` > 1: a fleet (:func:`write_fleet_configs`), robot i searching episode
     ``episode + i`` (its own home) for that episode's targets (or ``targets``), all at once.
@@ -385,7 +392,9 @@ def banner(router: str, url: str, robot_id: str, episode_id: str, suggested: Seq
     lines.append(f"Everything the house contains: ovamos sim scene --episode {episode_id} --objects")
     if in_own_namespace():
         lines.append("These addresses are in the demo's own network namespace (--base ros2): from another "
-                     f"shell, nsenter --net=/proc/{os.getpid()}/ns/net COMMAND (as root).")
+                     f"shell, nsenter --net=/proc/{os.getpid()}/ns/net COMMAND (as root); the search is on "
+                     "the /ovamos/* ROS topics there (rviz2 -d deploy/ros2/ovamos.rviz, with the same "
+                     "FASTRTPS_DEFAULT_PROFILES_FILE).")
     lines.append("Ctrl-C stops everything.")
     return "\n".join(lines)
 

@@ -102,7 +102,8 @@ class Profile(StrictModel):
         ``router_connect`` replaces the router's connect endpoints (``--connect-laptop``
         on the robot); ``endpoint`` moves the router's plain TCP listener there and
         connects every service to it (tests and the demo use a free port rather than the
-        shipped one); ``listen_link`` replaces its ``tls/`` listener (``--listen-link``).
+        shipped one); ``listen_link`` replaces its ``tls/`` listener, or adds one beside the loopback
+        one (``--listen-link``).
         ``certs`` is the certificate folder of a router with a ``cert``. ``motion`` sets how the
         robot drives (:func:`motion_settings`); None: as the services' configs say.
         """
@@ -115,11 +116,11 @@ class Profile(StrictModel):
         """A fleet's processes, in the profile's order: per-robot services once per robot."""
         from ovamos import fleet
         sim = next((s for s in self.services if s.service == "sim"), None)
-        homes = fleet.scenes(_service_config(sim), self.robots) if sim is not None else {}
+        homes = fleet.scenes(service_config(sim), self.robots) if sim is not None else {}
         entries = []
         for spec in self.services:
             if spec.service in fleet.FLEET_WIDE:
-                settings = fleet.fleet_wide_settings(spec.service, _service_config(spec), self.robots, homes)
+                settings = fleet.fleet_wide_settings(spec.service, service_config(spec), self.robots, homes)
                 entries.append(self._service_entry(spec, endpoint, settings=settings, motion=motion))
                 continue
             entries += [self._service_entry(spec, endpoint, robot=robot, name=f"{spec.entry_name}-{robot}",
@@ -134,7 +135,7 @@ class Profile(StrictModel):
         router = self.router
         listen = router.listen
         if endpoint or listen_link:
-            base = listen or self._config_listen()
+            base = listen or self.config_listen()
             plain = [e for e in base if not e.startswith("tls/")]
             link = [e for e in base if e.startswith("tls/")]
             listen = ([endpoint] if endpoint else plain) + ([listen_link] if listen_link else link)
@@ -147,7 +148,7 @@ class Profile(StrictModel):
                      *_repeat("--robot", self.robots)]
         return Entry(router.name, tuple(argv), ready=self._router_address(listen))
 
-    def _config_listen(self) -> list[str]:
+    def config_listen(self) -> list[str]:
         return _flat_endpoints(self._router_config([]).get_json("listen/endpoints"))
 
     def _router_config(self, listen: list[str]) -> Any:
@@ -174,7 +175,7 @@ class Profile(StrictModel):
                        name: str | None = None, settings: dict[str, Any] | None = None,
                        motion: DriveMode | None = None) -> Entry:
         if motion is not None:
-            settings = {**(settings or {}), **motion_settings(spec.service, _service_config(spec), motion)}
+            settings = {**(settings or {}), **motion_settings(spec.service, service_config(spec), motion)}
         argv = ["run", spec.service, "--robot-id", robot or spec.robot_id or self.robot_id,
                 "--instance", spec.instance, *_opt("--config", spec.config), *_opt("--zenoh", spec.zenoh),
                 *_repeat("--connect", [endpoint] if endpoint else spec.connect),
@@ -199,8 +200,9 @@ def motion_settings(service: str, config: Any, motion: DriveMode) -> dict[str, A
     return {}
 
 
-def _service_config(spec: ServiceSpec) -> Any:
-    """A service entry's config as its service's model (the fleet's settings are derived from it)."""
+def service_config(spec: ServiceSpec) -> Any:
+    """A service entry's config as its service's model (the fleet's settings are derived from it,
+    ``ovamos doctor`` checks what it names)."""
     from ovamos.registry import service_class
     from ovamos.shared.service import load_config
     return load_config(service_class(spec.service), spec.config)
@@ -367,9 +369,11 @@ def supervisor_for(profile: str | Path, *, log_dir: Path = DEFAULT_LOG_DIR,
     """What ``ovamos up PROFILE`` runs: the profile loaded, checked and turned into a supervisor.
 
     ``endpoint`` runs the profile's router there instead of its shipped port (see
-    :meth:`Profile.entries`). A secure profile (its router has a ``cert``) links over TLS:
-    ``connect_laptop`` and ``listen_link`` are then ``tls/`` endpoints, and the certificates
-    in ``certs`` are checked before anything starts. ``motion`` (``ovamos up --motion``): see
+    :meth:`Profile.entries`). ``listen_link``: where the router also listens for the other host
+    (the laptop's address on the robot network), beside its loopback listener for its services. A
+    secure profile (its router has a ``cert``) links over TLS: ``connect_laptop`` and
+    ``listen_link`` are then ``tls/`` endpoints, and the certificates in ``certs`` are checked
+    before anything starts. ``motion`` (``ovamos up --motion``): see
     :func:`motion_settings`.
     """
     loaded = load_profile(resolve_profile(profile))
@@ -378,9 +382,7 @@ def supervisor_for(profile: str | Path, *, log_dir: Path = DEFAULT_LOG_DIR,
     check_certs(loaded, certs)
     protocol = "tls" if loaded.secure else "tcp"
     connect = [laptop_endpoint(connect_laptop, protocol)] if connect_laptop else None
-    link = laptop_endpoint(listen_link, "tls", "--listen-link") if listen_link else None
-    if link and not loaded.secure:
-        raise ProfileError(f"{loaded.source}: --listen-link is for a secure profile (its router has a cert)")
+    link = laptop_endpoint(listen_link, protocol, "--listen-link") if listen_link else None
     return Supervisor(loaded.entries(router_connect=connect, endpoint=endpoint, certs=certs, listen_link=link,
                                      motion=motion),
                       log_dir=log_dir, backoff=loaded.restart, stop_timeout_s=loaded.stop_timeout_s)

@@ -474,6 +474,8 @@ class ServiceStats(JsonMessage):
     started: float
     counters: dict[str, CounterSet]
     info: dict[str, Any] = {}
+    host: str = ""  # the instance's host name
+    now: float | None = None  # its wall clock when it answered: another host's offset (ovamos doctor)
 
 
 class CameraState(JsonMessage):
@@ -510,6 +512,8 @@ class Odometry(JsonMessage):
     yaw: float
     linear: float = 0.0   # forward velocity, m/s
     angular: float = 0.0  # yaw rate, rad/s
+    map_T_odom: Pose | None = Field(default=None, description="where the base's own localization (AMCL, "
+                                    "slam_toolbox) places this odometry frame in its map; none: it has none")
 
 
 class PlanCommand(JsonMessage):

@@ -106,7 +106,7 @@ TOPOLOGY: dict[str, Node] = {
                     queries=(Port("map_snapshot", MapSnapshot),)),
     "rosview": Node(_AT + "rosview.service:RosViewService",
                     inputs=(Port("map_snapshot", MapSnapshot, keep=1), Port("odom", Odometry, keep=1),
-                            Port("plan_trace", DecisionTrace))),
+                            Port("plan_trace", DecisionTrace), Port("task_events", TaskEvent))),
     "testpattern": Node(_AT + "diag.service:TestPatternService", outputs=(Port("rgbd", RgbdFrame),)),
     "monitor": Node(_AT + "diag.service:MonitorService", inputs=(Port("robot_all", None),)),
 }

@@ -25,7 +25,7 @@ from ovamos.shared.procs import free_port, loopback
 from ovamos.shared.zconfig import build_config
 from tests.polling import port_open, wait_for
 
-pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+pytestmark = [pytest.mark.system, pytest.mark.serial]  # real-time devices, rates or deadlines: run alone, after the parallel tests (make test-all)
 
 REPO = Path(__file__).resolve().parents[1]
 ZENOH = REPO / "deploy" / "zenoh"

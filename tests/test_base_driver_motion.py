@@ -15,7 +15,7 @@ from ovamos.shared.motion import Action
 from tests.base_driver_helpers import command, heading_deg, run, sim_base, wheels_at_rest
 from tests.polling import wait_for
 
-pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+pytestmark = [pytest.mark.system, pytest.mark.serial]  # real-time devices, rates or deadlines: run alone, after the parallel tests (make test-all)
 
 
 @pytest.fixture

@@ -137,15 +137,13 @@ def test_a_wheeled_episode_reports_its_search_time_in_simulated_seconds() -> Non
     assert "median_search_s" not in policy_scores([kinematic])["ovamos"]
 
 
-def test_a_continuous_episode_finds_the_demos_targets_in_simulated_time_the_same_way_twice() -> None:
-    """Paths followed while the camera free-runs, on the simulated Kobuki: deterministic, every
-    target found with a STOP within 1 m, in less simulated time than its stepwise search takes
-    for as many steps."""
+def test_a_continuous_episode_finds_the_demos_targets_in_simulated_time() -> None:
+    """Paths followed while the camera free-runs, on the simulated Kobuki: every target found with
+    a STOP within 1 m, in less simulated time than its stepwise search takes for as many steps.
+    (That it runs the same way twice: the benchmark test below, on its first 15 steps.)"""
     spec, scene, truth = load_episode(*EPISODE)
     continuous = EpisodeConfig(base="kobuki", agent=AgentConfig(motion="continuous"))
-    first, second = (run_episode(spec, scene, truth, continuous, load_prior()).model_dump(exclude={"seconds"})
-                     for _ in range(2))
-    assert first == second
+    first = run_episode(spec, scene, truth, continuous, load_prior()).model_dump(exclude={"seconds"})
     assert first["success"] and all(s["distance_m"] <= 1.0 for s in first["stops"] if s["success"])
     stepwise = _result("kobuki", first["steps"])
     assert first["search_s"] < stepwise["search_s"]
@@ -159,7 +157,7 @@ def test_continuous_motion_needs_a_wheeled_base() -> None:
 
 def test_the_search_benchmark_runs_continuous_motion_and_keeps_it_apart_from_stepwise(tmp_path: Path) -> None:
     """``bench search --motion continuous``: its episodes are :func:`run_episode`'s with the planner's
-    motion set, timed in simulated seconds; a resume with the other motion is refused (a table of
+    motion set, timed in simulated seconds, the same twice (a worker's run and one alone); a resume with the other motion is refused (a table of
     two benchmarks), and so is continuous motion on the kinematic base."""
     from ovamos.bench.jobs import Job, run_job
     from ovamos.bench.search import SearchError, run_search

@@ -9,6 +9,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from ovamos.services.camera.capture import CameraError, CapturedFrame
 from ovamos.services.camera.config import CameraConfig, OdometryConfig
@@ -17,6 +18,8 @@ from ovamos.shared import keys
 from ovamos.shared.fake_bus import FakeNetwork
 from ovamos.shared.messages import Intrinsics, Odometry, RgbdFrame
 from tests.polling import wait_for
+
+pytestmark = pytest.mark.serial  # real-time devices, rates or deadlines: run alone, after the parallel tests (make test-all)
 
 ROBOT = "r1"
 CAPACITY = 4  # odometry.max_pending here: frames in flight at most

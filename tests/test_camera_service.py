@@ -24,6 +24,8 @@ from ovamos.shared.fake_bus import FakeNetwork
 from ovamos.shared.messages import CameraState, DriverMode, DriverState, Odometry, RgbdFrame
 from tests.sim_scenes import two_rooms
 
+pytestmark = pytest.mark.serial  # real-time devices, rates or deadlines: run alone, after the parallel tests (make test-all)
+
 ROBOT, W, H, FPS = "r1", 160, 120, 30
 POSE = (1.5, 2.0, 0.3)  # the robot stands still here
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator
+from datetime import datetime
 from pathlib import Path
 
 import httpx
@@ -364,3 +365,20 @@ def test_the_map_draws_only_the_tasks_detections_in_colour_labels_them_apart_and
     finally:
         driver.close()
         mapping.close()
+
+
+def test_a_task_that_ended_before_the_page_opened_is_listed_at_its_own_time(
+        browser, gateway: RunningGateway, planner: MockPlanner) -> None:
+    with GatewayClient(gateway.url) as api:
+        task = api.submit(["chair"])
+        wait_for(lambda: planner.report(task.id, TaskStatus.DONE, ["chair"], steps=2) or api.get(task.id).final,
+                 what="the task done")
+        ended = api.get(task.id).updated_at
+    browser.get(gateway.url)
+    line = f"task {task.id[:8]} done"
+    stamp = wait_for(lambda: browser.execute_script(
+        "const li = [...document.querySelectorAll('#events li')].find((l) => l.textContent.includes(arguments[0]));"
+        "return li && li.querySelector('time').dateTime;", line), what="the task's end in the events")
+    assert datetime.fromisoformat(stamp.replace("Z", "+00:00")) == ended.replace(
+        microsecond=ended.microsecond // 1000 * 1000)  # the gateway's time, to the millisecond JS keeps
+    assert console_errors(browser) == []

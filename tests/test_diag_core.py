@@ -177,3 +177,15 @@ def test_latency_only_counts_the_window() -> None:
     stats.observe("k", 10, now=5.5, latency_s=0.3)
     (row,) = stats.report(now=5.5)
     assert row.median_latency_ms == pytest.approx(200.0)
+
+
+def test_a_latency_below_zero_says_the_clocks_disagree() -> None:
+    """A robot whose clock is 30 s ahead: the stamps are not a latency, and the report says so."""
+    stats = TrafficStats(window_s=5.0)
+    for i in range(5):
+        stats.observe("k", 10, now=float(i), latency_s=-29.998)
+    (row,) = stats.report(now=4.0)
+    assert row.median_latency_ms == pytest.approx(-29998.0)
+    assert "at least 29998 ms ahead" in row.latency_note and "ovamos doctor" in row.latency_note
+    stats.observe("j", 10, now=4.0, latency_s=0.02)
+    assert next(r for r in stats.report(now=4.0) if r.key == "j").latency_note == ""

@@ -3,6 +3,8 @@ the client helpers, and start-up refusals."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -82,7 +84,7 @@ def test_raw_sse_format_and_keepalive(gateway: RunningGateway, api: GatewayClien
 
 
 def test_map_png_from_the_mapping_service(inproc_router: str, gateway: RunningGateway,
-                                          api: GatewayClient, planner: MockPlanner) -> None:
+                                          api: GatewayClient, planner: MockPlanner, tmp_path: Path) -> None:
     response = httpx.get(f"{gateway.url}/v1/robots/{ROBOT}/map.png", timeout=10)
     assert response.status_code == 503 and "no mapping service answered" in response.json()["detail"]
     task = api.submit(["chair"])
@@ -101,8 +103,19 @@ def test_map_png_from_the_mapping_service(inproc_router: str, gateway: RunningGa
         assert layer.status_code == 200
         bad = httpx.get(f"{gateway.url}/v1/robots/{ROBOT}/map.png", params={"layer": "piano"})
         assert bad.status_code == 422 and "unknown value layer 'piano'" in bad.json()["detail"]
+        # `ovamos map` draws what the page's picture draws (the task's path and targets), for the
+        # gateway's one robot unless told which
+        drawn = _ovamos("map", "--gateway", gateway.url, "--out", str(tmp_path / "map.png"))
+        assert drawn.returncode == 0, drawn.stderr
+        assert (tmp_path / "map.png").read_bytes() == httpx.get(f"{gateway.url}/v1/robots/{ROBOT}/map.png").content
+        piano = _ovamos("map", "--gateway", gateway.url, "--layer", "piano", "--out", str(tmp_path / "x.png"))
+        assert piano.returncode == 2 and "unknown value layer 'piano'" in " ".join(piano.stderr.split())
     finally:
         mapping.close()
+
+
+def _ovamos(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "ovamos.cli", *args], capture_output=True, text=True, timeout=60)
 
 
 def test_health_lists_live_services_per_robot(inproc_router: str, api: GatewayClient,

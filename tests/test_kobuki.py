@@ -44,6 +44,8 @@ from ovamos.services.base_driver.kobuki.protocol import (
 from ovamos.services.base_driver.kobuki.sim import SimKobuki
 from tests.polling import wait_for
 
+pytestmark = pytest.mark.serial  # real-time devices, rates or deadlines: run alone, after the parallel tests (make test-all)
+
 R = WHEEL_RADIUS_M
 
 

@@ -5,6 +5,7 @@ odometry single-walled where the raw odometry frame doubles it."""
 from __future__ import annotations
 
 import json
+import logging
 import math
 import re
 import subprocess
@@ -17,8 +18,10 @@ import numpy as np
 import pytest
 
 from ovamos.demo import DEMO_EPISODE, DEMO_SEED
+from ovamos.services.base_driver.ros2.map_pose import OdomHistory, map_T_odom
 from ovamos.services.mapping.checkpoint import load_checkpoint
-from ovamos.services.mapping.config import MappingConfig
+from ovamos.services.mapping.config import MappingConfig, MappingServiceConfig
+from ovamos.services.mapping.core import MappingCore
 from ovamos.services.mapping.localization import LocalizationConfig, Localizer, ObstaclePoints
 from ovamos.services.mapping.projection import View, planar_pose, project
 from ovamos.services.mapping.state import MapState
@@ -26,7 +29,7 @@ from ovamos.services.sim.episodes import make_episode
 from ovamos.services.sim.render import SceneRenderer
 from ovamos.services.sim.world import Room, Scene, Wall
 from ovamos.shared.camera import camera_pose
-from ovamos.shared.messages import MapSnapshot, RgbdFrame
+from ovamos.shared.messages import MapSnapshot, Odometry, RgbdFrame
 from ovamos.shared.motion import IDENTITY, Pose
 from tests.sim_scenes import two_rooms
 
@@ -243,3 +246,73 @@ def test_a_pose_composed_with_its_inverse_is_the_identity_and_points_follow_the_
     assert ab.yaw == pytest.approx(math.remainder(a.yaw + b.yaw, 2 * math.pi))
     with pytest.raises(ValueError):
         Pose(x=float("nan"), y=0.0)  # a NaN pose never travels in a map
+
+
+# -- the base's own localization (source 'base': AMCL, slam_toolbox on a ros2 base) ------------------
+
+BASE = LocalizationConfig(enabled=True, source="base")
+
+
+def test_odometry_history_gives_the_pose_at_a_stamp_between_two_messages_and_none_outside() -> None:
+    history = OdomHistory(keep_s=1.0)
+    for k in range(21):  # 10 Hz, 2 s: the first second is forgotten
+        history.add(k * 0.1, Pose(x=k * 0.01, y=0.0, yaw=math.remainder(math.pi - 0.05 + k * 0.01, 2 * math.pi)))
+    mid = history.at(1.55)
+    assert mid is not None and (mid.x, mid.y) == pytest.approx((0.155, 0.0))
+    assert mid.yaw == pytest.approx(math.remainder(math.pi - 0.05 + 0.155, 2 * math.pi))  # across +-pi
+    assert history.at(0.5) is None  # older than kept
+    assert history.at(2.2) is None  # newer than the newest
+    end = history.at(2.0)
+    assert end is not None and (end.x, end.yaw) == pytest.approx((0.2, math.remainder(math.pi + 0.15, 2 * math.pi)))
+    history.add(1.55, Pose(x=9.0, y=9.0))  # reordered: dropped
+    assert history.at(1.55) == mid
+
+
+def test_the_base_pose_with_the_odometry_at_its_stamp_places_odometry_in_the_map() -> None:
+    true, odom = Pose(x=2.0, y=1.0, yaw=0.4), Pose(x=1.8, y=1.3, yaw=0.3)
+    placed = map_T_odom(true, odom).compose(odom)
+    assert (placed.x, placed.y, placed.yaw) == pytest.approx((2.0, 1.0, 0.4))
+
+
+def test_the_map_follows_the_bases_localization_from_where_it_started_by_at_most_the_bound() -> None:
+    localizer = Localizer(BASE)
+    camera = Pose(x=1.0, y=1.0, yaw=0.0)
+    localizer.follow(camera)
+    assert localizer.counters["no_base_pose"] == 1 and localizer.map_T_odom.identity
+    base_map = Pose(x=5.0, y=-3.0, yaw=1.0)  # the base's map: its origin far from this one's
+    localizer.base = base_map
+    localizer.follow(camera)
+    placed = localizer.map_T_odom.compose(camera)
+    assert (placed.x, placed.y, placed.yaw) == pytest.approx((1.0, 1.0, 0.0), abs=1e-9)  # anchored: no jump
+    # odometry drifts 0.25 m and 8 deg; the base's localization says so: two frames to catch up
+    drift = Pose(x=0.25, y=0.0, yaw=math.radians(8))
+    localizer.base = base_map.compose(drift)
+    wanted = localizer.map_T_odom.compose(drift).compose(camera)
+    localizer.follow(camera)
+    first = localizer.map_T_odom.compose(camera)
+    assert math.hypot(first.x - placed.x, first.y - placed.y) == pytest.approx(0.10, abs=1e-9)
+    localizer.follow(camera)
+    localizer.follow(camera)
+    localizer.follow(camera)
+    last = localizer.map_T_odom.compose(camera)
+    assert (last.x, last.y, last.yaw) == pytest.approx((wanted.x, wanted.y, wanted.yaw), abs=1e-9)
+    assert localizer.counters["clamped"] >= 1 and localizer.counters["base"] == 5
+
+
+def test_a_map_resumed_from_a_checkpoint_keeps_its_frame_when_the_base_pose_comes_again() -> None:
+    localizer = Localizer(BASE)
+    localizer.map_T_odom = Pose(x=0.1, y=-0.2, yaw=0.05)  # as the checkpoint left it
+    localizer.base = Pose(x=4.0, y=4.0, yaw=-1.0)
+    localizer.follow(Pose(x=1.0, y=0.0))
+    kept = localizer.map_T_odom
+    assert (kept.x, kept.y, kept.yaw) == pytest.approx((0.1, -0.2, 0.05))
+
+
+def test_the_mapping_core_passes_the_bases_localization_from_odometry_to_the_map(tmp_path: Path) -> None:
+    config = MappingServiceConfig(localization=BASE, checkpoint_path=str(tmp_path / "map.ckpt"))
+    core = MappingCore(config, logging.getLogger("test"), 0.0)
+    base = Pose(x=0.5, y=0.0, yaw=0.1)
+    for seq in range(1, 4):  # a session is followed after a few messages of it
+        core.on_odom(Odometry.from_bytes(Odometry(seq=seq, stamp=float(seq), odom_session="s1", x=0.0, y=0.0,
+                                                  yaw=0.0, map_T_odom=base).to_bytes()), float(seq))
+    assert core.state.localizer is not None and core.state.localizer.base == base

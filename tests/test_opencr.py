@@ -23,6 +23,8 @@ from ovamos.services.base_driver.opencr.config import OpenCRConfig  # noqa: E402
 from ovamos.services.base_driver.opencr.protocol import Decoder, Inst, crc16, instruction_packet, status_packet  # noqa: E402
 from ovamos.services.base_driver.opencr.sim import SimOpenCR, body_from_wheels  # noqa: E402
 
+pytestmark = pytest.mark.serial  # real-time devices, rates or deadlines: run alone, after the parallel tests (make test-all)
+
 # e-manual Protocol 2.0 worked examples (ID 1, XM430-W210)
 PING = bytes.fromhex("FF FF FD 00 01 03 00 01 19 4E")
 PING_STATUS = bytes.fromhex("FF FF FD 00 01 07 00 55 00 06 04 26 65 5D")   # model 1030, fw 38

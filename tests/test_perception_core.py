@@ -12,7 +12,13 @@ import pytest
 from pydantic import ValidationError
 
 from ovamos.services.perception.backend import Job, Seen, load_backend
-from ovamos.services.perception.config import FrameLimits, HfBackendConfig, PerceptionServiceConfig, SimBackendConfig
+from ovamos.services.perception.config import (
+    MODELS_ENV,
+    FrameLimits,
+    HfBackendConfig,
+    PerceptionServiceConfig,
+    SimBackendConfig,
+)
 from ovamos.services.perception.core import PerceptionCore
 from ovamos.services.perception.errors import BackendError, FrameRejected
 from ovamos.services.perception.frames import frame_problem
@@ -114,6 +120,21 @@ def test_missing_or_incomplete_model_directories_say_what_to_download(tmp_path) 
                             segmenter_dir=tmp_path / "sam")
     with pytest.raises(ModelFilesError, match="holds a 'sam' model, not BLIP ITM"):
         HfBackend.load(wrong)
+
+
+def test_relative_model_folders_are_in_the_models_folder_never_the_working_directory(tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv(MODELS_ENV, raising=False)
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    config = HfBackendConfig()
+    assert config.folder(config.itm_dir) == tmp_path / "data" / "ovamos" / "models" / "blip-itm-base-coco"
+    monkeypatch.setenv(MODELS_ENV, str(tmp_path / "weights"))
+    assert config.folder(config.segmenter_dir) == tmp_path / "weights" / "sam-vit-base"
+    given = HfBackendConfig(models_dir=tmp_path / "mine", detector_dir=tmp_path / "elsewhere" / "dino")
+    assert given.folder(given.itm_dir) == tmp_path / "mine" / "blip-itm-base-coco"
+    assert given.folder(given.detector_dir) == tmp_path / "elsewhere" / "dino"  # absolute: as given
+    with pytest.raises(ModelFilesError, match=f"{tmp_path / 'weights' / 'blip-itm-base-coco'} does not exist"):
+        HfBackend.load(config)
 
 
 def test_a_sharded_checkpoint_needs_every_shard(tmp_path) -> None:

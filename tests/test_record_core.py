@@ -14,6 +14,8 @@ from ovamos.record.replay import RawMessage, ReadReport, paced, read_raw
 from ovamos.shared.messages import Odometry, TaskSpec
 from tests.polling import wait_for
 
+pytestmark = pytest.mark.serial  # real-time devices, rates or deadlines: run alone, after the parallel tests (make test-all)
+
 
 def _odom(seq: int) -> bytes:
     return Odometry(seq=seq, stamp=0.0, x=seq * 0.1, y=0.0, yaw=0.0).to_bytes()

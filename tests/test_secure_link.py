@@ -111,8 +111,10 @@ def test_secure_profiles_link_over_tls_with_this_hosts_certificate(certs: Path, 
         copy = tmp_path / "robot-secure.toml"
         copy.write_text(text.replace('"../', f'"{PROFILE_DIR.parent}/'))
         supervisor_for(copy, certs=certs, log_dir=tmp_path, check_configs=False)
-    with pytest.raises(ProfileError, match="--listen-link is for a secure profile"):
-        supervisor_for("laptop", listen_link="192.168.1.10:7450", log_dir=tmp_path, check_configs=False)
+    plain = supervisor_for("laptop", listen_link="192.168.1.10:7447", log_dir=tmp_path, check_configs=False)
+    argv = plain._children[0].entry.argv  # the robot's link in plain TCP, the services' on loopback
+    assert [argv[i + 1] for i, a in enumerate(argv) if a == "--listen"] == ["tcp/127.0.0.1:7447",
+                                                                             "tcp/192.168.1.10:7447"]
     assert load_profile(PROFILE_DIR / "laptop.toml").secure is False
 
 

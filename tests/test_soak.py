@@ -9,7 +9,9 @@ from ovamos.bench.soak import ABSENT_STEPS, fresh_steps, run_soak, soak_tasks
 
 pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
 
-TASKS = 8
+TASKS = 5
+"""The episode's targets, a pair, a class the house lacks, the pair again, a cancelled single: every
+kind of task :func:`soak_tasks` makes (``ovamos bench soak`` runs as many more as asked)."""
 MARGIN_STEPS = 120
 """Over a fresh start's steps: the robot starts where the last task left it, anywhere in the demo's
 13 x 10 m house; crossing it costs ~50 forward steps plus their turns, after the 12-turn
@@ -19,7 +21,7 @@ RSS_GROWTH = 1.25
 
 
 @pytest.mark.timeout(900)
-def test_eight_tasks_in_one_session_each_solvable_as_if_fresh(tmp_path) -> None:
+def test_five_tasks_in_one_session_each_solvable_as_if_fresh(tmp_path) -> None:
     tasks = soak_tasks(TASKS)
     assert any(t.max_steps == ABSENT_STEPS for t in tasks) and any(t.cancel_after for t in tasks)
     assert len({t.targets for t in tasks if t.can_succeed}) < sum(t.can_succeed for t in tasks)  # repeats

@@ -71,7 +71,7 @@ from ovamos.shared.zconfig import build_config
 from tests.polling import wait_for
 from tests.test_codec import assemble, split  # the payload surgery of the codec tests
 
-pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all
+pytestmark = [pytest.mark.system, pytest.mark.serial]  # real-time devices, rates or deadlines: run alone, after the parallel tests (make test-all)
 
 REPO = Path(__file__).resolve().parents[1]
 BOMB_BYTES = 1 << 30

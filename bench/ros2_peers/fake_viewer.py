@@ -1,6 +1,7 @@
 """A mock ROS 2 viewer for the rosview tests (named as such: it stands in for RViz): subscribes to
 ``/ovamos/map``, ``/ovamos/value/<target>`` for each ``--layer``, ``/ovamos/path`` and
-``/ovamos/markers`` with the QoS RViz uses for them, and prints a JSON line per message received
+``/ovamos/markers`` with the QoS deploy/ros2/ovamos.rviz gives RViz for them (transient-local: a viewer
+that joins late gets what is shown), and prints a JSON line per message received
 (what it would draw). Run it only in a loopback-only namespace."""
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ def main() -> None:
                               "height": msg.info.height, "resolution": msg.info.resolution,
                               "origin": [msg.info.origin.position.x, msg.info.origin.position.y],
                               "unknown": data.count(-1), "free": data.count(0), "occupied": data.count(100),
-                              "max": max(data), "first_row_occupied": data[: msg.info.width].count(100)}),
+                              "max": max(data, default=-1), "first_row_occupied": data[: msg.info.width].count(100)}),
                   flush=True)
         return got
 
@@ -45,7 +46,7 @@ def main() -> None:
         latched)
     node.create_subscription(MarkerArray, "/ovamos/markers", lambda m: print(json.dumps(
         {"topic": "/ovamos/markers", "marks": [[k.ns, k.pose.position.x, k.pose.position.y, k.text]
-                                              for k in m.markers if k.action == 0]}), flush=True), 10)
+                                              for k in m.markers if k.action == 0]}), flush=True), latched)
     serve(node)
 
 

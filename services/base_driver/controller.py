@@ -567,7 +567,8 @@ class BaseController:
             self._odom_seq += 1
             return Odometry(seq=self._odom_seq, stamp=time.time(), odom_session=self.odom_session,
                             x=pose.x, y=pose.y, yaw=pose.yaw,
-                            linear=linear, angular=angular, after_action=self._completed.action_id)
+                            linear=linear, angular=angular, after_action=self._completed.action_id,
+                            map_T_odom=None if self._feedback is None else self._feedback.map_T_odom)
 
     def wheel_speeds(self) -> tuple[float, float]:
         """The latest wheel speeds (rev/s, wheel forward positive)."""

@@ -50,6 +50,7 @@ class WheelFeedback:
     extra: dict[str, float] = field(default_factory=dict)  # e.g. battery voltage, for status
     pose: Pose | None = None              # the base's own odometry, when it keeps one (see above)
     body_vel: tuple[float, float] | None = None  # with ``pose``: its velocity, m/s and rad/s
+    map_T_odom: Pose | None = None        # the base's own localization of its odometry frame (AMCL)
 
 
 class BaseHardware(Protocol):

@@ -22,11 +22,16 @@ class _Stream:
 
 @dataclass(frozen=True)
 class StreamReport:
+    """One key's traffic. ``median_latency_ms`` subtracts the sender's stamp (its host's wall clock)
+    from this host's: a latency only where the two clocks agree; ``latency_note`` says when they
+    cannot (a median below zero)."""
+
     key: str
     messages: int
     rate_hz: float
     mbytes_per_s: float
     median_latency_ms: float | None
+    latency_note: str = ""
 
 
 class TrafficStats:
@@ -54,5 +59,8 @@ class TrafficStats:
             bandwidth = sum(a.nbytes for a in recent[1:]) / span / 1e6 if span > 0 else 0.0
             latencies = [a.latency for a in recent if a.latency is not None]
             latency = median(latencies) * 1e3 if latencies else None
-            rows.append(StreamReport(key, s.messages, rate, bandwidth, latency))
+            note = "" if latency is None or latency >= 0 else (
+                f"the sender's clock is at least {-latency:.0f} ms ahead of this host's: not a latency "
+                "(sync the clocks; ovamos doctor --other-host measures the offset)")
+            rows.append(StreamReport(key, s.messages, rate, bandwidth, latency, note))
         return rows

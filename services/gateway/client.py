@@ -77,8 +77,9 @@ class GatewayClient:
     def health(self) -> dict[str, Any]:
         return self._call("GET", "/v1/health").json()
 
-    def map_png(self, robot_id: str) -> bytes:
-        return self._call("GET", f"/v1/robots/{robot_id}/map.png").content
+    def map_png(self, robot_id: str, layer: str | None = None) -> bytes:
+        params = {"layer": layer} if layer is not None else {}
+        return self._call("GET", f"/v1/robots/{robot_id}/map.png", params=params).content
 
     def wait(self, task_id: str, timeout_s: float, poll_s: float = 0.5,
              on_update: Callable[[TaskView], None] | None = None) -> TaskView:

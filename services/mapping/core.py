@@ -80,9 +80,12 @@ class MappingCore:
 
     # -- the odometry session --------------------------------------------------------------------
     def on_odom(self, odom: Odometry, now: float) -> None:
-        """Odometry, received at ``now``: only evidence of the driver's session (the frames carry
-        their poses)."""
-        self._admit("odom", odom.seq, odom.odom_session, now)
+        """Odometry, received at ``now``: evidence of the driver's session (the frames carry their
+        poses), and the base's own localization when it has one (kept for the map to follow)."""
+        if self._admit("odom", odom.seq, odom.odom_session, now) and odom.map_T_odom is not None:
+            localizer = self.state.localizer  # after _admit: a new session has a new map
+            if localizer is not None:
+                localizer.base = odom.map_T_odom
 
     def _admit(self, kind: str, seq: int, session: str, now: float) -> bool:
         """Whether odometry or a frame is of the current session, following a new one when the

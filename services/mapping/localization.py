@@ -44,6 +44,10 @@ class LocalizationConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     enabled: bool = Field(default=False, description="match each frame against the map (off: the map is "
                           "built at odometry poses, as before localization existed)")
+    source: Literal["scan", "base"] = Field(default="scan", description="where corrections come from: 'scan', "
+                                           "each frame's depth matched against the map (below); 'base', the "
+                                           "robot's own localization passed on with its odometry (AMCL or "
+                                           "slam_toolbox on a ros2 base: [driver.ros2] localization)")
     max_points: int = Field(default=600, ge=10, description="the scan is thinned to this many points")
     min_points: int = Field(default=60, ge=3, description="fewer scan points: refused (no depth, a wall "
                             "closer than the camera's range)")
@@ -138,6 +142,27 @@ class Localizer:
         self.last: Match | None = None
         self._odom: Pose | None = None  # the odometry of the last frame matched
         self._moved_m = self._turned_rad = 0.0  # odometry's motion since the last accepted match
+        self.base: Pose | None = None  # source 'base': the newest map_T_odom the base's odometry carried
+        self._anchor: Pose | None = None  # the base's map placed in this one
+
+    def follow(self, odom: Pose) -> None:
+        """Source 'base': move ``map_T_odom`` toward the base's own (:attr:`base`), by at most the
+        per-frame bound at ``odom`` (where odometry has the camera). The base's map is placed in this
+        one where its first pose finds this map's ``map_T_odom`` (identity for a new map, the
+        checkpoint's for a resumed one), so the map is not thrown to wherever the base's map has
+        its origin. Counted: ``base``, ``clamped``, ``no_base_pose``."""
+        if self.base is None:
+            self.counters["no_base_pose"] += 1
+            return
+        if self._anchor is None:
+            self._anchor = self.map_T_odom.compose(self.base.inverse())
+        c = self.config
+        now, wanted = self.map_T_odom.compose(odom), self._anchor.compose(self.base).compose(odom)
+        step = np.array([wanted.x - now.x, wanted.y - now.y, wrap_angle(wanted.yaw - now.yaw)])
+        step, clamped = _bounded(step, c.max_step_m, math.radians(c.max_step_deg))
+        self.map_T_odom = _as_pose(step, np.array([now.x, now.y])).compose(self.map_T_odom)
+        self.counters["base"] += 1
+        self.counters["clamped"] += clamped
 
     def match(self, points: np.ndarray, camera: tuple[float, float], obstacle: np.ndarray,
               explored: np.ndarray, cells: ObstaclePoints, odom: Pose) -> Match:

@@ -163,10 +163,15 @@ class MapState:
 
     def place(self, frame: RgbdFrame) -> tuple[RgbdFrame, View]:
         """``frame`` (posed by odometry) placed in the map, with its view: by ``map_T_odom``, then
-        by the localizer's match of its scan against the map (:mod:`.localization`)."""
+        by the localizer's match of its scan against the map, or as the base's own localization
+        has it (:mod:`.localization`)."""
         if self.localizer is None:
             return frame, self._project(frame)
         odom = planar_pose(frame)
+        if self.config.localization.source == "base":
+            self.localizer.follow(odom)
+            frame = placed(frame, self.localizer.map_T_odom)
+            return frame, self._project(frame)
         frame = placed(frame, self.localizer.map_T_odom)
         view = self._project(frame)
         assert self.obstacle_points is not None

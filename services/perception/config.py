@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Literal
 
@@ -34,19 +35,34 @@ class SimBackendConfig(SceneChoice):
     perception: SimPerceptionConfig = SimPerceptionConfig()
 
 
+MODELS_ENV = "OVAMOS_MODELS"
+"""The environment variable naming the folder the weights are in (``HfBackendConfig.models_dir``)."""
+
+
+def default_models_dir() -> Path:
+    """``$OVAMOS_MODELS``, else ``$XDG_DATA_HOME/ovamos/models`` (``~/.local/share/ovamos/models``):
+    where the weights are unless the config says, the same from whatever folder a service starts."""
+    if os.environ.get(MODELS_ENV):
+        return Path(os.environ[MODELS_ENV]).expanduser()
+    data = os.environ.get("XDG_DATA_HOME") or Path.home() / ".local" / "share"
+    return Path(data).expanduser() / "ovamos" / "models"
+
+
 class HfBackendConfig(StrictModel):
     """Real models through transformers, from local directories only (never a download).
 
     Each directory holds what ``save_pretrained`` (or ``hf download --local-dir``)
-    writes for the model: config, weights, and the processor/tokenizer files.
-    Relative paths are taken from the working directory.
+    writes for the model: config, weights, and the processor/tokenizer files. A relative
+    directory is in ``models_dir`` (:meth:`folder`), never the working directory: a service
+    started by a supervisor, a unit or another shell finds the same weights.
     """
 
-    itm_dir: Path = Field(default=Path("models/blip-itm-base-coco"),
+    models_dir: Path | None = Field(default=None, description="the folder relative *_dir are in; default: "
+                                    f"${MODELS_ENV}, else $XDG_DATA_HOME/ovamos/models (~/.local/share/ovamos/models)")
+    itm_dir: Path = Field(default=Path("blip-itm-base-coco"),
                           description="BLIP (BlipForImageTextRetrieval) or BLIP-2 ITM weights")
-    detector_dir: Path = Field(default=Path("models/grounding-dino-tiny"),
-                               description="GroundingDINO weights")
-    segmenter_dir: Path = Field(default=Path("models/sam-vit-base"), description="SAM weights")
+    detector_dir: Path = Field(default=Path("grounding-dino-tiny"), description="GroundingDINO weights")
+    segmenter_dir: Path = Field(default=Path("sam-vit-base"), description="SAM weights")
     device: Literal["auto", "cpu", "cuda"] = Field(default="auto", description="auto = cuda if present")
     fp16: bool = Field(default=True, description="half precision on cuda (ignored on the CPU)")
     score: Literal["itc", "itm"] = Field(
@@ -57,6 +73,11 @@ class HfBackendConfig(StrictModel):
     text_threshold: float = Field(default=0.25, ge=0, le=1)
     max_detections: int = Field(default=20, ge=1, le=MAX_DETECTIONS,
                                 description="a result with more could not be sent (ovamos.shared.messages.MAX_DETECTIONS)")
+
+    def folder(self, directory: Path) -> Path:
+        """Where one of the ``*_dir`` settings points: as given when absolute, else in ``models_dir``."""
+        directory = directory.expanduser()
+        return directory if directory.is_absolute() else (self.models_dir or default_models_dir()).expanduser() / directory
 
 
 class FrameLimits(StrictModel):

@@ -11,7 +11,11 @@ placed in it by the snapshot's ``map_T_odom``) under ``prefix``:
 * ``<prefix>/path``: ``nav_msgs/Path`` of the robot's poses (one every ``path_step_m``, at most
   ``path_poses``), transient-local too: it changes only while the robot moves.
 * ``<prefix>/markers``: ``visualization_msgs/MarkerArray``: frontiers, candidates of the latest
-  decision, its goal, and the map's objects (confirmed ones larger), labelled.
+  decision, its goal, and the map's objects (confirmed ones larger), labelled; transient-local,
+  each array the whole picture (it starts with a DELETEALL), so a viewer that joins late draws it.
+
+What the API drops goes from ROS too: when the task ends (a final ``task/events``) the decision's
+candidates and goal go, and a value layer the map no longer has is published empty.
 
 It only reads our topics and publishes ROS ones: it runs wherever rclpy and the robot's ROS graph
 are (the laptop or the robot), and nothing of the search waits for it.
@@ -28,7 +32,7 @@ import numpy as np
 from ovamos.services.rosview.config import RosViewConfig
 from ovamos.services.rosview.convert import Mark, marks, occupancy, value_cells
 from ovamos.shared.bus import BusCore
-from ovamos.shared.messages import DecisionTrace, MapSnapshot, Odometry
+from ovamos.shared.messages import FINAL, DecisionTrace, MapSnapshot, Odometry, TaskEvent
 from ovamos.shared.motion import Pose
 from ovamos.shared.ros2 import Ros2Unavailable, node
 from ovamos.shared.service import Service
@@ -52,6 +56,7 @@ class RosViewService(Service):
         self._path: deque[Odometry] = deque(maxlen=config.path_poses)
         self._changed = {"map": False, "path": False, "markers": False}
         self._pubs: dict[str, Any] = {}
+        self._layers: set[str] = set()  # the value layers published last
         self.published: dict[str, int] = {}
 
     def start(self) -> None:
@@ -59,7 +64,8 @@ class RosViewService(Service):
             self._ros = node(self.config.network)
         except Ros2Unavailable as exc:
             raise RuntimeError(f"rosview cannot start ROS 2: {exc}") from None
-        self.wire({"map_snapshot": self._on_snapshot, "odom": self._on_odom, "plan_trace": self._on_trace})
+        self.wire({"map_snapshot": self._on_snapshot, "odom": self._on_odom, "plan_trace": self._on_trace,
+                   "task_events": self._on_event})
 
     def _on_snapshot(self, snapshot: MapSnapshot) -> None:
         moved = self._snapshot is None or self._snapshot.map_T_odom != snapshot.map_T_odom
@@ -70,6 +76,12 @@ class RosViewService(Service):
     def _on_trace(self, trace: DecisionTrace) -> None:
         self._trace = trace
         self._changed["markers"] = True
+
+    def _on_event(self, event: TaskEvent) -> None:
+        """A task that ended takes its decision's candidates and goal with it."""
+        if event.status in FINAL and self._trace is not None and self._trace.task_id == event.task_id:
+            self._trace = None
+            self._changed["markers"] = True
 
     def _on_odom(self, odom: Odometry) -> None:
         last = self._path[-1] if self._path else None
@@ -85,6 +97,9 @@ class RosViewService(Service):
             self._publish_grid("map", occupancy(self._snapshot))
             for layer in self._snapshot.layers:
                 self._publish_grid(f"value/{layer}", value_cells(self._snapshot, layer))
+            for gone in self._layers - set(self._snapshot.layers):  # a target no longer searched
+                self._publish_grid(f"value/{gone}", np.zeros((0, 0), np.int8))
+            self._layers = set(self._snapshot.layers)
         if self._changed["path"]:
             self._publish_path()
         if self._changed["markers"]:
@@ -162,7 +177,7 @@ class RosViewService(Service):
                 text.pose.orientation.w = 1.0
                 text.color.r = text.color.g = text.color.b = text.color.a = 1.0
                 array.markers.append(text)
-        self._publisher("markers", MarkerArray).publish(array)
+        self._publisher("markers", MarkerArray, latched=True).publish(array)
         self._count("markers")
 
     def info(self) -> dict[str, Any]:

@@ -13,7 +13,10 @@ until commands stop for ``command_timeout_s``, then it stops by itself; a move i
 leaves the robot where it touched and says so on ``bump`` (``std_msgs/Bool``, as a bridge of a
 Create 3's hazard detection would: the driver ends the move blocked). Odometry starts at the true pose
 in the scene's frame, so the map and the simulated perception agree on where things are, and is
-the true pose unless the robot's odometry errs (``robot.odometry``).
+the true pose unless the robot's odometry errs (``robot.odometry``). When the base names a
+localization topic (``base.localization``), the true pose is published there in the ``map`` frame
+(the scene's), stamped as the odometry of the same instant: a stand-in for AMCL, without AMCL's
+own error.
 
 One process, one ROS node (:func:`ovamos.shared.ros2.node`), loopback-only DDS unless told otherwise. The
 renderer owns an OpenGL context, so the loop that moves the robot and renders runs on the main
@@ -44,7 +47,7 @@ from ovamos.shared.config import StrictModel
 from ovamos.shared.motion import Pose
 from ovamos.shared.ros2 import node
 
-__all__ = ["INSTANCE_IDS_TOPIC", "Ros2SimRobotConfig", "Ros2SimRobot"]
+__all__ = ["INSTANCE_IDS_TOPIC", "MAP_POSE_TOPIC", "Ros2SimRobotConfig", "Ros2SimRobot"]
 
 log = logging.getLogger("ovamos.sim.ros2")
 INSTANCE_IDS_TOPIC = "/camera/camera/instance_ids"
@@ -52,13 +55,22 @@ INSTANCE_IDS_TOPIC = "/camera/camera/instance_ids"
 CAMERA = Ros2CameraConfig(instance_ids=INSTANCE_IDS_TOPIC)  # the topics: realsense2_camera's
 BUMP_TOPIC = "bump"
 """Where the simulated robot says it touched something (``Ros2BaseConfig.bump``)."""
+MAP_POSE_TOPIC = "amcl_pose"
+"""Where the simulated robot's stand-in for AMCL publishes, when asked (``Ros2BaseConfig.localization``)."""
 BUMP_EVERY_S = 0.1  # while pushing against an obstacle, the report is repeated this often
-FRAME_IDS = {"odom": "odom", "base": "base_link", "camera": "camera_color_optical_frame"}
+FRAME_IDS = {"map": "map", "odom": "odom", "base": "base_link", "camera": "camera_color_optical_frame"}
+MAP_POSE_STD_M, MAP_POSE_STD_DEG = 0.05, 2.0  # the covariance its stand-in for AMCL claims
 
 
 def _header(msg: Any, frame_id: str, stamp: Any) -> Any:
     msg.header.stamp, msg.header.frame_id = stamp, frame_id
     return msg
+
+
+def _set_pose(msg: Any, pose: Pose) -> None:
+    """A planar pose into a ``geometry_msgs/Pose``."""
+    msg.position.x, msg.position.y = pose.x, pose.y
+    msg.orientation.z, msg.orientation.w = math.sin(pose.yaw / 2), math.cos(pose.yaw / 2)
 
 
 class Ros2SimRobotConfig(StrictModel):
@@ -70,6 +82,8 @@ class Ros2SimRobotConfig(StrictModel):
     height: int = Field(default=240, ge=16)
     frame_hz: float = Field(default=10.0, gt=0, description="camera frames a second")
     odom_hz: float = Field(default=50.0, gt=0, description="odometry messages a second")
+    localization_hz: float = Field(default=2.0, gt=0, description="poses a second on the base's localization "
+                                   "topic (when it has one): the true pose, as a stand-in for AMCL")
     physics_hz: float = Field(default=100.0, gt=0, description="motion integration steps a second")
     command_timeout_s: float = Field(default=0.5, gt=0, description="no command for this long: it stops "
                                      "(a Create 3's own timeout)")
@@ -97,6 +111,7 @@ class Ros2SimRobot:
         self._ros: Any = None
         self._say_bump: Callable[[], None] | None = None
         self._bumped_at = -math.inf
+        self._map_pose: Any = None
 
     # -- ROS ---------------------------------------------------------------------------------
     def open(self) -> None:
@@ -116,6 +131,9 @@ class Ros2SimRobot:
             from std_msgs.msg import Bool
             bump = ros.create_publisher(Bool, base.topic(base.bump), 10)
             self._say_bump = lambda: bump.publish(Bool(data=True))
+        if base.localization is not None:
+            from geometry_msgs.msg import PoseWithCovarianceStamped
+            self._map_pose = ros.create_publisher(PoseWithCovarianceStamped, base.topic(base.localization), 10)
 
     def _on_cmd(self, msg: Any) -> None:
         twist = msg.twist if self.config.base.stamped else msg
@@ -131,15 +149,17 @@ class Ros2SimRobot:
     def run(self) -> None:
         """Move, publish odometry and frames at their rates until :meth:`stop`."""
         c = self.config
-        step, next_odom, next_frame = 1.0 / c.physics_hz, 0.0, 0.0
+        step, next_odom, next_frame, next_located = 1.0 / c.physics_hz, 0.0, 0.0, 0.0
         last = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
             self._move(now, now - last)
             last = now
             if now >= next_odom:
-                self._publish_odom()
+                localized = now >= next_located
+                self._publish_odom(localized)
                 next_odom = now + 1.0 / c.odom_hz
+                next_located = now + 1.0 / c.localization_hz if localized else next_located
             if now >= next_frame:
                 self._publish_frame()
                 next_frame = now + 1.0 / c.frame_hz
@@ -180,18 +200,28 @@ class Ros2SimRobot:
         with self._lock:
             return self.robot.pose, linear, angular
 
-    def _publish_odom(self) -> None:
+    def _publish_odom(self, localized: bool) -> None:
+        """Odometry; with ``localized``, the true pose on the localization topic too, with the same
+        stamp (as AMCL stamps its pose with the scan it matched)."""
         from nav_msgs.msg import Odometry
 
         _, linear, angular = self.pose()
         with self._lock:
-            pose = self.robot.odom  # what the wheels report
-        msg = _header(Odometry(), FRAME_IDS["odom"], self._ros.get_clock().now().to_msg())
+            pose, true = self.robot.odom, self.robot.pose  # what the wheels report, where it is
+        stamp = self._ros.get_clock().now().to_msg()
+        msg = _header(Odometry(), FRAME_IDS["odom"], stamp)
         msg.child_frame_id = FRAME_IDS["base"]
-        msg.pose.pose.position.x, msg.pose.pose.position.y = pose.x, pose.y
-        msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(pose.yaw / 2), math.cos(pose.yaw / 2)
+        _set_pose(msg.pose.pose, pose)
         msg.twist.twist.linear.x, msg.twist.twist.angular.z = linear, angular
         self._odom.publish(msg)
+        if localized and self._map_pose is not None:
+            from geometry_msgs.msg import PoseWithCovarianceStamped
+
+            located = _header(PoseWithCovarianceStamped(), FRAME_IDS["map"], stamp)
+            _set_pose(located.pose.pose, true)
+            located.pose.covariance[0] = located.pose.covariance[7] = MAP_POSE_STD_M ** 2
+            located.pose.covariance[35] = math.radians(MAP_POSE_STD_DEG) ** 2
+            self._map_pose.publish(located)
 
     def _publish_frame(self) -> None:
         from sensor_msgs.msg import CameraInfo, Image

@@ -1,5 +1,5 @@
 """Tests that load DDS (rclpy). They run only inside a loopback-only network namespace with the
-loopback Fast DDS profile (``make test`` runs them with ``python -m ovamos.shared.dds -- pytest tests/ros2``);
+loopback Fast DDS profile (``make test-all`` runs them with ``python -m ovamos.shared.dds -- pytest tests/ros2``);
 anywhere else they are not even imported, so no DDS process starts in the host's namespace."""
 
 from __future__ import annotations

@@ -14,18 +14,23 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from geometry_msgs.msg import PoseWithCovarianceStamped
 
 from ovamos.services.base_driver.config import DriverConfig
 from ovamos.services.base_driver.controller import BaseController
 from ovamos.services.base_driver.ros2.client import Ros2Hardware
 from ovamos.services.base_driver.ros2.config import Ros2BaseConfig
+from ovamos.services.base_driver.ros2.map_pose import planar
 from ovamos.services.camera.ros2 import Ros2Backend
+from ovamos.services.mapping.checkpoint import load_checkpoint
+from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.sim.episodes import make_episode
 from ovamos.services.sim.render import SceneRenderer
-from ovamos.services.sim.ros2_robot import CAMERA
+from ovamos.services.sim.ros2_robot import BUMP_TOPIC, CAMERA, MAP_POSE_TOPIC
 from ovamos.shared.messages import DriverMode
-from ovamos.shared.motion import Action
+from ovamos.shared.motion import Action, Pose, wrap_angle
 from ovamos.shared.procs import stop
+from ovamos.shared.ros2 import node
 from tests.base_driver_helpers import command, free_run, run, turns_to_nearest_wall, wait_for_mode
 from tests.polling import wait_for
 from tests.ros2.test_ros2_camera import read_frame
@@ -33,18 +38,30 @@ from tests.ros2.test_ros2_camera import read_frame
 EPISODE = (0, 4)
 
 
-@pytest.fixture
-def sim_robot(tmp_path: Path) -> Iterator[Path]:
-    """``ovamos sim ros2`` for episode 0-4 (at 160 x 120); yields its log."""
+def _sim_robot(tmp_path: Path, *settings: str) -> Iterator[Path]:
+    """``ovamos sim ros2`` for episode 0-4 (at 160 x 120), with ``--set`` ``settings``; yields its log."""
     log = tmp_path / "ros2_robot.log"
+    sets = [arg for setting in ("width=160", "height=120", *settings) for arg in ("--set", setting)]
     with log.open("w") as out:
-        proc = subprocess.Popen([sys.executable, "-m", "ovamos.cli", "sim", "ros2", "--episode", "0-4",
-                                 "--set", "width=160", "--set", "height=120"], stdout=out, stderr=subprocess.STDOUT,
+        proc = subprocess.Popen([sys.executable, "-m", "ovamos.cli", "sim", "ros2", "--episode", "0-4", *sets],
+                                stdout=out, stderr=subprocess.STDOUT,
                                 start_new_session=True)  # its own group: stop() signals it
     try:
         yield log
     finally:
         assert stop(proc) == 0, log.read_text()  # SIGTERM: a clean stop
+
+
+@pytest.fixture
+def sim_robot(tmp_path: Path) -> Iterator[Path]:
+    yield from _sim_robot(tmp_path)
+
+
+@pytest.fixture
+def localizing_robot(tmp_path: Path) -> Iterator[Path]:
+    """The simulated robot with hard odometry and its stand-in for AMCL on ``amcl_pose``."""
+    yield from _sim_robot(tmp_path, "base=" + json.dumps({"bump": BUMP_TOPIC, "localization": MAP_POSE_TOPIC}),
+                          "robot=" + json.dumps({"odometry": "hard", "odometry_seed": 3}))
 
 
 def test_its_frames_are_the_simulators_rendering_at_the_start_with_instance_ids(sim_robot: Path) -> None:
@@ -127,6 +144,38 @@ def test_a_path_command_is_followed_on_its_odometry(sim_robot: Path) -> None:
         driver.stop()
 
 
+def test_its_own_localization_places_the_drifting_odometry_where_it_truly_is(localizing_robot: Path) -> None:
+    """A ROS 2 robot that localizes (AMCL: here the simulator's stand-in, publishing the true pose):
+    the base driver passes its ``map_T_odom`` on with every odometry, and odometry placed by it is
+    where the robot is, while odometry alone has drifted (hard: the track 4 % off, 12 turns)."""
+    config = DriverConfig(hardware="ros2", ros2=Ros2BaseConfig(bump=BUMP_TOPIC, localization=MAP_POSE_TOPIC))
+    located: list[Pose] = []  # what the robot's localization published, as the driver reads it
+    ros = node(config.ros2.network)
+    sub = ros.create_subscription(PoseWithCovarianceStamped, MAP_POSE_TOPIC,
+                                  lambda msg: located.append(planar(msg.pose.pose)), 10)
+    driver = BaseController(config).start()
+    try:
+        wait_for_mode(driver, DriverMode.READY, timeout=60)
+        for _ in range(12):
+            assert run(driver, command(Action.TURN_LEFT)) == "done"
+        count = len(located)
+        wait_for(lambda: len(located) > count + 1, 10, "the robot's localization, standing still")
+
+        def placed() -> Pose | None:
+            odom = driver.odometry()
+            return None if odom.map_T_odom is None else odom.map_T_odom.compose(Pose(x=odom.x, y=odom.y, yaw=odom.yaw))
+
+        here = wait_for(lambda: (p := placed()) and math.hypot(p.x - located[-1].x, p.y - located[-1].y) < 0.01 and p,
+                        10, "odometry placed where the robot is")
+        assert abs(math.degrees(wrap_angle(here.yaw - located[-1].yaw))) < 0.5
+        odom = driver.odometry()
+        assert abs(math.degrees(wrap_angle(odom.yaw - located[-1].yaw))) > 3  # odometry alone has drifted
+        assert driver.counters["ros2_map_pose_used"] > 0
+    finally:
+        driver.stop()
+        ros.destroy_subscription(sub)
+
+
 def test_it_stops_by_itself_when_commands_stop(sim_robot: Path) -> None:
     """A Create 3's own command timeout: one command, then none; the robot moves, then stands."""
     hardware = Ros2Hardware(Ros2BaseConfig())
@@ -153,11 +202,14 @@ def test_the_demo_search_through_ros2_finds_its_target(tmp_path: Path, motion: s
     distance booked is about the ground from the start to where it stopped. The floor lamp, about
     2 m from the start: 22 steps and 36 s of search stepwise, 21 steps and 28 s continuously here
     (the sofa took 20 to 70 steps, 30 to 130 s, over 180 s once on CI). The demo's own 400 s bound,
-    not the suite's 180 s: real-time primitives land a little differently on a loaded machine."""
+    not the suite's 180 s: real-time primitives land a little differently on a loaded machine.
+    Stepwise, the robot's odometry drifts (hard) and the map follows its stand-in for AMCL
+    (``--localization base``); both ways rosview shows the search on ROS and lives through it."""
     target = "floor_lamp"
     out = tmp_path / "demo"
+    localized = ["--odometry", "hard", "--localization", "base"] if motion == "stepwise" else []
     done = subprocess.run([sys.executable, "-m", "ovamos.cli", "demo", "--base", "ros2", "--motion", motion,
-                           "--target", target, "--timeout", "400", "--out", str(out), "--no-record"],
+                           "--target", target, "--timeout", "400", "--out", str(out), "--no-record", *localized],
                           capture_output=True, text=True, timeout=600)
     logs = {p.name: p.read_text()[-1500:] for p in (out / "logs").glob("*.log")}
     assert done.returncode == 0, (done.stdout[-2000:], done.stderr[-2000:], logs)
@@ -170,3 +222,10 @@ def test_the_demo_search_through_ros2_finds_its_target(tmp_path: Path, motion: s
     start, end = make_episode(*EPISODE)[0].start, report["task"]["position"]
     straight = math.hypot(end["x"] - start.x, end["y"] - start.y)  # 2.0 m here, booked 2.0 m both ways
     assert report["task"]["distance_m"] < 2 * straight + 0.5
+    assert "rosview" in report["restarts"]
+    if localized:
+        mapping = MappingConfig.model_validate(
+            {k: v for k, v in json.loads((out / "config" / "mapping.json").read_text()).items()
+             if k in MappingConfig.model_fields})
+        assert mapping.localization.source == "base"
+        assert not load_checkpoint(out / "config" / "map.ckpt", mapping).map_T_odom.identity  # it followed

@@ -13,8 +13,18 @@ from ovamos.bench.ros2_peers.nodes import MockNode
 from ovamos.services.rosview.config import RosViewConfig
 from ovamos.services.rosview.service import RosViewService
 from ovamos.shared import keys
-from ovamos.shared.fake_bus import FakeNetwork
-from ovamos.shared.messages import DecisionTrace, Goal, MapSnapshot, ObjectInstance, Odometry, TraceOption
+from ovamos.shared.fake_bus import FakeBus, FakeNetwork
+from ovamos.shared.messages import (
+    DecisionTrace,
+    Goal,
+    MapSnapshot,
+    ObjectInstance,
+    Odometry,
+    TaskEvent,
+    TaskStatus,
+    TraceOption,
+)
+from tests.polling import wait_for
 
 H, W = 40, 60
 
@@ -32,18 +42,26 @@ def snapshot() -> MapSnapshot:
                        frontiers=np.array([[0.2, 3.0]]))
 
 
-def test_rviz_gets_the_map_the_path_and_the_marks() -> None:
-    viewer = MockNode("fake_viewer.py", "--layer", "cup")
+TRACE = DecisionTrace(task_id="t1", step=4, stamp=1.0, map_seq=3, robot_x=0.0, robot_y=2.5, remaining=(),
+                      options=(TraceOption(kind="candidate", x=0.4, y=2.6, value=0.5),),
+                      goal=Goal(kind="object", x=0.5, y=2.4, label="cup"), reason="the cup")
+
+
+def _rosview() -> tuple[FakeNetwork, RosViewService, FakeBus]:
+    """The service started on a fake network, publishing at 10 Hz, and a bus to feed it."""
     net = FakeNetwork()
     service = RosViewService(net.bus("r1", "rosview"), RosViewConfig(publish_hz=10))
-    tester = net.bus("r1", "tester")
     service.start()
+    return net, service, net.bus("r1", "tester")
+
+
+def test_rviz_gets_the_map_the_path_and_the_marks() -> None:
+    viewer = MockNode("fake_viewer.py", "--layer", "cup")
+    net, service, tester = _rosview()
     maps, odom, traces = (tester.publisher(keys.map_snapshot("r1"), MapSnapshot),
                           tester.publisher(keys.odom("r1"), Odometry),
                           tester.publisher(keys.plan_trace("r1"), DecisionTrace))
-    trace = DecisionTrace(task_id="t1", step=4, stamp=1.0, map_seq=3, robot_x=0.0, robot_y=2.5, remaining=(),
-                          options=(TraceOption(kind="candidate", x=0.4, y=2.6, value=0.5),),
-                          goal=Goal(kind="object", x=0.5, y=2.4, label="cup"), reason="the cup")
+    trace = TRACE
 
     def seen(topic: str) -> list[dict]:
         return [line for line in viewer.lines() if line["topic"] == topic]
@@ -77,3 +95,41 @@ def test_rviz_gets_the_map_the_path_and_the_marks() -> None:
             ("candidate", 0.4, 2.6, "")} <= marked
     assert ("goal/label", 0.5, 2.4, "cup") in marked and ("confirmed/label", 0.5, 2.4, "cup") in marked
     assert service.info()["published"]["map"] >= 1
+
+
+def test_a_late_viewer_gets_the_marks_and_what_the_task_drops_goes_from_ros_too() -> None:
+    net, service, tester = _rosview()
+    maps, traces, events = (tester.publisher(keys.map_snapshot("r1"), MapSnapshot),
+                            tester.publisher(keys.plan_trace("r1"), DecisionTrace),
+                            tester.publisher(keys.task_events("r1"), TaskEvent))
+    viewer = None
+    try:
+        maps.put(snapshot())
+        traces.put(TRACE)
+        net.pump()
+        service.tick()  # published once, before any viewer
+        assert service.published["markers"] == 1
+        viewer = MockNode("fake_viewer.py", "--layer", "cup")
+
+        def latest(topic: str) -> dict | None:
+            return next((line for line in reversed(viewer.lines()) if line["topic"] == topic), None)
+
+        marks = wait_for(lambda: (m := latest("/ovamos/markers")) and m["marks"], 30, "the marks, joining late")
+        shown = {m[0] for m in marks}
+        assert shown >= {"goal", "candidate", "confirmed"}
+        assert wait_for(lambda: latest("/ovamos/value/cup"), 30, "the value layer")["width"] == W
+        events.put(TaskEvent(task_id="t1", status=TaskStatus.DONE, targets=("cup",), steps=5, distance_m=1.0,
+                             stamp=2.0))
+        empty = np.zeros((0, H, W), np.float32)
+        maps.put(snapshot().model_copy(update={"layers": (), "values": empty, "counts": empty.astype(np.uint16)}))
+        net.pump()
+        service.tick()
+        kinds = wait_for(lambda: (m := latest("/ovamos/markers")) and (k := {x[0] for x in m["marks"]}) != shown and k,
+                         30, "the marks without the decision")
+        assert "goal" not in kinds and "candidate" not in kinds and "confirmed" in kinds  # found objects stay
+        assert wait_for(lambda: (v := latest("/ovamos/value/cup")) and v["width"] == 0 and v, 30,
+                        "the dropped layer published empty")["height"] == 0
+    finally:
+        service.stop()
+        if viewer is not None:
+            viewer.close()

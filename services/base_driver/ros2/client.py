@@ -13,6 +13,11 @@ latch, limits, ramps and faults; this interface only carries (v, w) out and the 
   from its velocities here. A message with a non-finite pose or twist is counted and dropped.
 * no odometry for the controller's ``feedback_timeout_s``: a stale fault whose reason names the
   topic; it clears when odometry comes again (the controller's recovery).
+* optionally, the robot's own localization (AMCL's ``amcl_pose``, slam_toolbox's ``pose``):
+  ``geometry_msgs/PoseWithCovarianceStamped``, turned into where the odometry frame lies in its map
+  (:mod:`.map_pose`) and passed on with every odometry (``WheelFeedback.map_T_odom``); a pose
+  less certain than the configured bound, malformed, or stamped where no odometry was is counted
+  and dropped.
 * an e-stop a ROS user can press: ``std_msgs/Bool`` true on ``estop`` engages the controller's
   latch, the same as the gateway's E-STOP; false is ignored and counted (a clear comes from the
   laptop, on ``driver/estop/clear``, as for every other e-stop source).
@@ -32,6 +37,7 @@ from typing import Any
 
 from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
 from ovamos.services.base_driver.ros2.config import Ros2BaseConfig
+from ovamos.services.base_driver.ros2.map_pose import OdomHistory, map_T_odom, planar, std_of
 from ovamos.shared.motion import Pose
 from ovamos.shared.ros2 import Ros2Unavailable, node
 
@@ -56,6 +62,9 @@ class Ros2Hardware:
         self._bump: Callable[[bool], None] | None = None
         self._bump_sub: Any = None
         self._linear = 0.0  # the last velocity sent: a bump while reversing is one behind
+        self._history = OdomHistory()  # the base's odometry by its stamps, for the localization's
+        self._map_T_odom: Pose | None = None
+        self._map_pose_sub: Any = None
 
     def bind_estop(self, engage: Callable[[str, str], None]) -> None:
         """The controller's ``engage_estop(source, reason)``, for the ROS e-stop topic (the
@@ -99,6 +108,10 @@ class Ros2Hardware:
         if cfg.bump is not None:
             from std_msgs.msg import Bool
             self._bump_sub = ros.create_subscription(Bool, cfg.topic(cfg.bump), self._on_bump, 10)
+        if cfg.localization is not None:  # reliable, volatile: matches AMCL's latched and slam_toolbox's
+            from geometry_msgs.msg import PoseWithCovarianceStamped
+            self._map_pose_sub = ros.create_subscription(PoseWithCovarianceStamped, cfg.topic(cfg.localization),
+                                                         self._on_map_pose, 10)
 
     def _on_estop(self, msg: Any) -> None:
         """On the executor's thread: the controller's latch is thread-safe and halts at once."""
@@ -117,18 +130,36 @@ class Ros2Hardware:
 
     def _on_odom(self, msg: Any) -> None:
         """On the executor's thread: the newest odometry, handed over under the lock."""
-        p, q, t = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
-        numbers = (p.x, p.y, q.x, q.y, q.z, q.w, t.linear.x, t.angular.z)
-        if not all(math.isfinite(v) for v in numbers) or q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w < 1e-6:
+        pose, t = planar(msg.pose.pose), msg.twist.twist
+        if pose is None or not (math.isfinite(t.linear.x) and math.isfinite(t.angular.z)):
             with self._lock:
                 self._counts["ros2_odom_malformed"] += 1
             return
-        yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
-        fb = WheelFeedback(stamp=self._clock(), left_pos_rad=0.0, right_pos_rad=0.0,
-                           pose=Pose(x=p.x, y=p.y, yaw=yaw), body_vel=(t.linear.x, t.angular.z))
         with self._lock:
-            self._feedback = fb
+            self._history.add(_seconds(msg.header.stamp), pose)
+            self._feedback = WheelFeedback(stamp=self._clock(), left_pos_rad=0.0, right_pos_rad=0.0, pose=pose,
+                                           body_vel=(t.linear.x, t.angular.z), map_T_odom=self._map_T_odom)
             self._counts["ros2_odom"] += 1
+
+    def _on_map_pose(self, msg: Any) -> None:
+        """On the executor's thread: the robot's own localization, as ``map_T_odom`` from the
+        odometry at its stamp (:mod:`.map_pose`); an uncertain one, or one the odometry history
+        does not reach, is counted and not passed on."""
+        cfg, pose = self.config, planar(msg.pose.pose)
+        cov = msg.pose.covariance
+        if pose is None or len(cov) != 36 or not all(math.isfinite(v) for v in (cov[0], cov[7], cov[35])):
+            verdict = "malformed"
+        elif (max(std_of(cov[0]), std_of(cov[7])) > cfg.localization_max_std_m
+              or math.degrees(std_of(cov[35])) > cfg.localization_max_std_deg):
+            verdict = "uncertain"
+        else:
+            with self._lock:
+                odom = self._history.at(_seconds(msg.header.stamp))
+                if odom is not None:
+                    self._map_T_odom = map_T_odom(pose, odom)
+            verdict = "used" if odom is not None else "unmatched"
+        with self._lock:
+            self._counts[f"ros2_map_pose_{verdict}"] += 1
 
     def set_velocity(self, linear_m_s: float, angular_rad_s: float) -> None:
         if self._pub is None or self._make_twist is None:
@@ -147,6 +178,10 @@ class Ros2Hardware:
         with self._lock:
             self._counts["ros2_cmd"] += 1
             self._linear = 0.0
+
+    def cmd_vel_subscribers(self) -> int:
+        """How many subscribe to ``cmd_vel`` (the base's driver: none means commands go nowhere)."""
+        return 0 if self._pub is None else int(self._pub.get_subscription_count())
 
     def feedback(self) -> WheelFeedback | None:
         with self._lock:
@@ -169,8 +204,13 @@ class Ros2Hardware:
         """Drop the velocity publisher and the odometry and bump subscriptions; the e-stop
         subscription stays, so the ROS e-stop works while the controller recovers."""
         ros, self._make_twist = None, None
-        for entity in (self._pub, self._sub, self._bump_sub):
+        for entity in (self._pub, self._sub, self._bump_sub, self._map_pose_sub):
             if entity is not None:
                 ros = ros or node(self.config.network)
                 (ros.destroy_publisher if entity is self._pub else ros.destroy_subscription)(entity)
-        self._pub = self._sub = self._bump_sub = None
+        self._pub = self._sub = self._bump_sub = self._map_pose_sub = None
+
+
+def _seconds(stamp: Any) -> float:
+    """A ``builtin_interfaces/Time`` in seconds."""
+    return stamp.sec + stamp.nanosec * 1e-9

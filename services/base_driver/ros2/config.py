@@ -24,6 +24,13 @@ class Ros2BaseConfig(StrictModel):
     bump: str | None = Field(default=None, description="std_msgs/Bool topic whose true says the base ran "
                              "into something (a bridge of a Create 3's hazard_detection; the simulated "
                              "robot's contact): the move ends blocked, as on a bumper; none: no such input")
+    localization: str | None = Field(default=None, description="geometry_msgs/PoseWithCovarianceStamped topic of "
+                                     "the robot's own localization in its map (AMCL: 'amcl_pose', slam_toolbox: "
+                                     "'pose'; relative to namespace): passed on with the odometry, so a map whose "
+                                     "[localization] source is 'base' follows it; none: not read")
+    localization_max_std_m: float = Field(default=0.25, gt=0, description="a localized pose whose position "
+                                          "is less certain than this (standard deviation) is not passed on")
+    localization_max_std_deg: float = Field(default=10.0, gt=0, description="the same for its heading")
     network: Network = NETWORK_FIELD
 
     @field_validator("namespace")

@@ -101,14 +101,19 @@ function refreshAll() {
 }
 
 // -- the log of events -----------------------------------------------------------------------------
-function logEvent(text, kind = "") {
+// `at`: when it happened (a task's updated_at, as the gateway stamped it), so a task that ended
+// before the page was opened is listed at its own time and in its place; default: now.
+function logEvent(text, kind = "", at = new Date()) {
   const li = document.createElement("li");
   const time = document.createElement("time");
-  time.textContent = new Date().toLocaleTimeString([], { hour12: false });
+  time.dateTime = at.toISOString();
+  time.textContent = at.toLocaleTimeString([], { hour12: false });
+  li.dataset.t = String(at.getTime());
   li.append(time, text);
   if (kind) li.className = kind;
   const list = $("events");
-  list.prepend(li);
+  const later = [...list.children].find((other) => Number(other.dataset.t) <= at.getTime());
+  list.insertBefore(li, later || null);  // newest first
   while (list.children.length > MAX_EVENTS) list.lastChild.remove();
 }
 
@@ -461,20 +466,21 @@ function onTaskView(view) {
 
 function describeChange(before, v) {
   const id = v.id.slice(0, 8);
+  const at = new Date(v.updated_at);
   if (!before || before.status !== v.status) {
     const kind = v.status === "done" ? "good" : ["failed", "cancelled"].includes(v.status) ? "bad" : "";
-    logEvent(`task ${id} ${v.status}${isFinal(v) && v.message ? `: ${v.message}` : ""}`, kind);
+    logEvent(`task ${id} ${v.status}${isFinal(v) && v.message ? `: ${v.message}` : ""}`, kind, at);
   }
   const known = new Set((before ? before.found : []).map((f) => f.label));
   for (const f of v.found) {
-    if (!known.has(f.label)) logEvent(`found ${f.label} at step ${f.step} (${f.x.toFixed(1)}, ${f.y.toFixed(1)})`, "good");
+    if (!known.has(f.label)) logEvent(`found ${f.label} at step ${f.step} (${f.x.toFixed(1)}, ${f.y.toFixed(1)})`, "good", at);
   }
   if (v.status !== "searching") return;
   const wait = ROUTINE_WAIT.test(v.message) ? "" : v.message;
   const last = state.lastWait.get(v.id) || "";
   if (wait !== last) {
     state.lastWait.set(v.id, wait);
-    logEvent(wait ? `task ${id} waiting: ${wait}` : `task ${id} resumed`, wait ? "bad" : "good");
+    logEvent(wait ? `task ${id} waiting: ${wait}` : `task ${id} resumed`, wait ? "bad" : "good", at);
   }
 }
 

@@ -40,8 +40,8 @@ class HfBackend:
     def load(cls, config: HfBackendConfig) -> HfBackend:
         """All three models from their local directories. Every directory is checked before
         any is loaded, so one start-up names every model that is missing."""
-        roles = ((ITM, config.itm_dir), (DETECTOR, config.detector_dir),
-                 (SEGMENTER, config.segmenter_dir))
+        roles = ((ITM, config.folder(config.itm_dir)), (DETECTOR, config.folder(config.detector_dir)),
+                 (SEGMENTER, config.folder(config.segmenter_dir)))
         problems = []
         for role, directory in roles:
             try:

@@ -14,6 +14,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+from ovamos.services.perception.config import MODELS_ENV
 from ovamos.services.perception.errors import BackendError
 
 _INSTALL_HINT = "pip install 'ovamos[perception]' (install torch==2.13.0 first for the CPU build)"
@@ -60,8 +61,8 @@ def torch_and_transformers() -> tuple[ModuleType, ModuleType]:
 
 def _download_hint(role: ModelRole, directory: Path) -> str:
     return (f"download {role.repo} on a machine with internet access (e.g. `hf download {role.repo} "
-            f"--local-dir {directory}`) and copy it to {directory}, or set {role.config_key} to "
-            f"where it is")
+            f"--local-dir {directory}`) and copy it to {directory}, or set {role.config_key} (or "
+            f"hf.models_dir, or ${MODELS_ENV}) to where it is")
 
 
 def model_type(role: ModelRole, directory: Path) -> str:

@@ -1,0 +1,55 @@
+"""The documented install lines hold: the README's by-hand line is the Makefile's, and a wheel
+installed with ``[sim]`` alone, in a fresh virtual environment outside the checkout, runs the demo
+and reaches the gateway (its HTTP client is in the base install)."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import venv
+from pathlib import Path
+
+import pytest
+
+from ovamos.shared.procs import free_port
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _makefile_extras() -> str:
+    (extras,) = re.findall(r"^EXTRAS := (\S+)$", (ROOT / "Makefile").read_text(), re.M)
+    return extras
+
+
+@pytest.mark.parametrize("page", ["README.md", "docs/getting-started.md"])
+def test_the_by_hand_install_line_is_the_makefiles(page: str) -> None:
+    lines = re.findall(r"pip install -e '\.\[([\w,]+)\]'", (ROOT / page).read_text())
+    assert lines and set(lines) == {_makefile_extras()}, (page, lines)
+
+
+@pytest.mark.system
+@pytest.mark.timeout(900)
+def test_a_sim_wheel_outside_the_checkout_runs_the_demo_and_submits(tmp_path: Path) -> None:
+    wheels = tmp_path / "wheels"
+    built = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
+                            "-w", str(wheels), str(ROOT)], capture_output=True, text=True, timeout=300)
+    assert built.returncode == 0, built.stderr[-2000:]
+    (wheel,) = wheels.glob("ovamos-*.whl")
+    env = tmp_path / "venv"
+    venv.create(env, with_pip=True)
+    installed = subprocess.run([str(env / "bin" / "pip"), "install", "-q", "--disable-pip-version-check",
+                                "--no-compile", f"{wheel}[sim]"], capture_output=True, text=True, timeout=900)
+    assert installed.returncode == 0, installed.stderr[-2000:]
+    ovamos = str(env / "bin" / "ovamos")
+    clean = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    demo = subprocess.run([ovamos, "demo", "--target", "floor_lamp", "--no-record", "--out", str(tmp_path / "demo"),
+                           "--timeout", "300"], capture_output=True, text=True, timeout=420, cwd=tmp_path, env=clean)
+    assert demo.returncode == 0, (demo.stdout[-1500:], demo.stderr[-1500:])
+    assert "done: found floor_lamp" in demo.stdout
+    gateway = f"http://127.0.0.1:{free_port()}"  # nothing there: the client runs and says so
+    submit = subprocess.run([ovamos, "submit", "chair", "--gateway", gateway], capture_output=True, text=True,
+                            timeout=60, cwd=tmp_path, env=clean)
+    assert submit.returncode == 2 and f"cannot reach the gateway at {gateway}" in " ".join(submit.stderr.split())
+    assert not list(env.glob("lib/python*/site-packages/torch"))  # the demo needs no torch
