@@ -105,6 +105,6 @@ def drive(bus: Bus, action: Action, timeout_s: float = 30.0) -> Driven:
                  "no odometry after the command")
     after = latest.odom
     assert after is not None
-    return Driven(action, str(state.last_outcome.value if state.last_outcome else "?"),
+    return Driven(action, str(state.last_outcome or "?"),
                   math.hypot(after.x - before.x, after.y - before.y),
                   math.degrees(wrap_angle(after.yaw - before.yaw)), time.monotonic() - started)

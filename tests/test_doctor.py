@@ -62,7 +62,8 @@ def test_missing_weights_fail_with_the_download_command_and_present_ones_are_tim
 
 def test_a_missing_serial_port_fails_naming_it(tmp_path: Path) -> None:
     config = (PROFILE_DIR.parent / "services" / "base_driver-kobuki.toml").read_text()
-    (tmp_path / "base.toml").write_text(config.replace("[driver.kobuki]", '[driver.kobuki]\nport = "/dev/ttyNOPE"', 1))
+    assert 'port = "/dev/kobuki"' in config
+    (tmp_path / "base.toml").write_text(config.replace('port = "/dev/kobuki"', 'port = "/dev/ttyNOPE"'))
     (tmp_path / "robot.toml").write_text(
         f'robot_id = "robot1"\n[[services]]\nservice = "base_driver"\nconfig = "{tmp_path / "base.toml"}"\n')
     code, checks = doctor(str(tmp_path / "robot.toml"))
