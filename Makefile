@@ -52,7 +52,7 @@ WORKERS ?= 3
 test-all: $(VENV)/.installed syslibs lint
 	$(PY) -m pytest -q -n $(WORKERS) --dist worksteal -m "not serial" --durations=25
 	$(PY) -m pytest -q -m serial --durations=5
-	@if unshare --net --mount true 2>/dev/null; then $(PY) -m ovamos.shared.dds -- $(PY) -m pytest -q --durations=10 tests/ros2; \
+	@if unshare --net --mount true 2>/dev/null; then $(PY) -m ovamos.shared.dds -- $(PY) -m pytest -q -n 2 --durations=10 tests/ros2; \
 	else echo "tests/ros2 skipped: unshare --net --mount needs root (they load DDS)"; fi
 
 # ruff, the import contracts (import-linter) and mypy on the cores: tools/lint.py, configured in pyproject.toml
