@@ -5,7 +5,8 @@ against ``--base kobuki``, same seed), did a change help (the run before against
 Per policy: each run's SR, MSPL and mean steps on the shared episodes, and B minus A with 95 %
 bootstrap intervals (:func:`ovamos.bench.stats.paired`, steps too), and B's mean steps over A's;
 when both ran on wheels (``--motion continuous`` against stepwise), their median search times in
-simulated seconds and B's over A's (:func:`ovamos.bench.stats.search_time_ratio`).
+simulated seconds and B's over A's (:func:`ovamos.bench.stats.search_time_ratio`). Two runs of
+different code on a report seed are refused (:mod:`ovamos.bench.seeds`).
 """
 
 from __future__ import annotations
@@ -19,19 +20,46 @@ from rich.table import Table
 
 from ovamos.bench.episode import EpisodeResult
 from ovamos.bench.policies import LABELS, policy_rank
-from ovamos.bench.search import EPISODES_FILE, RUN_FILE, SETTING_DEFAULTS, SearchError, read_results
+from ovamos.bench.search import (
+    EPISODES_FILE,
+    RUN_FILE,
+    SETTING_DEFAULTS,
+    UNRECORDED,
+    SearchError,
+    code_versions,
+    read_results,
+)
+from ovamos.bench.seeds import DEVELOPMENT_SEEDS, REPORT_SEEDS
 from ovamos.bench.stats import paired, results_by_policy, search_time_ratio
 
 __all__ = ["compare_runs", "print_comparison"]
 
 
 def _run(folder: Path) -> tuple[dict[str, Any], dict[str, dict[str, EpisodeResult]]]:
-    """A run's settings and its results by policy, then episode id."""
+    """A run's settings (with the code versions its episodes ran) and its results by policy, then
+    episode id."""
     episodes = folder / EPISODES_FILE
     if not episodes.exists():
         raise SearchError(f"{folder}: no {EPISODES_FILE} (the --out folder of an ovamos bench search run?)")
     settings = json.loads((folder / RUN_FILE).read_text()) if (folder / RUN_FILE).exists() else {}
-    return {**SETTING_DEFAULTS, **settings}, results_by_policy(read_results(episodes, torn_tail=True))
+    results = read_results(episodes, torn_tail=True)
+    return {**SETTING_DEFAULTS, **settings, "code": sorted(code_versions(folder, results))}, results_by_policy(results)
+
+
+def _same_code_on_a_report_seed(a: dict[str, Any], b: dict[str, Any]) -> None:
+    """The report-seed protocol (:mod:`ovamos.bench.seeds`): two runs of different code on a report
+    seed are refused. Runs whose episodes name no code version (from before they were recorded)
+    cannot be told apart and pass."""
+    seed = a.get("seed")
+    if seed != b.get("seed") or seed not in REPORT_SEEDS or UNRECORDED in a["code"] + b["code"]:
+        return
+    if a["code"] != b["code"]:
+        raise SearchError(
+            f"A ran code {', '.join(a['code'])} and B {', '.join(b['code'])} on report seed {seed} "
+            f"({REPORT_SEEDS[seed]}): comparing code on a report seed is choosing settings on it, which makes "
+            f"it a development seed. Compare on a development seed ({', '.join(map(str, sorted(DEVELOPMENT_SEEDS)))}), "
+            "or pass --allow-code-change for a change that chose nothing on this seed (and say so where the "
+            "numbers go)")
 
 
 def _means(results: dict[str, EpisodeResult], shared: list[str]) -> dict[str, float]:
@@ -41,10 +69,13 @@ def _means(results: dict[str, EpisodeResult], shared: list[str]) -> dict[str, fl
             "steps": round(sum(results[e].steps for e in shared) / n, 1)}
 
 
-def compare_runs(a: Path, b: Path) -> dict[str, Any]:
-    """The ``--json`` object: each run's folder and settings, and per shared policy the scores of
-    both on their shared episodes and ``b_minus_a``."""
+def compare_runs(a: Path, b: Path, allow_code_change: bool = False) -> dict[str, Any]:
+    """The ``--json`` object: each run's folder and settings (``code``: the versions its episodes
+    ran), and per shared policy the scores of both on their shared episodes and ``b_minus_a``.
+    Runs of different code on a report seed are refused unless ``allow_code_change``."""
     (settings_a, runs_a), (settings_b, runs_b) = _run(a), _run(b)
+    if not allow_code_change:
+        _same_code_on_a_report_seed(settings_a, settings_b)
     policies: dict[str, Any] = {}
     for policy in sorted(set(runs_a) & set(runs_b), key=policy_rank):
         # paired() gives first minus second: B minus A

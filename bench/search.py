@@ -213,7 +213,7 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     jobs = [j for j in jobs_for(episodes, seed, policies, max_steps, perception, homes, base, motion, odometry,
                                 localization) if (j.policy, j.index) not in done]
     code = code_version()
-    kept_code = _kept_code(out, kept) if out is not None and kept else Counter[str]()
+    kept_code = code_versions(out, kept) if out is not None and kept else Counter[str]()
     if progress is not None and kept:
         versions = ", ".join(f"{v}: {n}" for v, n in kept_code.items())
         progress.print(f"resuming {out}: {len(kept)} episodes kept (by code version: {versions}), "
@@ -279,8 +279,8 @@ def held_results(out: Path, settings: dict[str, Any]) -> list[EpisodeResult]:
     return read_results(episodes, torn_tail=True)
 
 
-def _kept_code(out: Path, kept: Sequence[EpisodeResult]) -> Counter[str]:
-    """How many of the ``kept`` episodes each code version ran, from their timing lines
+def code_versions(out: Path, kept: Sequence[EpisodeResult]) -> Counter[str]:
+    """How many of the ``kept`` episodes each code version ran, from their timing lines in ``out``
     ("unrecorded": a line from before versions were recorded, or none)."""
     timings = out / TIMINGS_FILE
     lines = timings.read_text().splitlines() if timings.exists() else []

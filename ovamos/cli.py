@@ -938,13 +938,17 @@ def bench_homes(count: Annotated[int, typer.Option(help="Homes to generate (seed
 @bench_app.command("compare")
 def bench_compare(a: Annotated[Path, typer.Argument(help="Run A: an ovamos bench search --out folder.")],
                   b: Annotated[Path, typer.Argument(help="Run B, compared with A on the episodes both hold.")],
+                  allow_code_change: Annotated[bool, typer.Option(
+                      help="Pair runs of different code on a report seed (a change that chose nothing on it).")]
+                  = False,
                   as_json: AsJson = False) -> None:
     """Two search runs on their shared episodes: SR, MSPL, steps, B minus A with 95% intervals
-    (e.g. --base kinematic against --base kobuki on one seed)."""
+    (e.g. --base kinematic against --base kobuki on one seed). Runs of different code on a report
+    seed are refused (bench/seeds.py)."""
     from ovamos.bench.compare import compare_runs, print_comparison
     from ovamos.bench.search import SearchError
     try:
-        result = compare_runs(a, b)
+        result = compare_runs(a, b, allow_code_change)
     except SearchError as exc:
         raise _fail(str(exc)) from None
     _report(result, as_json, print_comparison)

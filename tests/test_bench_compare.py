@@ -9,7 +9,8 @@ import pytest
 
 from ovamos.bench.compare import compare_runs
 from ovamos.bench.episode import EpisodeResult
-from ovamos.bench.search import EPISODES_FILE, RUN_FILE, SearchError, jsonl_line
+from ovamos.bench.search import EPISODES_FILE, RUN_FILE, TIMINGS_FILE, SearchError, jsonl_line
+from ovamos.bench.seeds import DEVELOPMENT_SEEDS, REPORT_SEEDS
 from tests.polling import ovamos_unwrapped
 from tests.test_bench_search import fake
 
@@ -69,3 +70,31 @@ def test_two_timed_runs_compare_their_median_search_times(tmp_path: Path) -> Non
     assert "search_s" not in compare_runs(kinematic, b)["policies"]["ovamos"]
     done = ovamos_unwrapped("bench", "compare", str(a), str(b))
     assert done.returncode == 0 and "search time, simulated seconds" in done.stdout and "0.40 [0.40," in done.stdout
+
+
+def _timed_by(folder: Path, code: str) -> Path:
+    """``folder``'s episodes, each timing line naming ``code`` as the version that ran it."""
+    lines = [json.loads(line) for line in (folder / EPISODES_FILE).read_text().splitlines()]
+    (folder / TIMINGS_FILE).write_text("".join(json.dumps({"episode_id": r["episode_id"], "policy": r["policy"],
+                                                           "seconds": 1.0, "steps": 10, "code": code}) + "\n"
+                                               for r in lines))
+    return folder
+
+
+def test_runs_of_different_code_on_a_report_seed_are_refused_unless_allowed(tmp_path: Path) -> None:
+    (report,) = [s for s in REPORT_SEEDS if s == 5503743]
+    results = [fake("ovamos", i, i % 2 == 0, 0.5) for i in range(4)]
+    a = _timed_by(_run(tmp_path / "a", results, seed=report), "abc123")
+    b = _timed_by(_run(tmp_path / "b", results, seed=report), "def456")
+    with pytest.raises(SearchError, match=rf"A ran code abc123 and B def456 on report seed {report}.*development seed"):
+        compare_runs(a, b)
+    allowed = compare_runs(a, b, allow_code_change=True)
+    assert allowed["a"]["code"] == ["abc123"] and allowed["b"]["code"] == ["def456"]
+    same = _timed_by(_run(tmp_path / "same", results, seed=report), "abc123")
+    assert compare_runs(a, same)["policies"]["ovamos"]["b_minus_a"]["sr_diff"] == 0.0  # one code: fine
+    dev = min(DEVELOPMENT_SEEDS)
+    assert compare_runs(_timed_by(_run(tmp_path / "d1", results, seed=dev), "abc123"),
+                        _timed_by(_run(tmp_path / "d2", results, seed=dev), "def456"))["policies"]
+    done = ovamos_unwrapped("bench", "compare", str(a), str(b))
+    assert done.returncode == 2 and "--allow-code-change" in done.stderr + done.stdout
+    assert ovamos_unwrapped("bench", "compare", str(a), str(b), "--allow-code-change").returncode == 0

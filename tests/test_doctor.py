@@ -57,7 +57,8 @@ def test_missing_weights_fail_with_the_download_command_and_present_ones_are_tim
         directory.rename(models / name)
     code, checks = doctor("laptop", env={"OVAMOS_MODELS": str(models)})
     assert all(checks[f"weights: {w}"]["status"] == "pass" for w in ("BLIP ITM", "GroundingDINO", "SAM"))
-    assert checks["models"]["status"] == "pass" and "frames/s on cpu" in checks["models"]["detail"]
+    timed = checks["models"]  # loaded and run: pass, or warn where a frame takes over a second (a loaded CPU)
+    assert timed["status"] in ("pass", "warn") and re.search(r"[\d.]+ frames/s on cpu", timed["detail"]), timed
 
 
 def test_a_missing_serial_port_fails_naming_it(tmp_path: Path) -> None:
