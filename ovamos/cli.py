@@ -321,8 +321,9 @@ def up(profile: ProfileName,
 @app.command()
 def doctor(profile: ProfileName = "all",
            other_host: Annotated[Optional[str], typer.Option(
-               "--other-host", help="HOST:PORT of the other host's router (from the robot: the laptop's, as "
-                                    "--connect-laptop): is it reachable, and do the clocks agree?")] = None,
+               "--other-host", help="HOST:PORT of the other host's router over plain TCP (from the robot: the "
+                                    "laptop's 7447, as --connect-laptop): is it reachable, and do the clocks "
+                                    "agree? (Not a secure profile's TLS port.)")] = None,
            certs: Certs = None,
            load_models: Annotated[bool, typer.Option(
                help="Load the perception weights and time a frame on this device (seconds to a minute).")] = True,
