@@ -23,3 +23,14 @@ def test_status_keeps_its_headers_and_numbers_whole_at_80_columns() -> None:
     row = next(line for line in text.splitlines() if line.startswith("robot1") or " robot1 " in line).split()
     assert row == ["robot1", "base_driver", "1234567", "1234568", "7654321", "3", "2", "4", "5"]
     assert "perception#2" in text  # an instance other than 0 is named
+
+
+def test_up_help_names_every_shipped_profile() -> None:
+    from typer.testing import CliRunner
+
+    from ovamos.cli import app
+    from ovamos.profiles import PROFILE_DIR
+    shipped = sorted(p.stem for p in PROFILE_DIR.glob("*.toml"))
+    assert len(shipped) >= 7
+    text = " ".join(CliRunner().invoke(app, ["up", "--help"], env={"COLUMNS": "200"}).output.split())
+    assert all(f" {name} " in f" {text.replace('|', ' ').replace(',', ' ')} " for name in shipped), (shipped, text)
