@@ -21,7 +21,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Any, cast
 
-from ovamos.bench.episode import EpisodeConfig, EpisodeResult, episode_config, run_episode
+from ovamos.bench.episode import EpisodeConfig, EpisodeResult, StepLatency, episode_config, run_episode
 from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.localization import LocalizationConfig
 from ovamos.services.planner.agent import AgentConfig
@@ -53,6 +53,7 @@ class Job:
     motion: str = "stepwise"
     odometry: str = "ideal"
     localization: bool = False
+    step_latency: float | None = None  # seconds a step costs besides its motion (None: StepLatency's)
 
     @property
     def name(self) -> str:
@@ -88,7 +89,8 @@ def run_job(job: Job) -> EpisodeResult:
     config = EpisodeConfig(perception=perception_preset(job.perception), base=job.base,
                            agent=AgentConfig(motion=cast(DriveMode, job.motion)),
                            motion=MotionConfig(odometry=odometry_errors(job.odometry)),
-                           mapping=MappingConfig(localization=LocalizationConfig(enabled=job.localization)))
+                           mapping=MappingConfig(localization=LocalizationConfig(enabled=job.localization)),
+                           latency=StepLatency() if job.step_latency is None else StepLatency.totalling(job.step_latency))
     return run_episode(spec, scene, truth, episode_config(job.policy, config), load_prior())
 
 
@@ -123,10 +125,11 @@ def finished(job: Job, payload: dict[str, Any]) -> Finished:
 
 def jobs_for(episodes: int, seed: int, policies: Sequence[str], max_steps: int | None = None,
              perception: str = "ideal", homes: str = "default", base: str = "kinematic",
-             motion: str = "stepwise", odometry: str = "ideal", localization: bool = False) -> list[Job]:
+             motion: str = "stepwise", odometry: str = "ideal", localization: bool = False,
+             step_latency: float | None = None) -> list[Job]:
     """Episode-major order: a worker tends to get the policies of one episode in a row (its scene
     is cached), and a run cut short has covered every policy about equally."""
-    return [Job(p, seed, i, max_steps, perception, homes, base, motion, odometry, localization)
+    return [Job(p, seed, i, max_steps, perception, homes, base, motion, odometry, localization, step_latency)
             for i in range(episodes) for p in policies]
 
 

@@ -40,7 +40,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from ovamos.bench.cluster import ClusterError, ClusterSpec, connect, iter_cluster, parse_cluster
 from ovamos.bench.draw import draw_chart, draw_replay
-from ovamos.bench.episode import EpisodeResult
+from ovamos.bench.episode import EpisodeResult, StepLatency
 from ovamos.bench.jobs import Finished, Job, init_worker, iter_results, jobs_for, load_episode, run_job
 from ovamos.bench.policies import DEFAULT_POLICIES, POLICY_ORDER
 from ovamos.bench.provenance import code_version
@@ -61,10 +61,11 @@ ODOMETRY_FIELDS = ("believed", "odometry", "localization")
 EPISODES_FILE, TIMINGS_FILE, SUMMARY_FILE, CHART_FILE, RUN_FILE, TRAJECTORIES = (
     "episodes.jsonl", "timings.jsonl", "summary.json", "chart.png", "run.json", "trajectories")
 #: What an episode's outcome depends on besides the code, policy and index: a resumed run must match.
-RUN_SETTINGS = ("seed", "perception", "homes", "max_steps", "base", "motion", "odometry", "localization")
+RUN_SETTINGS = ("seed", "perception", "homes", "max_steps", "base", "motion", "odometry", "localization",
+                "step_latency")
 #: the value of a setting a run.json from before it existed held
 SETTING_DEFAULTS: dict[str, Any] = {"base": "kinematic", "motion": "stepwise", "odometry": "ideal",
-                                    "localization": False}
+                                    "localization": False, "step_latency": None}
 BASES: tuple[str, ...] = get_args(Motion)  # the robots an episode can run on
 #: the code version of an episode whose timing line does not name one
 UNRECORDED = "unrecorded"
@@ -85,9 +86,13 @@ def parse_policies(text: str | Sequence[str]) -> tuple[str, ...]:
 
 
 def check_settings(perception: str, homes: str, base: str = "kinematic", motion: str = "stepwise",
-                   odometry: str = "ideal") -> None:
-    """A perception preset, a home tier, a base, a motion and an odometry preset that exist and go
-    together (else a :class:`SearchError` naming them)."""
+                   odometry: str = "ideal", step_latency: float | None = None) -> None:
+    """A perception preset, a home tier, a base, a motion, an odometry preset and a step latency
+    that exist and go together (else a :class:`SearchError` naming them)."""
+    if step_latency is not None and (not step_latency >= 0 or base == "kinematic"):
+        raise SearchError(f"--step-latency {step_latency}: seconds >= 0 a step costs besides its motion, which "
+                          "times a wheeled base's search (--base kobuki, opencr or odrive); the kinematic base "
+                          "keeps no time")
     if base not in BASES:
         raise SearchError(f"unknown base {base!r}: one of {', '.join(BASES)}")
     if motion not in MOTIONS:
@@ -136,6 +141,7 @@ class SearchRun:
     motion: str = "stepwise"
     odometry: str = "ideal"
     localization: bool = False
+    step_latency: float | None = None  # None: StepLatency's defaults
     resumed: int = 0  # results read back from the folder, not run (and not timed) by this run
     code: dict[str, int] = field(default_factory=dict)  # episodes per code version that ran them
     failed: list[str] = field(default_factory=list)  # the units that raised (their errors): not in results
@@ -181,12 +187,14 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
                max_steps: int | None = None, progress: Console | None = None, perception: str = "ideal",
                homes: str = "default", out: Path | None = None, resume: bool = False,
                base: str = "kinematic", motion: str = "stepwise", cluster: str | None = None,
-               cluster_config: Path | None = None, odometry: str = "ideal", localization: bool = False) -> SearchRun:
+               cluster_config: Path | None = None, odometry: str = "ideal", localization: bool = False,
+               step_latency: float | None = None) -> SearchRun:
     """Run every (policy, episode) pair with the simulated perception ``perception`` (a preset
     name) in homes of tier ``homes`` on the robot ``base`` (kinematic, or a wheeled base's
     controller and simulated device in simulated time) driven ``motion`` (stepwise, or continuous
     on a wheeled base), its odometry erring as the preset ``odometry`` says, its map built with or
-    without ``localization``; ``max_steps`` overrides the paper's 500 (quick runs and
+    without ``localization``, each step costing ``step_latency`` seconds besides its motion (a
+    wheeled base's search time; None: :class:`StepLatency`'s defaults); ``max_steps`` overrides the paper's 500 (quick runs and
     tests only: the tables need the paper's limit).
 
     With ``out`` each result is appended to its ``episodes.jsonl`` as it finishes; with ``resume``
@@ -201,17 +209,17 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     if resume and out is None:
         raise SearchError("--resume needs --out DIR: the folder of the run to go on with")
     policies = parse_policies(policies)
-    check_settings(perception, homes, base, motion, odometry)
+    check_settings(perception, homes, base, motion, odometry, step_latency)
     try:
         spec = parse_cluster(cluster, cluster_config, workers) if cluster is not None else None
     except ClusterError as exc:
         raise SearchError(str(exc)) from None
     settings = {"seed": seed, "perception": perception, "homes": homes, "max_steps": max_steps, "base": base,
-                "motion": motion, "odometry": odometry, "localization": localization}
+                "motion": motion, "odometry": odometry, "localization": localization, "step_latency": step_latency}
     kept = held_results(out, settings) if resume and out is not None else []
     done = {(r.policy, _episode_index(r)) for r in kept}  # run.json vouched for their seed
     jobs = [j for j in jobs_for(episodes, seed, policies, max_steps, perception, homes, base, motion, odometry,
-                                localization) if (j.policy, j.index) not in done]
+                                localization, step_latency) if (j.policy, j.index) not in done]
     code = code_version()
     kept_code = code_versions(out, kept) if out is not None and kept else Counter[str]()
     if progress is not None and kept:
@@ -241,7 +249,7 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     return SearchRun(seed, max([episodes, *(_episode_index(r) + 1 for r in kept)]),
                      parse_policies([*policies, *(r.policy for r in kept)]), workers, max_steps,
                      sort_results(results), time.perf_counter() - started, perception, homes, base, motion,
-                     odometry, localization, len(kept), dict(codes), failed, engine)
+                     odometry, localization, step_latency, len(kept), dict(codes), failed, engine)
 
 
 def _units(jobs: Sequence[Job], workers: int, spec: ClusterSpec | None, stack: ExitStack,
@@ -331,7 +339,8 @@ def summary(run: SearchRun) -> dict[str, Any]:
             "resumed": run.resumed, "code": run.code, "failed": run.failed, "engine": run.engine,
             "seed": run.seed, "episodes": run.episodes, "workers": run.workers,
             "max_steps": run.max_steps, "perception": run.perception, "homes": run.homes, "base": run.base,
-            "motion": run.motion, "odometry": run.odometry, "localization": run.localization}
+            "motion": run.motion, "odometry": run.odometry, "localization": run.localization,
+            "step_latency_s": round(StepLatency().total_s if run.step_latency is None else run.step_latency, 3)}
 
 
 # -- files ----------------------------------------------------------------------------------------
@@ -393,17 +402,18 @@ def find_result(results: Iterable[EpisodeResult], episode_id: str, policy: str) 
 def replay(episode_id: str, out: Path, policy: str = "ovamos", source: Path | None = None,
            max_steps: int | None = None, perception: str = "ideal", homes: str = "default",
            base: str = "kinematic", motion: str = "stepwise", odometry: str = "ideal",
-           localization: bool = False) -> tuple[Path, EpisodeResult]:
+           localization: bool = False, step_latency: float | None = None) -> tuple[Path, EpisodeResult]:
     """Draw one episode: re-run it (deterministic), or read it from ``source`` (a JSONL this
     module wrote). The scene is always regenerated from the id; a file whose scene seed differs
     was made by another generator and is refused rather than drawn on the wrong house."""
     seed, index = parse_episode_id(episode_id)
     (policy,) = parse_policies(policy)
-    check_settings(perception, homes, base, motion, odometry)
+    check_settings(perception, homes, base, motion, odometry, step_latency)
     init_worker()
     spec, scene, _ = load_episode(seed, index, homes)
     if source is None:
-        result = run_job(Job(policy, seed, index, max_steps, perception, homes, base, motion, odometry, localization))
+        result = run_job(Job(policy, seed, index, max_steps, perception, homes, base, motion, odometry, localization,
+                             step_latency))
     else:
         result = find_result(read_results(source), spec.episode_id, policy)
         if result.scene_seed != spec.scene_seed:
@@ -420,7 +430,7 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
          replay_id: str | None = None, policy: str = "ovamos", source: Path | None = None,
          perception: str = "ideal", homes: str = "default", resume: bool = False, base: str = "kinematic",
          motion: str = "stepwise", cluster: str | None = None, cluster_config: Path | None = None,
-         odometry: str = "ideal", localization: bool = False,
+         odometry: str = "ideal", localization: bool = False, step_latency: float | None = None,
          console: Console | None = None, err: Console | None = None) -> int:
     """``ovamos bench search``: the benchmark, or with ``replay_id`` one episode's picture.
     Raises :class:`SearchError` for bad arguments; returns the exit code."""
@@ -430,7 +440,7 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
         if out is None:
             raise SearchError("--replay needs --out DIR for the picture")
         path, result = replay(replay_id, out, policy, source, max_steps, perception, homes, base, motion,
-                              odometry, localization)
+                              odometry, localization, step_latency)
         if as_json:
             print(json.dumps({"png": str(path), **result.model_dump(mode="json", exclude={"trajectory"})}))
         else:
@@ -442,7 +452,7 @@ def main(*, episodes: int = 120, seed: int = 0, policies: str = ",".join(DEFAULT
         run = run_search(episodes, seed, parse_policies(policies), workers, max_steps, progress=err,
                          perception=perception, homes=homes, out=out, resume=resume, base=base,
                          motion=motion, cluster=cluster, cluster_config=cluster_config, odometry=odometry,
-                         localization=localization)
+                         localization=localization, step_latency=step_latency)
     except KeyboardInterrupt:
         if out is not None and (out / EPISODES_FILE).exists():
             held = len((out / EPISODES_FILE).read_text().splitlines())

@@ -24,6 +24,8 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
     limit = "" if result.get("max_steps") is None else f", max {result['max_steps']} steps (quick run)"
     limit += f", {result.get('perception', 'ideal')} perception, {result.get('homes', 'default')} homes"
     limit += f", {result.get('base', 'kinematic')} base, {result.get('motion', 'stepwise')}"
+    if result.get("base", "kinematic") != "kinematic" and "step_latency_s" in result:
+        limit += f", {result['step_latency_s']:g} s a step besides motion"
     if result.get("odometry", "ideal") != "ideal" or result.get("localization"):
         limit += f", {result.get('odometry', 'ideal')} odometry, localization {'on' if result.get('localization') else 'off'}"
     for title, rows in (("Table I: comparison with baselines", TABLE_I),

@@ -996,6 +996,10 @@ def bench_search(
                                                    "realistic or hard (services/sim/odometry.py).")] = "ideal",
         localization: Annotated[OnOff, typer.Option(help="Match each frame against the map, which then lives "
                                                          "in a frame that odometry drift does not move.")] = "off",
+        step_latency: Annotated[Optional[float], typer.Option(
+            help="Seconds a step costs besides its motion (frame, perception, fusion, decision), in a wheeled "
+                 "base's search time (default: 0.183, assumed for a GPU laptop; give your own measured one).")]
+        = None,
         as_json: AsJson = False) -> None:
     """Search benchmark: SR and MSPL per policy (the paper's Tables I and II), or one episode's picture."""
     from ovamos.bench.search import SearchError
@@ -1005,7 +1009,7 @@ def bench_search(
                            out=out, max_steps=max_steps, replay_id=replay, policy=policy, source=source,
                            perception=perception, homes=homes, resume=resume, base=base, motion=motion,
                            cluster=cluster, cluster_config=cluster_config, odometry=odometry,
-                           localization=localization == "on", console=console, err=err)
+                           localization=localization == "on", step_latency=step_latency, console=console, err=err)
     except SearchError as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)

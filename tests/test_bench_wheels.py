@@ -194,3 +194,25 @@ def test_a_continuous_demo_drives_paths_over_zenoh_and_stops_beside_its_target(t
     commands = re.findall(r"command \d+ \(([^)]*\)?)\): accepted", (out / "logs" / "sim.log").read_text())
     assert any(c.startswith("path (") for c in commands) and commands[-1] == "STOP", commands
     assert set(report["restarts"].values()) == {0}
+
+
+def test_a_step_latency_setting_times_each_step_and_stays_with_the_run(tmp_path: Path) -> None:
+    """``bench search --step-latency S``: stepwise, each step costs S seconds of standing still
+    besides its motion (the motion itself unchanged); the run keeps it, and a resume with another
+    refuses; the kinematic base, which keeps no time, refuses it."""
+    from ovamos.bench.episode import StepLatency
+    from ovamos.bench.jobs import Job, run_job
+    from ovamos.bench.search import SearchError, run_search, summary
+    default = run_job(Job("ovamos", *EPISODE, 12, base="kobuki"))
+    slow = run_job(Job("ovamos", *EPISODE, 12, base="kobuki", step_latency=0.4))
+    assert slow.trajectory == default.trajectory and slow.steps == default.steps == 12
+    assert default.search_s is not None and slow.search_s is not None
+    assert slow.search_s - default.search_s == pytest.approx(12 * (0.4 - StepLatency().total_s), abs=0.02)
+    assert StepLatency.totalling(0.4).total_s == pytest.approx(0.4)
+    run = run_search(1, EPISODE[0], ("ovamos",), workers=1, max_steps=3, base="kobuki", step_latency=0.4, out=tmp_path)
+    assert json.loads((tmp_path / "run.json").read_text())["step_latency"] == 0.4
+    assert summary(run)["step_latency_s"] == 0.4
+    with pytest.raises(SearchError, match="step_latency 0.4 there, None here"):
+        run_search(1, EPISODE[0], ("ovamos",), workers=1, max_steps=3, base="kobuki", out=tmp_path, resume=True)
+    with pytest.raises(SearchError, match="kinematic base keeps no time"):
+        run_search(1, EPISODE[0], ("ovamos",), workers=1, max_steps=3, step_latency=0.4)
