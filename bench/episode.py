@@ -75,10 +75,12 @@ class StepLatency(BaseModel):
         return self.frame_s + self.perception_s + self.mapping_s + self.decision_s
 
     @classmethod
-    def totalling(cls, total_s: float) -> StepLatency:
+    def totalling(cls, total_s: float | None) -> StepLatency:
         """The defaults scaled to ``total_s`` a step (``bench search --step-latency``: a deployment's
-        measured figure, or a sensitivity run), their proportions kept."""
+        measured figure, or a sensitivity run), their proportions kept; None: the defaults."""
         default = cls()
+        if total_s is None:
+            return default
         k = total_s / default.total_s
         return cls(frame_s=default.frame_s * k, perception_s=default.perception_s * k,
                    mapping_s=default.mapping_s * k, decision_s=default.decision_s * k)

@@ -90,7 +90,7 @@ def run_job(job: Job) -> EpisodeResult:
                            agent=AgentConfig(motion=cast(DriveMode, job.motion)),
                            motion=MotionConfig(odometry=odometry_errors(job.odometry)),
                            mapping=MappingConfig(localization=LocalizationConfig(enabled=job.localization)),
-                           latency=StepLatency() if job.step_latency is None else StepLatency.totalling(job.step_latency))
+                           latency=StepLatency.totalling(job.step_latency))
     return run_episode(spec, scene, truth, episode_config(job.policy, config), load_prior())
 
 

@@ -194,8 +194,8 @@ def run_search(episodes: int, seed: int = 0, policies: Sequence[str] = DEFAULT_P
     controller and simulated device in simulated time) driven ``motion`` (stepwise, or continuous
     on a wheeled base), its odometry erring as the preset ``odometry`` says, its map built with or
     without ``localization``, each step costing ``step_latency`` seconds besides its motion (a
-    wheeled base's search time; None: :class:`StepLatency`'s defaults); ``max_steps`` overrides the paper's 500 (quick runs and
-    tests only: the tables need the paper's limit).
+    wheeled base's search time; None: :class:`StepLatency`'s defaults); ``max_steps`` overrides
+    the paper's 500 (quick runs and tests only: the tables need the paper's limit).
 
     With ``out`` each result is appended to its ``episodes.jsonl`` as it finishes; with ``resume``
     the pairs that file already holds are kept, not run again, and the run covers them too.
@@ -340,7 +340,7 @@ def summary(run: SearchRun) -> dict[str, Any]:
             "seed": run.seed, "episodes": run.episodes, "workers": run.workers,
             "max_steps": run.max_steps, "perception": run.perception, "homes": run.homes, "base": run.base,
             "motion": run.motion, "odometry": run.odometry, "localization": run.localization,
-            "step_latency_s": round(StepLatency().total_s if run.step_latency is None else run.step_latency, 3)}
+            "step_latency_s": round(StepLatency.totalling(run.step_latency).total_s, 3)}
 
 
 # -- files ----------------------------------------------------------------------------------------

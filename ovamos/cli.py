@@ -24,6 +24,7 @@ from rich.table import Column, Table
 from ovamos import __version__
 from ovamos.bench.policies import DEFAULT_POLICIES, POLICY_ORDER
 from ovamos.shared.atomic import write_atomic
+from ovamos.shared.deploy import shipped_profiles
 from ovamos.shared.log import setup_logging
 from ovamos.shared.zconfig import DEFAULT_ENDPOINT, Mode, ZenohConfigError, build_config, open_session
 
@@ -274,13 +275,7 @@ def run(service: Annotated[str, typer.Argument(help="Service to run.")],
         raise _fail(str(exc)) from None
 
 
-def _shipped_profiles() -> str:
-    """The shipped profiles' names, for --help (read from deploy/profiles, so none is left out)."""
-    from ovamos.shared.deploy import DEPLOY_DIR
-    return " | ".join(sorted(p.stem for p in (DEPLOY_DIR / "profiles").glob("*.toml")))
-
-
-ProfileName = Annotated[str, typer.Argument(help=f"{_shipped_profiles()}, or a profile .toml file.")]
+ProfileName = Annotated[str, typer.Argument(help=f"{' | '.join(shipped_profiles())}, or a profile .toml file.")]
 
 
 @app.command()

@@ -75,7 +75,7 @@ def diagnose(profile: str | Path, options: DoctorOptions) -> list[Check]:
     except ProfileError as exc:
         return [Check("profile", "fail", str(exc), "ovamos up --help lists the shipped profiles")]
     configs, checks = _configs(loaded)
-    checks += [_extras(loaded, configs)]
+    checks += [_extras(configs)]
     perception = next((c for s, c in configs if s == "perception" and c.backend == "hf"), None)
     checks += _perception(perception, options) if perception is not None else \
         [Check("perception", "skip", "no perception with real models in this profile")]
@@ -100,7 +100,7 @@ def _configs(profile: Profile) -> tuple[list[tuple[str, Any]], list[Check]]:
     return configs, [Check("configs", "pass", f"{len(configs)} service configs of {profile.source.name} valid")]
 
 
-def _extras(profile: Profile, configs: list[tuple[str, Any]]) -> Check:
+def _extras(configs: list[tuple[str, Any]]) -> Check:
     """The modules the profile's services import, by the extra (or ROS install) that brings them."""
     needed: dict[str, str] = {}
     for service, config in configs:
@@ -160,14 +160,13 @@ def _timed_pass(config: Any) -> Check:
     try:
         backend = HfBackend.load(config.hf)
         frame, targets = pattern_frame(0, time.time()), ["chair", "cup", "bed"]
-        backend.score(frame, targets)  # the first pass warms the device up
-        backend.detect(frame, targets)
         times = []
-        for _ in range(3):
+        for _ in range(4):
             start = time.perf_counter()
             backend.score(frame, targets)
             backend.detect(frame, targets)
             times.append(time.perf_counter() - start)
+        del times[0]  # the first pass warms the device up
     except (BackendError, RuntimeError, OSError) as exc:
         return Check("models", "fail", f"loading or running the models failed: {exc}",
                      "re-download the folder named (docs/deploying/index.md#perception-weights)")
@@ -234,8 +233,9 @@ def _ros_camera(config: Any, timeout_s: float) -> Check:
 def _base(configs: list[tuple[str, Any]], timeout_s: float) -> Check:
     config = next((c for s, c in configs if s == "base_driver"), None)
     if config is None:
-        return Check("base", "pass" if any(s == "sim" for s, _ in configs) else "skip",
-                     "the simulated robot" if any(s == "sim" for s, _ in configs) else "no base in this profile")
+        simulated = any(s == "sim" for s, _ in configs)
+        return Check("base", "pass" if simulated else "skip",
+                     "the simulated robot" if simulated else "no base in this profile")
     driver = config.driver
     if driver.hardware in ("kobuki", "opencr"):
         port = Path(getattr(driver, driver.hardware).port)

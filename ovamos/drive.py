@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from ovamos.shared import keys
@@ -58,9 +59,9 @@ class _Latest:
             self.odom = odom
             self.changed.notify_all()
 
-    def until(self, ready: object, deadline: float, what: str) -> None:
+    def until(self, ready: Callable[[], bool], deadline: float, what: str) -> None:
         with self.changed:
-            if not self.changed.wait_for(ready, max(0.0, deadline - time.monotonic())):  # type: ignore[arg-type]
+            if not self.changed.wait_for(ready, max(0.0, deadline - time.monotonic())):
                 raise DriveError(what)
 
 

@@ -21,11 +21,10 @@ from pydantic import Field, PrivateAttr, ValidationError, field_validator
 
 from ovamos.registry import SERVICES
 from ovamos.shared.config import StrictModel, format_override
-from ovamos.shared.deploy import DEPLOY_DIR
+from ovamos.shared.deploy import PROFILE_DIR, shipped_profiles
 from ovamos.shared.motion import DriveMode
 from ovamos.supervisor import DEFAULT_LOG_DIR, Backoff, Entry, Supervisor
 
-PROFILE_DIR = DEPLOY_DIR / "profiles"
 DEFAULT_CERTS = Path("state/certs")  # relative to the working directory, like the logs
 
 
@@ -252,8 +251,8 @@ def resolve_profile(name_or_path: str | Path) -> Path:
     shipped = PROFILE_DIR / f"{name_or_path}.toml"
     if shipped.exists():
         return shipped
-    names = ", ".join(sorted(p.stem for p in PROFILE_DIR.glob("*.toml")))
-    raise ProfileError(f"unknown profile {str(name_or_path)!r}: give a .toml file or one of: {names}")
+    raise ProfileError(f"unknown profile {str(name_or_path)!r}: give a .toml file or one of: "
+                       f"{', '.join(shipped_profiles())}")
 
 
 def load_profile(path: str | Path) -> Profile:

@@ -137,6 +137,7 @@ class BusCore:
         self.log = logging.getLogger(f"ovamos.{service}.{instance}")
         self.started = time.time()
         self.wall_clock: Callable[[], float] = time.time  # the clock its stats answer says (``now``)
+        self.host = socket.gethostname()  # where it runs, for its stats answer
         self.inbox = inbox or Inbox()
         #: what ``ovamos status`` shows of the service: a snapshot its own thread refreshes
         #: (:func:`ovamos.shared.service.run_loop`), so answering a stats query reads no live state
@@ -343,7 +344,7 @@ class BusCore:
         return ServiceStats(robot_id=self.robot_id, service=self.service, instance=self.instance,
                             pid=os.getpid(), started=self.started,
                             counters=self.counters.snapshot(), info={**self.info, **self._transport_info()},
-                            host=socket.gethostname(), now=self.wall_clock())
+                            host=self.host, now=self.wall_clock())
 
     def _transport_info(self) -> dict[str, Any]:
         """What the transport adds to :meth:`stats`' info (a subclass's)."""

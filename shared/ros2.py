@@ -22,7 +22,7 @@ from pydantic import Field
 
 from ovamos.shared.dds import check_loopback_only
 
-__all__ = ["Network", "NETWORK_FIELD", "Ros2Unavailable", "node"]
+__all__ = ["Network", "NETWORK_FIELD", "Ros2Unavailable", "node", "stamp_s"]
 
 Network = Literal["loopback", "host"]
 NETWORK_FIELD: Any = Field(default="loopback", description="'loopback': DDS only in a loopback-only "
@@ -76,3 +76,8 @@ def _spin(executor: Any) -> None:
         executor.spin()
     except ExternalShutdownException:
         log.debug("ROS 2 executor stopped: the context shut down")
+
+
+def stamp_s(msg: Any) -> float:
+    """A stamped message's ``header.stamp`` in seconds (the publisher's clock)."""
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9

@@ -19,6 +19,8 @@ import pytest
 from ovamos.shared.procs import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))
+from lint import build_wheel  # noqa: E402  (tools/ is not a package)
 
 
 def _makefile_extras() -> str:
@@ -35,11 +37,7 @@ def test_the_by_hand_install_line_is_the_makefiles(page: str) -> None:
 @pytest.mark.system
 @pytest.mark.timeout(900)
 def test_a_sim_wheel_outside_the_checkout_runs_the_demo_and_submits(tmp_path: Path) -> None:
-    wheels = tmp_path / "wheels"
-    built = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
-                            "-w", str(wheels), str(ROOT)], capture_output=True, text=True, timeout=300)
-    assert built.returncode == 0, built.stderr[-2000:]
-    (wheel,) = wheels.glob("ovamos-*.whl")
+    wheel = build_wheel(tmp_path / "wheels")
     env = tmp_path / "venv"
     venv.create(env, with_pip=True)
     installed = subprocess.run([str(env / "bin" / "pip"), "install", "-q", "--disable-pip-version-check",

@@ -12,6 +12,8 @@ built and unpacked into a temporary folder first (a few seconds, nothing install
 from __future__ import annotations
 
 import argparse
+import fcntl
+import hashlib
 import os
 import shutil
 import subprocess
@@ -25,20 +27,34 @@ BIN = Path(sys.executable).parent
 CHECKS = ("ruff", "contracts", "types")
 
 
-def unpack_wheel(into: Path) -> Path:
-    """Build the package's wheel and unpack it (``pip install --target``) under ``into``; the site folder.
+PIP = [sys.executable, "-m", "pip", "-q", "--disable-pip-version-check"]
+
+
+def build_wheel(into: Path) -> Path:
+    """The package's wheel, built into ``into``.
 
     setuptools stages the files in the checkout's ``build/`` and packs whatever it finds there, so a
-    module removed since the last build would ride along: the folder goes before and after."""
-    wheels, site = into / "wheel", into / "site"
-    pip = [sys.executable, "-m", "pip", "-q", "--disable-pip-version-check"]
-    shutil.rmtree(REPO / "build", ignore_errors=True)
-    try:
-        subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(REPO)],
-                       check=True, cwd=into)
-    finally:
+    module removed since the last build would ride along: the folder goes before and after. Builds
+    take turns (a lock beside the temporary files): parallel test workers share the one ``build/``."""
+    lock = Path(tempfile.gettempdir()) / f"ovamos-build-{hashlib.sha1(str(REPO).encode()).hexdigest()[:12]}.lock"
+    with lock.open("w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
         shutil.rmtree(REPO / "build", ignore_errors=True)
-    subprocess.run([*pip, "install", "--no-deps", "--no-compile", "--target", str(site), *map(str, wheels.glob("*.whl"))],
+        try:
+            subprocess.run([*PIP, "wheel", "--no-deps", "--no-build-isolation", "-w", str(into), str(REPO)],
+                           check=True, cwd=into.parent)
+        finally:
+            shutil.rmtree(REPO / "build", ignore_errors=True)
+    (wheel,) = into.glob("ovamos-*.whl")
+    return wheel
+
+
+def unpack_wheel(into: Path) -> Path:
+    """Build the package's wheel (:func:`build_wheel`, in ``into/wheel``) and unpack it (``pip install
+    --target``) under ``into``; the site folder."""
+    into.mkdir(parents=True, exist_ok=True)
+    wheel, site = build_wheel(into / "wheel"), into / "site"
+    subprocess.run([*PIP, "install", "--no-deps", "--no-compile", "--target", str(site), str(wheel)],
                    check=True, cwd=into)
     return site
 

@@ -29,7 +29,7 @@ from pydantic import Field
 from ovamos.services.camera.capture import CameraError, CapturedFrame
 from ovamos.shared.config import StrictModel
 from ovamos.shared.messages import Intrinsics
-from ovamos.shared.ros2 import NETWORK_FIELD, Network, Ros2Unavailable, node
+from ovamos.shared.ros2 import NETWORK_FIELD, Network, Ros2Unavailable, node, stamp_s
 
 __all__ = ["Ros2CameraConfig", "Ros2Backend"]
 
@@ -50,10 +50,6 @@ class Ros2CameraConfig(StrictModel):
     pair_tolerance_s: float = Field(default=0.01, ge=0, description="colour and depth stamps this close pair")
     info_timeout_s: float = Field(default=2.0, gt=0, description="images with no CameraInfo for this long: a fault")
     network: Network = NETWORK_FIELD
-
-
-def _stamp(msg: Any) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
 def _pixels(msg: Any, dtype: np.dtype, channels: int, topic: str) -> np.ndarray:
@@ -143,15 +139,15 @@ class Ros2Backend:
         tolerance = self.config.pair_tolerance_s
         while self._color:
             color, received = self._color[-1]
-            t = _stamp(color)
-            nearest = {kind: min(queue, key=lambda m: abs(_stamp(m) - t), default=None)
+            t = stamp_s(color)
+            nearest = {kind: min(queue, key=lambda m: abs(stamp_s(m) - t), default=None)
                        for kind, queue in self._aligned.items()}
-            missing = [kind for kind, m in nearest.items() if m is None or abs(_stamp(m) - t) > tolerance]
+            missing = [kind for kind, m in nearest.items() if m is None or abs(stamp_s(m) - t) > tolerance]
             if not missing:
                 self.counters["unpaired"] += len(self._color) - 1
                 self._color.clear()
                 return color, received, nearest
-            if any(not self._aligned[kind] or max(_stamp(m) for m in self._aligned[kind]) <= t + tolerance
+            if any(not self._aligned[kind] or max(stamp_s(m) for m in self._aligned[kind]) <= t + tolerance
                    for kind in missing):
                 return None  # its pair may still come
             self._color.pop()
@@ -184,7 +180,7 @@ class Ros2Backend:
                               "camera calibrated, and is this the colour camera's info?")
         return CapturedFrame(rgb=rgb, depth=np.ascontiguousarray(mm), depth_scale=DEPTH_SCALE,
                              intrinsics=Intrinsics(fx=float(k[0]), fy=float(k[4]), cx=float(k[2]), cy=float(k[5])),
-                             device_time_s=_stamp(color), host_time_s=received,
+                             device_time_s=stamp_s(color), host_time_s=received,
                              instance_ids=self._instance_ids(aligned.get("instance_ids"), rgb.shape[:2]))
 
     def _instance_ids(self, msg: Any, shape: tuple[int, ...]) -> np.ndarray | None:

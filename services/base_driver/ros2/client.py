@@ -39,7 +39,7 @@ from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
 from ovamos.services.base_driver.ros2.config import Ros2BaseConfig
 from ovamos.services.base_driver.ros2.map_pose import OdomHistory, map_T_odom, planar, std_of
 from ovamos.shared.motion import Pose
-from ovamos.shared.ros2 import Ros2Unavailable, node
+from ovamos.shared.ros2 import Ros2Unavailable, node, stamp_s
 
 __all__ = ["Ros2Hardware"]
 
@@ -136,7 +136,7 @@ class Ros2Hardware:
                 self._counts["ros2_odom_malformed"] += 1
             return
         with self._lock:
-            self._history.add(_seconds(msg.header.stamp), pose)
+            self._history.add(stamp_s(msg), pose)
             self._feedback = WheelFeedback(stamp=self._clock(), left_pos_rad=0.0, right_pos_rad=0.0, pose=pose,
                                            body_vel=(t.linear.x, t.angular.z), map_T_odom=self._map_T_odom)
             self._counts["ros2_odom"] += 1
@@ -154,7 +154,7 @@ class Ros2Hardware:
             verdict = "uncertain"
         else:
             with self._lock:
-                odom = self._history.at(_seconds(msg.header.stamp))
+                odom = self._history.at(stamp_s(msg))
                 if odom is not None:
                     self._map_T_odom = map_T_odom(pose, odom)
             verdict = "used" if odom is not None else "unmatched"
@@ -209,8 +209,3 @@ class Ros2Hardware:
                 ros = ros or node(self.config.network)
                 (ros.destroy_publisher if entity is self._pub else ros.destroy_subscription)(entity)
         self._pub = self._sub = self._bump_sub = self._map_pose_sub = None
-
-
-def _seconds(stamp: Any) -> float:
-    """A ``builtin_interfaces/Time`` in seconds."""
-    return stamp.sec + stamp.nanosec * 1e-9
