@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from ovamos.services.planner.agent import Reason, Step
-from ovamos.services.planner.continuous import Redecision, booked_step, path_step
+from ovamos.services.planner.continuous import PathStep, booked_step, path_step
 from ovamos.services.planner.executive import ExecutiveConfig
 from ovamos.shared.messages import PlanCommand, TaskStatus
 from ovamos.shared.motion import Action, Pose
@@ -39,7 +39,16 @@ class _Flight:
     step: Step
     pose: Pose          # odometry at the decision
     distance: float     # the true distance driven by then
-    redecision: Redecision | None  # a path's: when it is decided on again
+    drive: PathStep | None  # a path's content and when it is decided on again
+
+
+def step_kind(step: Step, drive: PathStep | None = None) -> str:
+    """What a step's time is booked as, in where the search time goes: ``path`` or ``careful path``
+    (continuous), ``navigate`` (a primitive towards the goal), else why the step was taken (``scan``,
+    ``look``, ``idle``, ``check``, ``found``, ``wander``)."""
+    if drive is not None:
+        return "careful path" if drive.careful else "path"
+    return step.reason.value
 
 
 def search_continuously(world: EpisodeWorld, search: TaskRun) -> None:
@@ -52,6 +61,7 @@ def search_continuously(world: EpisodeWorld, search: TaskRun) -> None:
     period = 1.0 / world.config.frame_hz
     thinking = latency.perception_s + latency.mapping_s + latency.decision_s
     flight: _Flight | None = None
+    booked_at = clock()
     while task.state is TaskStatus.SEARCHING:
         now, state = clock(), driver.state()
         snapshot = world.observe(search, stamp=now, after_action=state.last_completed)
@@ -59,12 +69,13 @@ def search_continuously(world: EpisodeWorld, search: TaskRun) -> None:
         pose = world.pose()
         if flight is not None:
             completed = state.last_completed >= flight.command.action_id
-            if not completed and (state.backing_off or flight.redecision is None or not flight.redecision.due(
+            if not completed and (state.backing_off or flight.drive is None or not flight.drive.redecision.due(
                     now, snapshot, pose, task.remaining, agent.config)):
                 clock.sleep(period)
                 continue
             _book(world, search, flight, blocked=completed and state.last_outcome == "blocked")
-            flight = None
+            search.time_by_step[step_kind(flight.step, flight.drive)] += now - booked_at
+            flight, booked_at = None, now
             if task.state is not TaskStatus.SEARCHING:
                 break
         step = agent.next_step(snapshot, pose)
@@ -72,11 +83,11 @@ def search_continuously(world: EpisodeWorld, search: TaskRun) -> None:
             break
         drive = path_step(agent, step, snapshot, pose, now)
         clock.sleep(thinking)  # perceived, fused, decided on: the command in flight (if any) runs on
-        command = world.command(path=drive.path, obstacles=drive.obstacles) if drive else world.command(step.action)
+        command = world.command(drive=drive) if drive else world.command(step.action)
         if driver.submit(command) != "accepted":
             raise RuntimeError(f"the simulated base refused command {command.action_id}: {driver.state()}")
         world.keep_alive = command if drive else None
-        flight = _Flight(command, step, pose, world.robot.distance, drive.redecision if drive else None)
+        flight = _Flight(command, step, pose, world.robot.distance, drive)
         clock.sleep(period * math.ceil(thinking / period) - thinking)  # to the camera's next frame
     world.keep_alive = None
     driver.submit(world.command(Action.STOP))  # the task is over: whatever runs stops

@@ -26,13 +26,15 @@ from __future__ import annotations
 import math
 import time
 import zlib
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from ovamos.bench.continuous import RESEND_S, search_continuously
+from ovamos.bench.continuous import RESEND_S, search_continuously, step_kind
 from ovamos.bench.funnel import FunnelRecorder, StopRecord, TargetFunnel
 from ovamos.bench.policies import planner_policy
 from ovamos.bench.trajectory import TrajectoryErrors, trajectory_errors
@@ -41,6 +43,7 @@ from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.localization import Localizer
 from ovamos.services.mapping.state import MapState
 from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
+from ovamos.services.planner.continuous import PathStep
 from ovamos.services.planner.policies import OVAMOS
 from ovamos.services.planner.task import SearchTask
 from ovamos.services.sim.episodes import EpisodeSpec
@@ -137,6 +140,7 @@ class EpisodeResult(BaseModel):
     localization: dict[str, int] | None = None  # the map's localizer: matches by verdict
     funnel: list[TargetFunnel] = []  # per target: how far its search got (older files: none)
     search_s: float | None = None  # wheeled bases: simulated seconds from the first command to the last
+    time_by_step: dict[str, float] | None = None  # wheeled bases: those seconds by kind of step (step_kind)
     seconds: float
 
 
@@ -151,6 +155,7 @@ class TaskRun:
     believed: list[tuple[float, float, float]]
     on_step: Callable[[int, Step], None] | None = None
     stops: list[StopRecord] = field(default_factory=list)
+    time_by_step: Counter[str] = field(default_factory=Counter)  # wheeled bases: simulated s by step_kind
 
     def stop_at(self, world: EpisodeWorld, step: Step, true: Pose) -> None:
         """The ground truth's word on a STOP made at the true pose ``true``."""
@@ -234,14 +239,12 @@ class EpisodeWorld:
         search.funnel.map(task.steps, snapshot.objects)
         return snapshot
 
-    def command(self, action: Action | None = None, path: tuple[tuple[float, float], ...] = (),
-                obstacles: tuple[tuple[float, float], ...] = ()) -> PlanCommand:
-        """The next command; a path and its obstacles (the planner's, in the map) in the base's
-        odometry frame, as the planner service sends them."""
+    def command(self, action: Action | None = None, drive: PathStep | None = None) -> PlanCommand:
+        """The next command: a primitive, or a path step (the planner's, in the map) in the base's
+        odometry frame, as the planner service sends it."""
         self.commands += 1
-        return PlanCommand(action_id=self.commands, stamp=float(self.commands), action=action,
-                           path=to_odom(self.state.map_T_odom, path),
-                           obstacles=to_odom(self.state.map_T_odom, obstacles))
+        path = {} if drive is None else drive.in_odom(partial(to_odom, self.state.map_T_odom))
+        return PlanCommand(action_id=self.commands, stamp=float(self.commands), action=action, **path)
 
     def odometry(self) -> Pose:
         """What the base's odometry says: the kinematic base's wheels, a wheeled base's driver."""
@@ -327,7 +330,9 @@ def run_task(world: EpisodeWorld, spec: EpisodeSpec,
         state=task.state.value, reason=task.reason, decisions=search.agent.decisions,
         blocked=world.blocked - blocked0, stops=stops, funnel=search.funnel.result(stops),
         trajectory=_rounded(search.trajectory), **_odometry(config, search, world.state.localizer),
-        search_s=search_s, seconds=round(time.perf_counter() - started, 3))
+        search_s=search_s, time_by_step=None if world.clock is None else
+        {kind: round(t, 2) for kind, t in sorted(search.time_by_step.items())},
+        seconds=round(time.perf_counter() - started, 3))
 
 
 def _rounded(poses: list[tuple[float, float, float]]) -> list[tuple[float, float, float]]:
@@ -358,8 +363,10 @@ def _search_stepwise(world: EpisodeWorld, search: TaskRun) -> None:
         step = agent.next_step(snapshot, pose)
         if step.action is None:
             break
-        before = robot.distance
+        before, began = robot.distance, None if world.clock is None else world.clock()
         blocked = not world.execute(step.action)
+        if began is not None and world.clock is not None:  # its motion, then its standing time
+            search.time_by_step[step_kind(step)] += world.clock() - began + world.config.latency.total_s
         if step.reason is Reason.FOUND:
             search.stop_at(world, step, true)
         agent.executed(step, robot.distance - before, blocked, pose)

@@ -44,7 +44,7 @@ from ovamos.bench.episode import EpisodeResult, StepLatency
 from ovamos.bench.jobs import Finished, Job, init_worker, iter_results, jobs_for, load_episode, run_job
 from ovamos.bench.policies import DEFAULT_POLICIES, POLICY_ORDER
 from ovamos.bench.provenance import code_version
-from ovamos.bench.stats import miss_reasons, paired_differences, policy_scores
+from ovamos.bench.stats import miss_reasons, paired_differences, policy_scores, time_by_step
 from ovamos.bench.tables import print_table
 from ovamos.bench.trajectory import write_tum
 from ovamos.services.mapping.render import write_png
@@ -333,7 +333,7 @@ def summary(run: SearchRun) -> dict[str, Any]:
     """The ``--json`` object: scores per policy, the run's settings and its wall time."""
     return {"policies": policy_scores(run.results), "vs_ovamos": paired_differences(run.results),
             "vs_plus": paired_differences(run.results, reference="ovamos-plus"),
-            "missed": miss_reasons(run.results),
+            "missed": miss_reasons(run.results), "time_by_step": time_by_step(run.results),
             "seconds": round(run.seconds, 1),
             "episodes_per_min": round(60 * (len(run.results) - run.resumed) / max(run.seconds, 1e-9), 2),
             "resumed": run.resumed, "code": run.code, "failed": run.failed, "engine": run.engine,

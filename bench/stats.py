@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import statistics
+from collections import Counter
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -41,6 +42,23 @@ def policy_scores(results: Sequence[EpisodeResult]) -> dict[str, dict[str, float
                                "rpe_median_m": round(float(np.median([e.rpe_trans_median_m for e in errors])), 4),
                                "rpe_median_deg": round(float(np.median([e.rpe_rot_median_deg for e in errors])), 3)}
     return scores
+
+
+def time_by_step(results: Sequence[EpisodeResult]) -> dict[str, dict[str, float]]:
+    """Per policy on a wheeled base: where the search time went, the % of all its episodes' simulated
+    seconds by kind of step (``EpisodeResult.time_by_step``), largest first; nothing for a policy
+    with an episode that did not record it (the kinematic base, older files)."""
+    out: dict[str, dict[str, float]] = {}
+    for policy in sorted({r.policy for r in results}, key=policy_rank):
+        mine = [r.time_by_step for r in results if r.policy == policy]
+        if not mine or any(t is None for t in mine):
+            continue
+        total: Counter[str] = Counter()
+        for times in mine:
+            total.update(times or {})
+        whole = sum(total.values()) or 1.0
+        out[policy] = {kind: round(100 * t / whole, 1) for kind, t in total.most_common()}
+    return out
 
 
 def miss_reasons(results: Sequence[EpisodeResult]) -> dict[str, dict[str, int]]:

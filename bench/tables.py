@@ -61,6 +61,14 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
         for policy, m in missed.items():
             table.add_row(LABELS.get(policy, policy), str(m["targets"]), *(str(m[k.value]) for k in Miss))
         console.print(table)
+    spent = result.get("time_by_step") or {}
+    if spent:
+        kinds = sorted({k for shares in spent.values() for k in shares},
+                       key=lambda k: -max(shares.get(k, 0.0) for shares in spent.values()))
+        table = Table("method", *kinds, title="Where the search time goes: % of the simulated seconds, by kind of step")
+        for policy, shares in spent.items():
+            table.add_row(LABELS.get(policy, policy), *(f"{shares.get(k, 0.0):.1f}" for k in kinds))
+        console.print(table)
     if result.get("code"):
         console.print("episodes by the code version that ran them: "
                       + ", ".join(f"{v} {n}" for v, n in result["code"].items()), highlight=False)

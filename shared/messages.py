@@ -523,7 +523,8 @@ class PlanCommand(JsonMessage):
     command held for ``duration_s`` at most (the deadman still applies); ``path`` waypoints (x, y)
     in the odometry frame, followed closed-loop to the last one while the command keeps being
     re-sent (the deadman applies to it as to a velocity), slowing near ``obstacles`` (points in the
-    same frame: the mapped obstacles the planner saw near the path; the robot has no map). Action
+    same frame: the mapped obstacles the planner saw near the path; the robot has no map), no faster
+    than ``speed_m_s`` where given (a careful path after a bump) nor than the base's limit. Action
     ids grow within a session; a driver executes an id only once, and a newer id replaces what runs.
     """
 
@@ -536,14 +537,15 @@ class PlanCommand(JsonMessage):
     duration_s: float = Field(default=0.0, ge=0)
     path: tuple[tuple[float, float], ...] = Field(default=(), max_length=MAX_PATH_POINTS)
     obstacles: tuple[tuple[float, float], ...] = Field(default=(), max_length=MAX_PATH_OBSTACLES)
+    speed_m_s: float | None = Field(default=None, gt=0, description="a path's top speed (None: the base's)")
 
     @model_validator(mode="after")
     def _one_kind(self) -> Self:
         kinds = (self.action is not None) + bool(self.linear or self.angular) + bool(self.path)
         if kinds > 1:
             raise ValueError("a command is one of a discrete action, a velocity or a path")
-        if self.obstacles and not self.path:
-            raise ValueError("obstacles come with a path command only")
+        if (self.obstacles or self.speed_m_s is not None) and not self.path:
+            raise ValueError("obstacles and a top speed come with a path command only")
         return self
 
     @property

@@ -43,9 +43,10 @@ class Base:
         if self._sent and self.clock() < self.keep_alive_until:
             self.driver.submit(self._sent[-1])
 
-    def send(self, path: Sequence[tuple[float, float]], obstacles: Sequence[tuple[float, float]] = ()) -> PlanCommand:
+    def send(self, path: Sequence[tuple[float, float]], obstacles: Sequence[tuple[float, float]] = (),
+             speed_m_s: float | None = None) -> PlanCommand:
         command = PlanCommand(action_id=len(self._sent) + 1, stamp=self.clock(), path=tuple(path),
-                              obstacles=tuple(obstacles))
+                              obstacles=tuple(obstacles), speed_m_s=speed_m_s)
         assert self.driver.submit(command) == "accepted"
         self._sent.append(command)
         return command
@@ -123,9 +124,10 @@ def test_a_path_through_a_doorway_touches_no_wall(base_name: str) -> None:
         base.stop()
 
 
-def _speeds(trace: list[tuple[float, Pose]], lo: float, hi: float) -> list[float]:
-    """The robot's speed (m/s) between consecutive trace poses while lo <= x <= hi."""
-    return [math.hypot(b.x - a.x, b.y - a.y) / (tb - ta) for (ta, a), (tb, b) in zip(trace, trace[1:])
+def _speeds(trace: list[tuple[float, Pose]], lo: float, hi: float, ticks: int = 1) -> list[float]:
+    """The robot's speed (m/s) between trace poses ``ticks`` apart while lo <= x <= hi (over several
+    ticks, the one tick whose pose caught up with two ticks' motion averages out)."""
+    return [math.hypot(b.x - a.x, b.y - a.y) / (tb - ta) for (ta, a), (tb, b) in zip(trace, trace[ticks:])
             if lo <= a.x <= hi and tb > ta]
 
 
@@ -150,6 +152,22 @@ def test_the_follower_slows_beside_a_named_obstacle_and_not_elsewhere(base_name:
     assert top[True][1] <= cap + 0.01 < full - 0.05  # beside the post: slowed
     assert top[True][0] == pytest.approx(full, abs=0.01)  # before it: full speed
     assert top[False][1] == pytest.approx(full, abs=0.01)  # not named: not slowed
+
+
+def test_a_path_with_a_top_speed_is_driven_no_faster(base_name: str) -> None:
+    """A careful path's ``speed_m_s`` caps the follower's speed all along; the same path without it
+    cruises faster."""
+    top = {}
+    for speed in (0.1, None):
+        base = Base(base_name)
+        try:
+            command = base.send([(0.0, 0.0), (1.0, 0.0)], speed_m_s=speed)
+            base.until(lambda: base.completed(command), "the path done")
+            assert base.driver.state().last_outcome == "done"
+            top[speed] = max(_speeds(base.trace, 0.0, 1.0, ticks=5))
+        finally:
+            base.stop()
+    assert top[0.1] <= 0.1 + 0.01 < top[None] - 0.05
 
 
 def test_a_newer_path_replaces_the_one_being_followed(base_name: str) -> None:
@@ -218,5 +236,6 @@ def test_a_path_command_is_one_kind_and_bounded() -> None:
         PlanCommand(action_id=1, stamp=0.0, path=tuple((0.01 * i, 0.0) for i in range(MAX_PATH_POINTS + 1)))
     with pytest.raises(ValueError, match="at least one waypoint"):
         PathFollower((), DriverConfig())
-    with pytest.raises(ValueError, match="obstacles come with a path command only"):
-        PlanCommand(action_id=1, stamp=0.0, action=Action.MOVE_FORWARD, obstacles=((1.0, 0.0),))
+    for extra in ({"obstacles": ((1.0, 0.0),)}, {"speed_m_s": 0.1}):
+        with pytest.raises(ValueError, match="obstacles and a top speed come with a path command only"):
+            PlanCommand(action_id=1, stamp=0.0, action=Action.MOVE_FORWARD, **extra)

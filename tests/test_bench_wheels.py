@@ -130,8 +130,10 @@ def test_a_wheeled_episode_reports_its_search_time_in_simulated_seconds() -> Non
                   for a in actions)
     assert moving.search_s is not None and moving.search_s > fastest > 0
     assert timed.search_s == pytest.approx(moving.search_s + moving.steps * StepLatency().total_s, abs=0.02)
+    assert timed.time_by_step is not None and set(timed.time_by_step) == {"scan", "navigate"}  # then to a goal
+    assert sum(timed.time_by_step.values()) == pytest.approx(timed.search_s, abs=0.05)  # every second booked
     kinematic = run_episode(spec, scene, truth, EpisodeConfig(), load_prior())
-    assert kinematic.search_s is None
+    assert kinematic.search_s is None and kinematic.time_by_step is None
     scores = policy_scores([EpisodeResult.model_validate(timed.model_dump())])["ovamos"]
     assert scores["median_search_s"] == scores["p90_search_s"] == round(timed.search_s, 1)
     assert "median_search_s" not in policy_scores([kinematic])["ovamos"]
@@ -146,6 +148,9 @@ def test_a_continuous_episode_finds_its_target_in_simulated_time() -> None:
     continuous = EpisodeConfig(base="kobuki", agent=AgentConfig(motion="continuous"))
     first = run_episode(spec, scene, truth, continuous, load_prior()).model_dump(exclude={"seconds"})
     assert first["success"] and all(s["distance_m"] <= 1.0 for s in first["stops"] if s["success"])
+    spent = first["time_by_step"]  # booked from one decision to the next, the last STOP's included
+    assert min(spent["scan"], spent["path"], spent["found"]) > 0
+    assert sum(spent.values()) == pytest.approx(first["search_s"], abs=0.5)
     stepwise = _result("kobuki", first["steps"])
     assert first["search_s"] < stepwise["search_s"]
 
@@ -162,6 +167,7 @@ def test_the_search_benchmark_runs_continuous_motion_and_keeps_it_apart_from_ste
     two benchmarks), and so is continuous motion on the kinematic base."""
     from ovamos.bench.jobs import Job, run_job
     from ovamos.bench.search import SearchError, run_search
+    from ovamos.bench.stats import time_by_step
     run = run_search(1, EPISODE[0], ("ovamos",), workers=1, max_steps=15, base="kobuki", motion="continuous",
                      out=tmp_path)
     (result,) = run.results
@@ -169,6 +175,7 @@ def test_the_search_benchmark_runs_continuous_motion_and_keeps_it_apart_from_ste
     assert result.model_dump(exclude={"seconds"}) == alone.model_dump(exclude={"seconds"})
     assert result.search_s is not None
     assert json.loads((tmp_path / "run.json").read_text())["motion"] == "continuous"
+    assert sum(time_by_step(run.results)["ovamos"].values()) == pytest.approx(100, abs=0.5)
     with pytest.raises(SearchError, match="motion 'continuous' there, 'stepwise' here"):
         run_search(1, EPISODE[0], ("ovamos",), workers=1, max_steps=15, base="kobuki", out=tmp_path, resume=True)
     with pytest.raises(SearchError, match="wheeled base"):

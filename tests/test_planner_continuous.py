@@ -13,19 +13,22 @@ import numpy as np
 import pytest
 
 from ovamos.services.planner.agent import AgentConfig
-from ovamos.services.planner.continuous import PathWatch, obstacles_near
+from ovamos.services.planner.continuous import PathWatch, _gaps, _sampled, obstacles_near
 from ovamos.services.planner.executive import BLIND, Executive, ExecutiveConfig
 from ovamos.shared.grid import GridGeometry
 from ovamos.shared.gridpaths import traversable
-from ovamos.shared.messages import MAX_PATH_OBSTACLES, DriverState, MapSnapshot, ObjectInstance
+from ovamos.shared.messages import MAX_PATH_OBSTACLES, DriverState, MapSnapshot, ObjectInstance, PlanCommand
 from ovamos.shared.motion import Action, Pose
+from ovamos.shared.robot import ROBOT
+from tests.test_base_driver_follow import BASES, Base, _speeds
 from tests.test_planner_executive import commands, driver, odom, snapshot, spec
 
 
-def scanned(every_s: float = 1.0, careful: int = 5) -> tuple[Executive, float]:
+def scanned(every_s: float = 1.0, careful: int = 5, careful_path_m: float = 0.5) -> tuple[Executive, float]:
     """A continuous executive past its one-turn look-around, its first path just sent; the time."""
     ex = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=1, motion="continuous", decide_every_s=every_s,
-                                                     careful_steps=careful), resend_s=0.3))
+                                                     careful_steps=careful, careful_path_m=careful_path_m),
+                                   resend_s=0.3))
     ex.on_task(spec())
     ex.on_driver(driver())
     ex.on_snapshot(snapshot(0))
@@ -102,11 +105,10 @@ def test_a_target_confirmed_on_the_way_is_decided_on_at_once() -> None:
     assert second.action_id == first.action_id + 1 and goal is not None and goal.label == "cup"
 
 
-@pytest.mark.parametrize("careful", [0, 5])
-def test_a_path_backing_off_from_a_bump_is_waited_for_and_booked_blocked(careful: int) -> None:
-    """Then, within ``careful_steps`` of the bump, the way on is primitives, each checked on the map
-    with the bump in it."""
-    ex, t = scanned(every_s=0.5, careful=careful)
+def bumped(careful: int = 5, careful_path_m: float = 0.5) -> tuple[Executive, PlanCommand]:
+    """A continuous executive whose first path was blocked (the driver backing off, then reporting
+    it), and the command it sent next."""
+    ex, t = scanned(every_s=0.5, careful=careful, careful_path_m=careful_path_m)
     first = ex.in_flight.command  # type: ignore[union-attr]
     backing = DriverState(**{**driver(completed=1, active=first.action_id, outcome="done").model_dump(),
                              "backing_off": True})
@@ -119,7 +121,58 @@ def test_a_path_backing_off_from_a_bump_is_waited_for_and_booked_blocked(careful
     [second] = commands(ex.poll(t + 1.1))
     assert second.action_id == first.action_id + 1
     assert ex.agent.bumps.points(ex.task.steps)  # type: ignore[union-attr]  # the bump was marked
-    assert (second.action is not None and not second.path) if careful else (second.path and second.action is None)
+    return ex, second
+
+
+@pytest.mark.parametrize(("careful", "careful_path_m", "sent"),
+                         [(0, 0.5, "path"), (5, 0.5, "careful path"), (5, 0.0, "primitive")])
+def test_a_path_backing_off_from_a_bump_is_waited_for_and_booked_blocked(careful: int, careful_path_m: float,
+                                                                           sent: str) -> None:
+    """Then, within ``careful_steps`` of the bump, the way on is a careful path: at most
+    ``careful_path_m`` long, no faster than ``careful_m_s``, the bump named first; with careful paths
+    off, primitives, each checked on the map with the bump in it."""
+    ex, second = bumped(careful, careful_path_m)
+    config = ex.config.agent
+    [bump] = ex.agent.bumps.points(ex.task.steps)  # type: ignore[union-attr]
+    if sent == "primitive":
+        assert second.action is not None and not second.path
+        return
+    assert second.path and second.action is None
+    if sent == "path":
+        assert second.speed_m_s is None and bump not in second.obstacles
+        return
+    assert second.speed_m_s == config.careful_m_s and second.obstacles[0] == pytest.approx(bump, abs=1e-3)
+    here = np.array(second.path)
+    assert here[0] == pytest.approx((1.1, 1.0))  # from where the robot stands
+    assert np.hypot(*np.diff(here, axis=0).T).sum() <= config.careful_path_m + 1e-3  # (rounded to 0.1 mm)
+
+
+@pytest.mark.parametrize("base_name", BASES)
+def test_the_careful_path_after_a_bump_never_touches_the_obstacle_it_was_told_of(base_name: str) -> None:
+    """The robot backed off a bump that nothing on the map shows; the goal lies past it, so the straight
+    way on would drive the footprint over the bumped point. The careful path the planner sends, followed
+    by the real controller on each simulated base (whose collision check is that point), goes round it:
+    no contact, the footprint kept off it, no faster than ``careful_m_s``."""
+    ex, command = bumped()
+    config = ex.config.agent
+    [(bx, by)] = ex.agent.bumps.points(ex.task.steps)  # type: ignore[union-attr]
+    goal = ex.agent.goal  # type: ignore[union-attr]
+    assert goal is not None and command.speed_m_s is not None
+    straight = np.array([[1.1, 1.0], [goal.x, goal.y]])
+    assert _gaps(np.array([[bx, by]]), _sampled(straight, 0.01)).min() < ROBOT.radius_m  # the way it would touch
+
+    def is_free(x: float, y: float) -> bool:
+        return math.hypot(x - bx, y - by) > ROBOT.radius_m
+    base = Base(base_name, is_free, Pose(x=1.1, y=1.0, yaw=0.5))
+    try:
+        sent = base.send(command.path, command.obstacles, command.speed_m_s)
+        base.until(lambda: base.completed(sent), "the careful path done")
+        assert base.driver.state().last_outcome == "done" and base.driver.counters["bumps"] == 0
+        gaps = [math.hypot(p.x - bx, p.y - by) for _, p in base.trace]
+        assert min(gaps) >= ROBOT.radius_m + config.careful_clearance_m - 0.05  # half a cell and tracking
+        assert max(_speeds(base.trace, -math.inf, math.inf, ticks=5)) <= config.careful_m_s + 0.01
+    finally:
+        base.stop()
 
 
 def test_stepwise_sends_primitives_only() -> None:

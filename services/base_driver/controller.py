@@ -501,7 +501,7 @@ class BaseController:
             if cmd.action is not None:
                 active.tracker = PrimitiveTracker(cmd.action, self._odom.pose, c)
             elif cmd.path:
-                active.tracker = PathFollower(cmd.path, c, cmd.obstacles)
+                active.tracker = PathFollower(cmd.path, c, cmd.obstacles, cmd.speed_m_s)
         if active.tracker is None:  # velocity command
             expired = cmd.duration_s > 0 and now - active.started >= cmd.duration_s
             if now - self._last_command_at > c.deadman_s or expired:

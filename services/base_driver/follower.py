@@ -5,7 +5,7 @@ steers toward the point ``lookahead_m`` further on with the arc through it (curv
 ``2 y / L^2`` in the robot's frame), drives curves tighter than ``min_radius_m`` proportionally
 slower, drives slower as the gap between its footprint and the nearest obstacle the command names
 (``PlanCommand.obstacles``: the robot has no map of its own) narrows below ``slow_clearance_m``
-(down to ``near_obstacle_m_s``), and brakes for the last point on the same curve as a primitive's
+(down to ``near_obstacle_m_s``), never faster than the command's ``speed_m_s`` (a careful path), and brakes for the last point on the same curve as a primitive's
 approach. A corner (the
 path turning by more than ``corner_rad`` at a waypoint) is driven to and braked for like the last
 point, the lookahead not passing it, rather than cut. A heading error to the lookahead point larger
@@ -43,6 +43,7 @@ class PathFollower:
     path: Sequence[Point]
     config: DriverConfig
     obstacles: Sequence[Point] = ()
+    speed_m_s: float | None = None  # the command's top speed (None: the base's)
     _segment: int = field(default=0, init=False)  # the segment the robot was last nearest to
     _along: float = field(default=0.0, init=False)
     _passed: int = field(default=0, init=False)  # the last corner (waypoint index) the robot went round
@@ -50,6 +51,8 @@ class PathFollower:
     def __post_init__(self) -> None:
         if not self.path:
             raise ValueError("a path command needs at least one waypoint")
+        self._top = self.config.max_linear_m_s if self.speed_m_s is None else min(self.speed_m_s,
+                                                                                   self.config.max_linear_m_s)
 
     def _points(self, pose: Pose) -> list[Point]:
         """The robot's position then the path's waypoints (a one-point path starts at the robot)."""
@@ -116,16 +119,16 @@ class PathFollower:
         curvature = 2.0 * y / max(x * x + y * y, 1e-9)
         tight = f.min_radius_m * abs(curvature)  # > 1: a curve tighter than min_radius_m
         to_goal = remaining  # to the path's end or the next corner, where it slows
-        speed = min(c.max_linear_m_s / max(1.0, tight), self._near_obstacle_speed(here),
-                    approach(to_goal, c.max_linear_m_s, c.max_linear_accel_m_s2, c.approach_gain, f.min_speed_m_s))
+        speed = min(self._top / max(1.0, tight), self._near_obstacle_speed(here),
+                    approach(to_goal, self._top, c.max_linear_accel_m_s2, c.approach_gain, f.min_speed_m_s))
         speed = max(f.min_speed_m_s, speed)
         return speed, speed * curvature
 
     def _near_obstacle_speed(self, here: Point) -> float:
-        """The top speed scaled by the gap to the nearest named obstacle over ``slow_clearance_m``, no
+        """The top speed (the command's or the base's) scaled by the gap to the nearest named obstacle over ``slow_clearance_m``, no
         slower than ``near_obstacle_m_s``."""
-        c, f = self.config, self.config.follow
+        f = self.config.follow
         if not self.obstacles or f.slow_clearance_m == 0:
-            return c.max_linear_m_s
+            return self._top
         gap = min(math.hypot(ox - here[0], oy - here[1]) for ox, oy in self.obstacles) - f.footprint_m
-        return max(f.near_obstacle_m_s, c.max_linear_m_s * min(1.0, gap / f.slow_clearance_m))
+        return max(min(f.near_obstacle_m_s, self._top), self._top * min(1.0, gap / f.slow_clearance_m))

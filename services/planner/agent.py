@@ -26,6 +26,7 @@ import math
 from dataclasses import dataclass
 from enum import Enum
 
+import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -85,9 +86,21 @@ class AgentConfig(BaseModel):
                     "(services/planner/continuous.py)")
     careful_steps: int = Field(
         default=5, ge=0,
-        description="continuous: after a bump, this many steps drive primitives (the navigator's "
-                    "0.25 m moves, each checked on the map with the bump) before paths again: a path "
-                    "re-planned past a bump the camera cannot see grazes it again")
+        description="continuous: after a bump, this many steps drive careful paths (short and slow, the "
+                    "bumps named: careful_path_m, careful_m_s) or, where the path would bring the footprint "
+                    "within careful_clearance_m of a bump, primitives (the navigator's 0.25 m moves, each "
+                    "checked on the map with the bump): a path re-planned past a bump the camera cannot see "
+                    "at full speed grazes it again")
+    careful_path_m: float = Field(
+        default=0.5, ge=0,
+        description="continuous: a careful path is the navigator's path cut to this length (0: the careful "
+                    "steps are primitives, as before careful paths existed)")
+    careful_m_s: float = Field(default=0.15, gt=0, description="continuous: a careful path's top speed")
+    careful_clearance_m: float = Field(
+        default=0.05, ge=0,
+        description="continuous: the navigator's map grows each bump remembered (one point of an obstacle "
+                    "the map may not have) so that its paths keep the robot's footprint this far from it; a "
+                    "careful path that would still come closer is a primitive")
     decide_every_s: float = Field(
         default=1.0, gt=0,
         description="continuous: re-decide this often while a path is followed (a step: about one "
@@ -362,7 +375,24 @@ class SearchAgent:
             obstacle &= ~self._swept(nav)
         rows, cols = _cells_inside(nav, bumps)
         obstacle[rows, cols] = True
+        grow = round(self._bump_radius_m / nav.grid.resolution)
+        if grow > 0 and len(rows):
+            grown = np.zeros(obstacle.shape, np.uint8)
+            for r, c in zip(rows.tolist(), cols.tolist()):
+                cv2.circle(grown, (c, r), grow, 1, -1)
+            obstacle |= grown.astype(bool)
         return NavMap(obstacle, nav.explored, nav.grid)
+
+    @property
+    def _bump_radius_m(self) -> float:
+        """How far round a bump the map is taken as blocked: a point stepwise (the paper's; the
+        navigator's 0.25 m moves are checked against it), and continuous as far as keeps the
+        navigator's paths ``careful_clearance_m`` off it with the whole footprint (a path followed at
+        speed past a point cleared by the navigator's radius alone grazed it again)."""
+        c = self.config
+        if c.motion != "continuous":
+            return 0.0
+        return max(0.0, ROBOT.radius_m + c.careful_clearance_m - c.navigation.robot_radius)
 
     def _swept(self, nav: NavMap) -> np.ndarray:
         """The cells the robot's footprint swept along its trail, plus a cell (mapped obstacles

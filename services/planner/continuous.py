@@ -7,10 +7,12 @@ while frames free-run into the map, and the agent is asked again (the step booke
 covered so far) when one of :meth:`Redecision.due`'s events happens (a target confirmed, at the
 object, the path walled off, a much better frontier) or ``decide_every_s`` has passed, never
 waiting for the robot to stop. The path goes with the mapped obstacles near it
-(:func:`obstacles_near`): the robot has no map, and its follower slows near them. Every other
-step (the look-around, a turn with nowhere to go, ovamos-plus's check turns, the STOP beside a
-found object) stays a primitive, so a found target still ends with the robot within its STOP
-distance and a STOP.
+(:func:`obstacles_near`): the robot has no map, and its follower slows near them. Within
+``careful_steps`` of a bump the path is a careful one (:func:`careful_path`): short, slow, the
+bumps named, and only where it keeps the footprint off every bump (else a primitive, which the
+navigator checks against the bump cell by cell). Every other step (the look-around, a turn with
+nowhere to go, ovamos-plus's check turns, the STOP beside a found object) stays a primitive, so a
+found target still ends with the robot within its STOP distance and a STOP.
 
 A step is then a decision tick: ``decide_every_s`` defaults to about the time a MOVE_FORWARD's
 0.25 m takes at a TurtleBot's top speed, so the agent's step-counted rules (re-decide every 4,
@@ -23,8 +25,9 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -36,8 +39,12 @@ from ovamos.services.planner.policies import POLICIES
 from ovamos.shared.grid import GridGeometry, disc
 from ovamos.shared.messages import MAX_PATH_OBSTACLES, MAX_PATH_POINTS, MapSnapshot
 from ovamos.shared.motion import Action, Pose
+from ovamos.shared.robot import ROBOT
 
 Point = tuple[float, float]
+
+CLEARANCE_SAMPLE_M = 0.025
+"""How finely a path is sampled where its distance to a point is checked (half a map cell)."""
 
 PERIOD = "period"
 """:meth:`Redecision.due`'s answer when only ``decide_every_s`` has passed (no event)."""
@@ -45,37 +52,107 @@ PERIOD = "period"
 
 @dataclass(frozen=True)
 class PathStep:
-    """A navigation step as a path command's content, and when it is to be decided on again."""
+    """A navigation step as a path command's content (in the map frame), and when it is to be
+    decided on again."""
 
     path: tuple[Point, ...]
     obstacles: tuple[Point, ...]
     redecision: Redecision
+    speed_m_s: float | None = None  # a careful path's top speed (None: the base's)
+
+    @property
+    def careful(self) -> bool:
+        return self.speed_m_s is not None
+
+    def in_odom(self, to_odom: Callable[[tuple[Point, ...]], tuple[Point, ...]]) -> dict[str, Any]:
+        """The :class:`PlanCommand` fields of this path in the base's odometry frame (``to_odom``
+        converts map points: the base follows in its own frame)."""
+        return {"path": to_odom(self.path), "obstacles": to_odom(self.obstacles), "speed_m_s": self.speed_m_s}
 
 
 def path_step(agent: SearchAgent, step: Step, snapshot: MapSnapshot, pose: Pose, now: float) -> PathStep | None:
     """``step`` as a path to send (None: it stays a primitive, see :func:`path_for`), with the mapped
-    obstacles near it (``tell_obstacles_m``) and its :class:`Redecision`."""
-    path = path_for(agent, step)
-    if path is None:
+    obstacles near it (``tell_obstacles_m``; a careful path's bumps first) and its :class:`Redecision`."""
+    planned = path_for(agent, step, pose)
+    if planned is None:
         return None
+    path, careful = planned
     config, remaining = agent.config, agent.task.remaining
-    return PathStep(path, obstacles_near(snapshot, path, pose, config.tell_obstacles_m),
-                    Redecision.start(step, now, snapshot, pose, path, remaining, config))
+    obstacles = obstacles_near(snapshot, path, pose, config.tell_obstacles_m)
+    if careful:
+        bumps = _near(agent.bumps.points(agent.task.steps), path, pose, config.tell_obstacles_m + ROBOT.radius_m)
+        obstacles = (*bumps, *obstacles)[:MAX_PATH_OBSTACLES]
+    return PathStep(path, obstacles, Redecision.start(step, now, snapshot, pose, path, remaining, config),
+                    config.careful_m_s if careful else None)
 
 
-def path_for(agent: SearchAgent, step: Step) -> tuple[tuple[float, float], ...] | None:
-    """The path to send for ``step`` (the navigator's remaining path, as of the decision just made),
-    or None when the step stays a primitive (anything but navigating towards a goal, and navigating
-    within ``careful_steps`` of a bump)."""
+def path_for(agent: SearchAgent, step: Step, pose: Pose) -> tuple[tuple[Point, ...], bool] | None:
+    """The path to send for ``step`` (the navigator's remaining path, as of the decision just made)
+    and whether it is a careful one (within ``careful_steps`` of a bump: :func:`careful_path`), or
+    None when the step stays a primitive (anything but navigating towards a goal, and a careful
+    step whose path would come too close to a bump)."""
     if step.reason is not Reason.NAVIGATE:
-        return None
-    since = agent.bumps.since(agent.task.steps)
-    if since is not None and since < agent.config.careful_steps:
         return None
     points = agent.navigator.path
     if len(points) == 0:
         return None
-    return tuple((round(float(x), 4), round(float(y), 4)) for x, y in points[:MAX_PATH_POINTS])
+    path = tuple((round(float(x), 4), round(float(y), 4)) for x, y in points[:MAX_PATH_POINTS])
+    since = agent.bumps.since(agent.task.steps)
+    if since is None or since >= agent.config.careful_steps:
+        return path, False
+    careful = careful_path(path, pose, agent.bumps.points(agent.task.steps), agent.config)
+    return None if careful is None else (careful, True)
+
+
+def careful_path(path: Sequence[Point], pose: Pose, bumps: Sequence[Point], config: AgentConfig
+                 ) -> tuple[Point, ...] | None:
+    """The first ``careful_path_m`` of ``path``, from the robot's place on, or None where driving it would bring the
+    footprint within ``careful_clearance_m`` of a bump (or nearer one than the robot stands now; the
+    navigator's map grows bumps for this, :meth:`SearchAgent._nav_map`) or careful paths are off
+    (``careful_path_m`` 0)."""
+    if config.careful_path_m == 0:
+        return None
+    cut = _cut(np.array([(pose.x, pose.y), *path], float), config.careful_path_m)
+    if bumps:
+        xy = np.array(bumps, float)
+        # a bump the robot already stands nearer to (it marks a point of the obstacle, not its face)
+        # may not come nearer; half a cell for the grid the navigator keeps the clearance on
+        now = np.hypot(xy[:, 0] - pose.x, xy[:, 1] - pose.y)
+        keep = np.minimum(ROBOT.radius_m + config.careful_clearance_m - CLEARANCE_SAMPLE_M, now - 1e-3)
+        if (_gaps(xy, _sampled(cut, CLEARANCE_SAMPLE_M)) < keep).any():
+            return None
+    # from where the robot stands: its follower then drives the first leg as planned (turning in
+    # place first where it heads elsewhere) rather than an arc to a point further on, which cuts
+    # toward what it bumped
+    return tuple((round(float(x), 4), round(float(y), 4)) for x, y in cut)
+
+
+def _cut(polyline: np.ndarray, length: float) -> np.ndarray:
+    """``polyline`` (K x 2) up to ``length`` along it (its last vertex where it is shorter)."""
+    out, left = [polyline[0]], length
+    for a, b in zip(polyline[:-1], polyline[1:]):
+        step = float(np.hypot(*(b - a)))
+        if step >= left:
+            out.append(a + (b - a) * (left / step if step else 0.0))
+            break
+        out.append(b)
+        left -= step
+    return np.array(out)
+
+
+def _gaps(points: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    """Each of ``points``' (N x 2) distance to the nearest of ``samples`` (M x 2)."""
+    return np.hypot(points[:, None, 0] - samples[None, :, 0], points[:, None, 1] - samples[None, :, 1]).min(axis=1)
+
+
+def _near(points: Sequence[Point], path: Sequence[Point], pose: Pose, within_m: float) -> tuple[Point, ...]:
+    """``points`` within ``within_m`` of the path from the robot on, nearest the robot first."""
+    if not points:
+        return ()
+    xy = np.array(points, float)
+    gaps = _gaps(xy, _sampled(np.array([(pose.x, pose.y), *path], float), CLEARANCE_SAMPLE_M))
+    order = np.argsort(np.hypot(xy[:, 0] - pose.x, xy[:, 1] - pose.y), kind="stable")
+    return tuple((round(float(xy[i, 0]), 3), round(float(xy[i, 1]), 3)) for i in order if gaps[i] <= within_m)
 
 
 def obstacles_near(snapshot: MapSnapshot, path: Sequence[Point], pose: Pose, within_m: float

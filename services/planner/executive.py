@@ -395,8 +395,7 @@ class Executive:
         # a path is decided in the map and followed in the base's odometry frame
         command = PlanCommand(action_id=self._next_id, stamp=self._wall_clock(), task_id=self.task.task_id if self.task
                               else None, action=None if drive else step.action,
-                              path=snapshot.to_odom(drive.path) if drive else (),
-                              obstacles=snapshot.to_odom(drive.obstacles) if drive else ())
+                              **(drive.in_odom(snapshot.to_odom) if drive else {}))
         self._next_id += 1
         self.in_flight = _InFlight(command, step, pose, now, drive.redecision if drive else None)
         if step.reason is Reason.FOUND:
