@@ -402,3 +402,34 @@ def test_a_forged_driver_state_is_ignored_and_a_restart_is_followed_on_evidence(
     assert events(out)[-1].message == f"{OLD_MAP} (the map is of session 'A', the driver's is 'B')"
     ex.on_driver(driver(session="A", stamp=3.0))  # a late state of the session left: ignored
     assert ex.driver.odom_session == "B"
+
+
+def test_a_forged_odometry_stream_mid_task_reaches_no_pose_and_a_restart_seen_in_odometry_is_followed() -> None:
+    """Issue 49: 30 odometry messages of another session at 10 Hz mid-task, between the real ones,
+    put forged poses at the map origin into the task's events (its recorded path). Odometry now
+    follows the driver's session as its states do: the forged ones are counted, and no event carries
+    them. A driver that really restarts (its session quiet, a new one streaming odometry) is followed
+    from its odometry as from its states."""
+    clock = [0.0]
+    ex = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=2)), receipt_clock=lambda: clock[0])
+    ex.on_task(spec())
+    ex.on_driver(driver(session="A", stamp=1.0))
+    ex.on_snapshot(snapshot(0, session="A"))
+    ex.on_odom(odom(x=2.0, y=3.0, session="A"))
+    assert [c.action_id for c in commands(ex.poll(0.0))] == [1]
+    seen = []
+    for k in range(30):
+        clock[0] += 0.05
+        ex.on_odom(Odometry(seq=k + 1, stamp=clock[0], x=2.0 + 0.001 * k, y=3.0, yaw=0.0, odom_session="A"))
+        clock[0] += 0.05
+        ex.on_odom(Odometry(seq=k + 1, stamp=clock[0], x=0.0, y=0.0, yaw=0.0, odom_session="forged"))
+        seen.append(ex.event())
+    assert all(e.x is not None and e.x >= 2.0 and e.y == 3.0 and e.odom_session == "A" for e in seen)
+    assert ex.sessions.stray["odom"] == 30 and ex.sessions.current == "A" and ex.in_flight is not None
+    clock[0] += 1.0  # A goes quiet; B's odometry streams at 10 Hz
+    for k in range(5):
+        clock[0] += 0.1
+        ex.on_odom(Odometry(seq=k + 1, stamp=clock[0], x=0.1 * k, y=0.0, yaw=0.0, odom_session="B"))
+    assert ex.sessions.current == "B" and ex.in_flight is None and ex.odom is not None and ex.odom.x == pytest.approx(0.4)
+    ex.on_driver(driver(session="B", stamp=5.0))
+    assert ex.driver is not None and ex.driver.odom_session == "B" and ex.event().odom_session == "B"

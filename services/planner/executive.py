@@ -136,7 +136,7 @@ class Executive:
         self.robot_reachable = True  # False once every driver's liveliness token is gone
         self.unreachable_why = ROBOT_UNREACHABLE  # a link lost, or a driver that said it shut down
         self._next_id = 1
-        self._sessions = SessionFollower(self.config.session_switch, clock=receipt_clock)  # states taken
+        self.sessions = SessionFollower(self.config.session_switch, clock=receipt_clock)  # states, odometry
         self._odom_session: str | None = None  # of the last one taken, kept while it is unreachable
         self._decided_on = -2       # snapshot seq of the last decision
         self.blind_stops = 0        # paths left to stop for want of a newer map (continuous motion)
@@ -181,24 +181,33 @@ class Executive:
         if not self.robot_reachable and state.mode is DriverMode.OFF and state.odom_session == self._odom_session:
             self.unreachable_why = DRIVER_OFF
             return
-        before = self._odom_session
-        if not self._sessions.observe("driver_state", state.odom_session, state.stamp):
-            if sampled(self._sessions.stray["driver_state"]):
-                log.warning("ignored a driver state of odometry session %r: the driver's is %r and "
-                            "no sustained stream of %r says it restarted (%d such states so far)",
-                            state.odom_session, self._sessions.current, state.odom_session,
-                            self._sessions.stray["driver_state"])
+        if not self._admit("driver_state", state.odom_session, state.stamp):
             return
-        if before is not None and state.odom_session != before:
-            self._new_odom_session(state.odom_session, before)
-        self.driver, self._odom_session = state, state.odom_session
+        self.driver = state
         newest = max(state.last_completed, state.active_action or 0)
         if newest >= self._next_id:  # ids continue after the driver's (a planner restart)
             self._next_id = newest + 1
 
+    def _admit(self, stream: str, session: str, order: float) -> bool:
+        """Whether a driver state or odometry is of the driver's session, following a new one when
+        the message completes the evidence of a restart (one follower for both: what either stream
+        shows of a restart counts, and a forged stream of either reaches no pose, path or event);
+        others are counted and sampled in the log."""
+        before = self._odom_session
+        if not self.sessions.observe(stream, session, order):
+            if sampled(self.sessions.stray[stream]):
+                log.warning("ignored %s of odometry session %r: the driver's is %r and no sustained "
+                            "stream of %r says it restarted (%d such so far)", stream.replace("_", " "),
+                            session, self.sessions.current, session, self.sessions.stray[stream])
+            return False
+        if before is not None and session != before:
+            self._new_odom_session(session, before)
+        self._odom_session = session
+        return True
+
     def _new_odom_session(self, session: str, before: str) -> None:
         """The driver restarted its odometry: nothing decided in the old frame still holds."""
-        evidence = self._sessions.switched_on
+        evidence = self.sessions.switched_on
         assert evidence is not None  # a switch has just happened
         log.warning("the driver's odometry session is now %r (was %r; on %s): the command in flight "
                     "is dropped; the search goes on, with a look-around, on a map of the new session",
@@ -215,14 +224,16 @@ class Executive:
             self.unreachable_why = DRIVER_OFF if off else ROBOT_UNREACHABLE
             self.driver = None  # whatever it said before the loss may be stale when it returns
         if reachable and not self.robot_reachable:
-            self._sessions.reconnected()  # a restarted driver's first state is its session
+            self.sessions.reconnected()  # a restarted driver's first state is its session
         self.robot_reachable = reachable
 
     def on_camera(self, state: CameraState) -> None:
         self.camera = state
 
     def on_odom(self, odom: Odometry) -> None:
-        self.odom = odom
+        """Odometry: taken only when of the driver's session, as its states are."""
+        if self._admit("odom", odom.odom_session, odom.seq):
+            self.odom = odom
 
     def on_snapshot(self, snapshot: MapSnapshot) -> None:
         """Keep the newest map; one of another odometry session replaces a map that is not of the

@@ -203,4 +203,5 @@ class PlannerService(Service):
                 "steps": 0 if task is None else task.steps,
                 "found": [] if task is None else list(task.found),
                 "waiting": ex.waiting, "robot_reachable": ex.robot_reachable, "blind_stops": ex.blind_stops,
+                "sessions": ex.sessions.info(),
                 "in_flight": None if ex.in_flight is None else ex.in_flight.command.action_id}
