@@ -12,7 +12,7 @@ import pytest
 
 from ovamos.services.gateway.config import GatewayConfig
 from ovamos.services.gateway.robots import EStopUnconfirmed, RobotMonitor
-from ovamos.shared.messages import DriverMode, DriverState, EStop
+from ovamos.shared.messages import DriverMode, DriverState, EStop, Odometry
 
 ROBOT = "r1"
 
@@ -63,3 +63,28 @@ def test_an_estop_the_driver_never_confirms_is_an_error_that_says_what_is_known(
     with pytest.raises(EStopUnconfirmed, match="says mode estop, e-stop latched"):
         monitor.clear_estop(ROBOT)
     assert not driver.sent[-1][1].engage
+
+
+def test_driver_states_and_odometry_of_another_session_are_never_kept_nor_confirm_an_estop(tmp_path: Path) -> None:
+    """Issue 49: the page drew forged odometry. The monitor follows the robot's odometry session as
+    every consumer does: a forged stream while the driver talks is counted, not kept, and a forged
+    'latched' state does not confirm an e-stop the driver never latched."""
+    driver = Driver(confirm_after=None)
+    monitor = monitor_for(driver, tmp_path, estop_resend_s=0.05, estop_confirm_s=0.3)
+    real = DriverState(stamp=time.time(), mode=DriverMode.READY, odom_session="A")
+    monitor.on_driver_state(ROBOT, real)
+    monitor.on_odom(ROBOT, Odometry(seq=1, stamp=0.0, x=2.0, y=3.0, yaw=0.0, odom_session="A"))
+    for k in range(30):
+        monitor.on_odom(ROBOT, Odometry(seq=k + 2, stamp=0.0, x=2.0, y=3.0, yaw=0.0, odom_session="A"))
+        monitor.on_odom(ROBOT, Odometry(seq=k + 1, stamp=0.0, x=0.0, y=0.0, yaw=0.0, odom_session="forged"))
+    kept = monitor.odometry(ROBOT)
+    assert kept is not None and (kept.message.x, kept.message.odom_session) == (2.0, "A") and kept.count == 31
+    assert monitor.sessions[ROBOT].stray["odom"] == 30
+
+    def forge() -> None:  # a state of another session saying the latch is set
+        monitor.on_driver_state(ROBOT, DriverState(stamp=time.time(), mode=DriverMode.ESTOP, estop_latched=True,
+                                                   odom_session="forged"))
+    driver.receive = lambda robot, request: (driver.sent.append((robot, request)), forge())  # type: ignore[method-assign]
+    with pytest.raises(EStopUnconfirmed, match="not latched"):
+        monitor.engage_estop(ROBOT, "test")
+    assert monitor.driver(ROBOT).message == real

@@ -19,6 +19,7 @@ from pydantic import Field, SecretStr, field_validator, model_validator
 
 from ovamos.shared import keys
 from ovamos.shared.config import ServiceConfig
+from ovamos.shared.sessions import SessionSwitch
 
 TOKEN_ENV = "OVAMOS_GATEWAY_TOKEN"
 MAX_STEPS_LIMIT = 100_000  # TaskSpec's own bound: a larger value could not be sent
@@ -66,6 +67,9 @@ class GatewayConfig(ServiceConfig):
                                    description="an e-stop request waits this long for the driver "
                                                "to confirm the latch before answering 504")
     estop_resend_s: float = Field(default=0.2, gt=0, description="re-send an unconfirmed e-stop this often")
+    session_switch: SessionSwitch = Field(
+        default_factory=SessionSwitch, description="when a robot's driver states and odometry of a new "
+        "odometry session are followed (its driver restarted): others are counted, never shown")
     max_body_bytes: int = Field(default=65536, ge=1024,
                                 description="larger request bodies get 413 (a task is a short list)")
     allowed_hosts: list[str] = Field(

@@ -2,7 +2,9 @@
 
 The operator's page shows the driver state next to the E-STOP button and the robot's pose on
 the map whether or not a task runs, so the gateway follows ``driver/state`` and ``odom`` of
-every robot it serves (:data:`ovamos.shared.topology.TOPOLOGY`) and keeps the latest of each.
+every robot it serves (:data:`ovamos.shared.topology.TOPOLOGY`) and keeps the latest of each,
+of the robot's driver's odometry session only (:mod:`ovamos.shared.sessions`, as every consumer
+of odometry): a forged stream of another session never reaches the page, nor confirms an e-stop.
 No Zenoh and no bus here: the gateway's adapter (:mod:`ovamos.services.gateway.service`)
 feeds :meth:`RobotMonitor.on_driver_state` and :meth:`RobotMonitor.on_odom`, and hands the
 monitor what it sends e-stop requests with.
@@ -28,6 +30,7 @@ from typing import Generic, TypeVar
 
 from ovamos.services.gateway.config import GatewayConfig
 from ovamos.shared.messages import DriverState, EStop, Odometry
+from ovamos.shared.sessions import SessionFollower
 
 __all__ = ["RobotMonitor", "Latest", "EStopUnconfirmed"]
 
@@ -65,16 +68,23 @@ class RobotMonitor:
         self._changed = threading.Condition()
         self._driver: dict[str, Latest[DriverState]] = {}
         self._odom: dict[str, Latest[Odometry]] = {}
+        self.sessions: dict[str, SessionFollower] = {}  # per robot
 
     # -- inputs (the owner thread) ----------------------------------------------------------------
     def on_driver_state(self, robot: str, state: DriverState) -> None:
-        self._keep(self._driver, robot, state)
+        self._keep(self._driver, robot, state, ("driver_state", state.odom_session, state.stamp))
 
     def on_odom(self, robot: str, odom: Odometry) -> None:
-        self._keep(self._odom, robot, odom)
+        self._keep(self._odom, robot, odom, ("odom", odom.odom_session, odom.seq))
 
-    def _keep(self, table: dict[str, Latest[M]], robot: str, message: M) -> None:
+    def _keep(self, table: dict[str, Latest[M]], robot: str, message: M, stream: tuple[str, str, float]) -> None:
+        """Keep ``message`` when ``stream`` (its stream, session and order) is of the robot's session."""
         with self._changed:
+            follower = self.sessions.get(robot)
+            if follower is None:
+                follower = self.sessions[robot] = SessionFollower(self.config.session_switch)
+            if not follower.observe(*stream):
+                return
             before = table.get(robot)
             table[robot] = Latest(message, time.monotonic(), 1 if before is None else before.count + 1)
             self._changed.notify_all()
