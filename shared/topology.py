@@ -101,7 +101,7 @@ TOPOLOGY: dict[str, Node] = {
                     queries=(Port("map_snapshot", MapSnapshot),)),
     "gateway": Node(_AT + "gateway.service:GatewayService",
                     inputs=(Port("task_events", TaskEvent), Port("driver_state", DriverState),
-                            Port("odom", Odometry, keep=1)),
+                            Port("odom", Odometry, keep=1), Port("plan_trace", DecisionTrace, keep=1)),
                     outputs=(Port("task_current", TaskSpec), Port("estop", EStop), Port("estop_clear", EStop)),
                     queries=(Port("map_snapshot", MapSnapshot),)),
     "rosview": Node(_AT + "rosview.service:RosViewService",

@@ -20,6 +20,7 @@ from ovamos.services.gateway.service import GatewayService
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
 from ovamos.shared.messages import (
+    DecisionTrace,
     DriverMode,
     DriverState,
     EStop,
@@ -31,6 +32,7 @@ from ovamos.shared.messages import (
     TaskEvent,
     TaskSpec,
     TaskStatus,
+    TraceOption,
 )
 from ovamos.shared.procs import free_port
 from ovamos.shared.service import run_service
@@ -80,6 +82,7 @@ class MockPlanner:
         self._specs: list[TaskSpec] = []
         self.bus.subscribe(keys.task_current(robot_id), TaskSpec, self._on_spec)
         self.events = self.bus.publisher(keys.task_events(robot_id), TaskEvent)
+        self.traces = self.bus.publisher(keys.plan_trace(robot_id), DecisionTrace)
 
     def _on_spec(self, spec: TaskSpec) -> None:
         with self._lock:
@@ -95,6 +98,11 @@ class MockPlanner:
         self.events.put(TaskEvent(task_id=task_id, status=status, targets=tuple(targets), found=found,
                                   steps=steps, distance_m=0.25 * steps, stamp=time.time(), x=x, y=y,
                                   message=f"mock step {steps}", goal=goal, odom_session=odom_session))
+
+    def decide(self, task_id: str, options: tuple[TraceOption, ...], step: int = 0) -> None:
+        """A decision trace: what this planner weighed (the page draws its candidates)."""
+        self.traces.put(DecisionTrace(task_id=task_id, step=step, stamp=time.time(), map_seq=0, robot_x=0.0,
+                                      robot_y=0.0, remaining=(), options=options, reason="mock"))
 
     def close(self) -> None:
         self.bus.close()

@@ -18,7 +18,7 @@ from ovamos.services.gateway.client import GatewayClient
 from ovamos.services.gateway.page import STATIC
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
-from ovamos.shared.messages import Goal, ObjectInstance, TaskStatus
+from ovamos.shared.messages import Goal, ObjectInstance, TaskStatus, TraceOption
 from ovamos.shared.zconfig import build_config
 from tests.browser import (
     PHONE,
@@ -218,9 +218,16 @@ def test_the_map_view_holds_what_the_page_draws(inproc_router: str, gateway: Run
         assert view["robot"] == {"x": 0.5, "y": 0.5, "yaw": 1.0}  # the driver's odometry
         assert view["layers"] == ["chair"] and view["frontiers"] == [[1.7, 1.0]]
         assert [o["label"] for o in view["objects"]] == ["chair"]
-        # the chair layer's hot patch (rows 25-29, columns 10-14 at 5 cm) is one candidate
-        (best,) = view["candidates"]
-        assert 0.5 <= best["x"] <= 0.75 and 1.25 <= best["y"] <= 1.5 and best["value"] > 0
+        assert view["candidates"] == []  # no decision traced yet: nothing the planner weighed
+        # the planner's candidates are the page's, whatever a default planner would find on this map
+        # (the chair layer's hot patch at rows 25-29, columns 10-14): issue 49
+        weighed = (TraceOption(kind="candidate", x=1.2, y=0.3, value=0.4),
+                   TraceOption(kind="frontier", x=1.7, y=1.0, value=0.1))
+        planner.decide(task.id, weighed)
+        view = wait_for(lambda: (v := httpx.get(url, timeout=10).json())["candidates"] and v, what="the traced candidates")
+        assert view["candidates"] == [{"x": 1.2, "y": 0.3, "value": 0.4}]
+        planner.decide("another-task", (TraceOption(kind="candidate", x=0.1, y=0.1, value=0.9),))
+        wait_for(lambda: httpx.get(url, timeout=10).json()["candidates"] == [], what="another task's trace not drawn")
         # the raster covers the window it says, and everything drawn lies inside it
         assert view["image"].startswith("data:image/png;base64,")
         right, top = view["x0"] + view["width"] * view["resolution"], view["y0"] + view["height"] * view["resolution"]

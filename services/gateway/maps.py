@@ -19,9 +19,7 @@ import numpy as np
 from ovamos.services.gateway.models import Candidate, MapView, Pose
 from ovamos.services.gateway.store import TaskRecord
 from ovamos.services.mapping.render import crop_box, map_raster, render_map, value_image
-from ovamos.services.planner.candidates import find_candidates
-from ovamos.services.planner.decide import DecisionConfig, decision_values, explored_window
-from ovamos.shared.messages import Goal, MapSnapshot
+from ovamos.shared.messages import DecisionTrace, Goal, MapSnapshot
 from ovamos.shared.robot import ROBOT
 
 
@@ -54,26 +52,14 @@ def map_png(snapshot: MapSnapshot, path: Sequence[tuple[float, float]] = (),
                            found=task.found if task is not None else (), goal=goal))
 
 
-def candidates(snapshot: MapSnapshot, remaining: Sequence[str],
-               config: DecisionConfig | None = None) -> list[Candidate]:
-    """The candidates a planner with ``config`` (default: the planner's defaults) finds on this
-    map for the ``remaining`` targets: the same functions, so the page shows what it weighs."""
-    config = config or DecisionConfig()
-    rows, cols, grid = explored_window(snapshot)
-    values = decision_values(snapshot, list(remaining), config, (rows, cols))
-    if values is None:
-        return []
-    found = find_candidates(values, grid, config.candidates)
-    return [Candidate(x=float(x), y=float(y), value=float(v)) for (x, y), v in zip(found.points, found.values)]
-
-
 def map_view(snapshot: MapSnapshot, task: TaskRecord | None, *, layer: str | None = None,
-             robot: Pose | None = None, goal: Goal | None = None, searching: Sequence[str] = (),
+             robot: Pose | None = None, goal: Goal | None = None, decision: DecisionTrace | None = None,
              margin_cells: int = 10) -> MapView:
     """The page's map: the raster of the window holding the explored area, the robot, the goal,
     ``task``'s path and found targets, objects and frontiers
-    (:func:`ovamos.services.mapping.render.crop_box`), and those in world metres; candidates of the
-    ``searching`` targets (none when no task searches). ValueError for an unknown ``layer``.
+    (:func:`ovamos.services.mapping.render.crop_box`), and those in world metres; the candidates the
+    planner weighed at its latest ``decision`` (none when no task searches). ValueError for an
+    unknown ``layer``.
 
     Objects are those of the whole map, of every label it ever searched for: the page draws only
     those of the task's targets as its detections (``task_id`` names the task)."""
@@ -93,7 +79,8 @@ def map_view(snapshot: MapSnapshot, task: TaskRecord | None, *, layer: str | Non
                    resolution=res, x0=x0 + c0 * res, y0=y0 + r0 * res, width=c1 - c0, height=r1 - r0,
                    image=f"data:image/png;base64,{image}", layers=list(snapshot.layers), layer=layer,
                    frontiers=[(float(x), float(y)) for x, y in snapshot.frontiers],
-                   candidates=candidates(snapshot, searching) if searching else [],
+                   candidates=[] if decision is None else [Candidate(x=o.x, y=o.y, value=o.value)
+                                                           for o in decision.options if o.kind == "candidate"],
                    objects=list(snapshot.objects), task_id=task.id if task is not None else None,
                    path=path, found=task.found if task is not None else [], robot=robot,
                    robot_radius_m=ROBOT.radius_m, goal=goal)

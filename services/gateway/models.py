@@ -184,8 +184,8 @@ class EStopClear(BaseModel):
 
 
 class Candidate(BaseModel):
-    """A place the target may be: the best cell of a cluster of the value map (the planner's
-    candidates, from the remaining targets' decayed values)."""
+    """A place the target may be, as the planner weighed it at its latest decision (its
+    ``plan_trace``): the best cell of a cluster of its decision value map."""
 
     x: float
     y: float

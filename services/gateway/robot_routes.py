@@ -84,6 +84,6 @@ def robot_map_view(robot_id: str, gw: GW, layer: str | None = None) -> MapView:
     try:
         return map_view(snapshot, task, layer=layer, robot=robot_pose(gw, robot_id, snapshot),
                         goal=gw.manager.goal(robot_id, task.id) if searching else None,
-                        searching=gw.view(task).remaining if searching else ())
+                        decision=gw.monitor.decision(robot_id, task.id) if searching else None)
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None

@@ -1,10 +1,13 @@
-"""What the gateway knows of each robot right now: its driver state and pose, and its e-stop.
+"""What the gateway knows of each robot right now: its driver state and pose, its planner's latest
+decision, and its e-stop.
 
 The operator's page shows the driver state next to the E-STOP button and the robot's pose on
 the map whether or not a task runs, so the gateway follows ``driver/state`` and ``odom`` of
 every robot it serves (:data:`ovamos.shared.topology.TOPOLOGY`) and keeps the latest of each,
 of the robot's driver's odometry session only (:mod:`ovamos.shared.sessions`, as every consumer
 of odometry): a forged stream of another session never reaches the page, nor confirms an e-stop.
+The page draws the candidates the planner weighed at its latest decision (``plan_trace``), never
+a recomputation: a planner with other settings (ovamos-plus) weighs other ones.
 No Zenoh and no bus here: the gateway's adapter (:mod:`ovamos.services.gateway.service`)
 feeds :meth:`RobotMonitor.on_driver_state` and :meth:`RobotMonitor.on_odom`, and hands the
 monitor what it sends e-stop requests with.
@@ -29,7 +32,7 @@ from dataclasses import dataclass
 from typing import Generic, TypeVar
 
 from ovamos.services.gateway.config import GatewayConfig
-from ovamos.shared.messages import DriverState, EStop, Odometry
+from ovamos.shared.messages import DecisionTrace, DriverState, EStop, Odometry
 from ovamos.shared.sessions import SessionFollower
 
 __all__ = ["RobotMonitor", "Latest", "EStopUnconfirmed"]
@@ -59,7 +62,7 @@ class EStopUnconfirmed(RuntimeError):
 
 
 class RobotMonitor:
-    """The latest driver state and odometry of each robot, and its e-stop requests."""
+    """The latest driver state, odometry and planner decision of each robot, and its e-stop requests."""
 
     def __init__(self, config: GatewayConfig, *, estop: Send, estop_clear: Send) -> None:
         """``estop`` sends on the robot's ``driver/estop``, ``estop_clear`` on ``driver/estop/clear``."""
@@ -68,6 +71,7 @@ class RobotMonitor:
         self._changed = threading.Condition()
         self._driver: dict[str, Latest[DriverState]] = {}
         self._odom: dict[str, Latest[Odometry]] = {}
+        self._traces: dict[str, DecisionTrace] = {}
         self.sessions: dict[str, SessionFollower] = {}  # per robot
 
     # -- inputs (the owner thread) ----------------------------------------------------------------
@@ -76,6 +80,16 @@ class RobotMonitor:
 
     def on_odom(self, robot: str, odom: Odometry) -> None:
         self._keep(self._odom, robot, odom, ("odom", odom.odom_session, odom.seq))
+
+    def on_plan_trace(self, robot: str, trace: DecisionTrace) -> None:
+        with self._changed:
+            self._traces[robot] = trace
+
+    def decision(self, robot: str, task_id: str) -> DecisionTrace | None:
+        """The planner's latest decision for task ``task_id`` (None before its first)."""
+        with self._changed:
+            trace = self._traces.get(robot)
+        return trace if trace is not None and trace.task_id == task_id else None
 
     def _keep(self, table: dict[str, Latest[M]], robot: str, message: M, stream: tuple[str, str, float]) -> None:
         """Keep ``message`` when ``stream`` (its stream, session and order) is of the robot's session."""

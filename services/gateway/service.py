@@ -99,7 +99,8 @@ def wire(bus: BusCore, config: GatewayConfig, store: TaskStore, notify: Notify
                            estop_clear=lambda robot, request: out["estop_clear", robot].put(request))
     manager.start()
     subscribe_robots(bus, GatewayService.name, config.robots, {
-        "task_events": manager.on_event, "driver_state": monitor.on_driver_state, "odom": monitor.on_odom})
+        "task_events": manager.on_event, "driver_state": monitor.on_driver_state, "odom": monitor.on_odom,
+        "plan_trace": monitor.on_plan_trace})
     return manager, monitor
 
 
