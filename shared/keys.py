@@ -63,6 +63,11 @@ def plan_command(robot_id: str) -> str:
     return f"{_robot(robot_id)}/plan/command"
 
 
+def unknown_targets(robot_id: str) -> str:
+    """Perception's word on the robot's targets it can never see (JSON)."""
+    return f"{_robot(robot_id)}/perception/unknown_targets"
+
+
 def plan_trace(robot_id: str) -> str:
     """The planner's decision trace: options weighed and the goal chosen, per decision (JSON)."""
     return f"{_robot(robot_id)}/plan/trace"

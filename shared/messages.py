@@ -33,7 +33,7 @@ __all__ = ["DecodeError", "MAX_TEXT_CHARS", "MAX_NAME_CHARS", "MAX_TARGETS", "MA
            "Intrinsics", "RgbdFrame",
            "MapSnapshot", "ObjectInstance", "PerceptionResult", "CounterSet", "ServiceStats", "CameraState", "Odometry", "PlanCommand", "DriverMode",
            "Outcome", "DriverState", "EStop", "TaskSpec", "TaskStatus", "FINAL", "FoundObject",
-           "Goal", "TaskEvent", "TraceOption", "DecisionTrace"]
+           "Goal", "TaskEvent", "TraceOption", "DecisionTrace", "UnknownTargets"]
 
 
 OdomSession = Annotated[str, Field(
@@ -755,3 +755,12 @@ class DecisionTrace(JsonMessage):
     options: tuple[TraceOption, ...] = ()
     goal: Goal | None = None
     reason: str
+
+
+class UnknownTargets(JsonMessage):
+    """Perception's word that it can never see some of a robot's targets, and why (a closed
+    vocabulary, the sim backend's: ``did you mean 'candle'?``): the planner fails the task with
+    ``reason`` rather than wait for a map layer that never comes. Sent with each task it is true of."""
+
+    targets: tuple[Name, ...] = Field(min_length=1)
+    reason: str = Field(max_length=MAX_TEXT_CHARS)

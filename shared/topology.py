@@ -25,6 +25,7 @@ from ovamos.shared.messages import (
     RgbdFrame,
     TaskEvent,
     TaskSpec,
+    UnknownTargets,
 )
 
 __all__ = ["Port", "Node", "TOPOLOGY", "graph"]
@@ -86,7 +87,8 @@ TOPOLOGY: dict[str, Node] = {
     "perception": Node(_AT + "perception.service:PerceptionService",
                        inputs=(Port("task_current", TaskSpec), Port("task_events", TaskEvent),
                                Port("rgbd", RgbdFrame, keep=1)),
-                       outputs=(Port("perception_result", PerceptionResult),)),
+                       outputs=(Port("perception_result", PerceptionResult),
+                                Port("unknown_targets", UnknownTargets))),
     "mapping": Node(_AT + "mapping.service:MappingService",
                     inputs=(Port("rgbd", RgbdFrame, keep=1), Port("perception_result", PerceptionResult),
                             Port("odom", Odometry, keep=1)),
@@ -94,7 +96,7 @@ TOPOLOGY: dict[str, Node] = {
                     answers=(Port("map_snapshot", MapSnapshot),)),
     "planner": Node(_AT + "planner.service:PlannerService",
                     inputs=(Port("task_current", TaskSpec), Port("driver_state", DriverState),
-                            Port("camera_state", CameraState),
+                            Port("camera_state", CameraState), Port("unknown_targets", UnknownTargets),
                             Port("odom", Odometry, keep=1), Port("map_snapshot", MapSnapshot, keep=1)),
                     outputs=(Port("plan_command", PlanCommand), Port("task_events", TaskEvent),
                              Port("plan_trace", DecisionTrace)),

@@ -25,9 +25,9 @@ targets (the map fuses only the values of targets it had not fused that frame fo
 
 A target the backend can never see (the sim backend's vocabulary is closed: the classes a
 simulated house can hold; a real model's is open, any word goes) is not scored; the core
-says so in its info (``unknown_targets``: per robot the targets and why, ``did you mean
-'candle'?``), where the planner reads it to fail the task with that reason instead of waiting
-for a map layer that never comes.
+says so (:meth:`PerceptionCore.unknown_targets`, which the adapter sends the planner with each
+task it is true of, and the info: per robot the targets and why, ``did you mean 'candle'?``): the
+planner fails the task with that reason instead of waiting for a map layer that never comes.
 
 A frame no backend can use (wrong size, or a camera frame sent to the sim
 backend) is rejected: handed to the ``rejected`` callable (the adapter counts it
@@ -53,7 +53,7 @@ from ovamos.services.perception.frames import frame_problem
 from ovamos.services.perception.replicas import ReplicaSet
 from ovamos.shared import keys
 from ovamos.shared.log import fields, sampled
-from ovamos.shared.messages import PerceptionResult, RgbdFrame, TaskEvent, TaskSpec
+from ovamos.shared.messages import PerceptionResult, RgbdFrame, TaskEvent, TaskSpec, UnknownTargets
 
 __all__ = ["PerceptionCore"]
 
@@ -113,6 +113,11 @@ class PerceptionCore:
         if gained and latest is not None and robot not in self.slots:
             self._rescored += 1
             self.slots.put(robot, latest, now)
+
+    def unknown_targets(self, robot: str) -> UnknownTargets | None:
+        """The robot's targets the backend can never see, and why (None: it may see them all)."""
+        entry = self._unknown.get(robot)
+        return None if entry is None else UnknownTargets(targets=entry[0], reason=entry[1])
 
     def _check_vocabulary(self, robot: str) -> None:
         """Note (and say once) which of the robot's targets the backend can never see."""

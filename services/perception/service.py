@@ -37,6 +37,7 @@ from ovamos.services.perception.config import PerceptionServiceConfig
 from ovamos.services.perception.core import PerceptionCore
 from ovamos.shared import keys
 from ovamos.shared.bus import BusCore
+from ovamos.shared.messages import TaskSpec
 from ovamos.shared.service import Service
 
 __all__ = ["PerceptionService"]
@@ -60,7 +61,7 @@ class PerceptionService(Service):
         robot = self.bus.robot_id
         core = self.core
         self.wire_robots(core.robots, {
-            "task_current": self._fed(core.on_task), "task_events": self._fed(core.on_event),
+            "task_current": self._fed(self._on_task), "task_events": self._fed(core.on_event),
             "rgbd": self._fed(core.on_frame)}, keep={"rgbd": self.config.queue_frames})
         self.bus.watch_liveliness(keys.ready(robot, self.name), self._on_member)
         for other in core.robots:
@@ -77,6 +78,14 @@ class PerceptionService(Service):
             handler(robot, msg, time.monotonic())
             self.tick()
         return feed
+
+    def _on_task(self, robot: str, task: TaskSpec, now: float) -> None:
+        """The core's, then its word on targets it can never see, with every copy of the task the
+        gateway re-sends (so a planner started later hears it too)."""
+        self.core.on_task(robot, task, now)
+        unknown = self.core.unknown_targets(robot)
+        if unknown is not None and not task.cancelled:
+            self.output("unknown_targets", robot).put(unknown)
 
     def _on_member(self, key: str, alive: bool) -> None:
         self.core.on_replica(keys.parse_service_key(key).instance, alive)

@@ -19,6 +19,3 @@ class PlannerServiceConfig(ServiceConfig, ExecutiveConfig):
     off_grace_s: float = Field(
         default=0.5, gt=0, description="after a driver's token goes, wait this long for its word that it "
                                        "shut down before saying the robot is unreachable")
-    perception_check_s: float = Field(
-        default=2.0, gt=0, description="while the map has no values of a target, ask perception this "
-                                       "often whether it can see that target at all")

@@ -17,11 +17,10 @@ TaskSpec carries (steps, distance, found targets, the budget left), and books as
 commands its predecessor sent after the last one it reported (``last_action``) that the
 driver completed: the task's count is the commands the robot ran, whatever restarted.
 
-While the map has no values of a remaining target, the planner asks perception (its stats,
-every ``perception_check_s``) whether it can see that target at all: a closed vocabulary (the
-sim backend's, the classes a simulated house can hold) names the targets it never will and
-why (``did you mean 'candle'?``), and the task fails with that reason instead of waiting at
-step 0 for ever. A real model's vocabulary is open: it names none, and nothing changes.
+Perception says which of a task's targets it can never see (``unknown_targets``, with each copy
+of the task: a closed vocabulary, the sim backend's, the classes a simulated house can hold,
+names them and why, ``did you mean 'candle'?``), and the task fails with that reason instead of
+waiting at step 0 for ever. A real model's vocabulary is open: it names none, and nothing changes.
 """
 
 from __future__ import annotations
@@ -29,8 +28,6 @@ from __future__ import annotations
 import math
 import time
 from typing import Any
-
-from pydantic import BaseModel, ValidationError
 
 from ovamos.services.planner.config import PlannerServiceConfig
 from ovamos.services.planner.executive import DRIVER_OFF, Executive, ExecutiveConfig
@@ -41,23 +38,16 @@ from ovamos.shared.messages import (
     DriverState,
     MapSnapshot,
     PlanCommand,
-    ServiceStats,
     TaskEvent,
     TaskSpec,
     TaskStatus,
+    UnknownTargets,
 )
 from ovamos.shared.service import Service
 from ovamos.shared.topology import DRIVERS, TOPOLOGY
 
 _PORTS = {PlanCommand: "plan_command", TaskEvent: "task_events", DecisionTrace: "plan_trace"}
 """The output port of each message type :meth:`Executive.poll` returns."""
-
-
-class _UnknownTargets(BaseModel):
-    """Perception's word on a robot's targets it can never see (its info's ``unknown_targets``)."""
-
-    targets: tuple[str, ...]
-    reason: str
 
 
 class PlannerService(Service):
@@ -73,16 +63,13 @@ class PlannerService(Service):
         self._asked_for: int | None = None  # the command a map request in flight is for
         self._map_key = TOPOLOGY[self.name].port("queries", "map_snapshot").key(bus.robot_id)
         self._drivers: set[str] = set()  # the live tokens of services driving the robot
-        self._perception_key = keys.stats(bus.robot_id, "perception")
-        self._asking_perception = False
-        self._next_perception_check = 0.0  # time.monotonic()
         self._resumed: TaskSpec | None = None  # a task taken over mid-way, until its commands are booked
         self._lost: tuple[str, float] | None = None  # a driver's token gone: (key, when to say so)
 
     def start(self) -> None:
         ex = self.executive
         self.wire({"task_current": self._on_task, "driver_state": self._on_driver_state, "camera_state": ex.on_camera,
-                   "odom": ex.on_odom, "map_snapshot": ex.on_snapshot})
+                   "unknown_targets": self._on_unknown_targets, "odom": ex.on_odom, "map_snapshot": ex.on_snapshot})
         for service in DRIVERS:
             self.bus.watch_liveliness(keys.alive(self.bus.robot_id, service), self._on_driver_token)
 
@@ -159,33 +146,11 @@ class PlannerService(Service):
         self._say_if_lost(now)
         for msg in self.executive.poll(now):
             self.out[_PORTS[type(msg)]].put(msg)
-        if self._unseen_targets() and not self._asking_perception and now >= self._next_perception_check:
-            self._asking_perception, self._next_perception_check = True, now + self.config.perception_check_s
-            self.bus.request(self._perception_key, ServiceStats, self._on_perception_stats,
-                             self.config.query_timeout_s)
 
-    def _unseen_targets(self) -> list[str]:
-        """The searching task's remaining targets the newest map has no values of."""
-        task, snapshot = self.executive.task, self.executive.snapshot
-        if task is None or task.state is not TaskStatus.SEARCHING:
-            return []
-        return [t for t in task.remaining if snapshot is None or t not in snapshot.layers]
-
-    def _on_perception_stats(self, stats: ServiceStats | None) -> None:
+    def _on_unknown_targets(self, unknown: UnknownTargets) -> None:
         """Fail the task when perception says it can never see one of its remaining targets."""
-        self._asking_perception = False
-        reports = None if stats is None else stats.info.get("unknown_targets")
-        entry = reports.get(self.bus.robot_id) if isinstance(reports, dict) else None
-        if entry is None:
-            return
-        try:
-            unknown = _UnknownTargets.model_validate(entry)
-        except ValidationError:
-            self.log.warning("perception's unknown_targets of %s not understood: %r", self.bus.robot_id, entry)
-            return
         task = self.executive.task
-        if task is not None and task.state is TaskStatus.SEARCHING and set(unknown.targets) & set(
-                task.remaining):
+        if task is not None and task.state is TaskStatus.SEARCHING and set(unknown.targets) & set(task.remaining):
             task.fail(unknown.reason)
             self.log.warning("task %s failed: %s", task.task_id, unknown.reason)
             self._publish_event()
