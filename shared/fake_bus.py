@@ -42,6 +42,9 @@ class FakeNetwork:
         self._watchers: list[tuple[str, Callable[[str, bool], None]]] = []
         self._subs: list[tuple[str, Callable[[str, Callable[[], bytes]], None]]] = []
         self._queryables: list[tuple[str, Callable[[Reply, Callable[[], None]], None]]] = []
+        #: (service, kind, key) of every publisher, subscription, queryable and query declared or
+        #: made: kind is the topology's (``outputs``, ``inputs``, ``answers``, ``queries``)
+        self.used: set[tuple[str, str, str]] = set()
 
     def bus(self, robot_id: str, service: str, instance: str = "0") -> FakeBus:
         bus = FakeBus(self, robot_id, service, instance)
@@ -84,16 +87,19 @@ class FakeBus(BusCore):
 
     def _publish(self, key: str, block: bool = False
                  ) -> tuple[Callable[[bytes | bytearray], None], Callable[[], None]]:
+        self.network.used.add((self.service, "outputs", key))
         return (lambda payload: self.network._deliver(key, bytes(payload))), (lambda: None)
 
     def _listen(self, key_expr: str, on_payload: Callable[[str, Callable[[], bytes]], None]
                 ) -> Callable[[], None]:
+        self.network.used.add((self.service, "inputs", key_expr))
         entry = (key_expr, on_payload)
         self.network._subs.append(entry)
         return self.network._remove(self.network._subs, entry)
 
     def _answer(self, key: str, on_query: Callable[[Reply, Callable[[], None]], None]
                 ) -> Callable[[], None]:
+        self.network.used.add((self.service, "answers", key))
         entry = (key, on_query)
         self.network._queryables.append(entry)
         return self.network._remove(self.network._queryables, entry)
@@ -102,6 +108,7 @@ class FakeBus(BusCore):
              on_done: Callable[[], None]) -> None:
         """Every matching queryable answers when its bus is pumped; ``timeout_s`` is not simulated:
         the request ends when all have answered (at once when there is none)."""
+        self.network.used.add((self.service, "queries", key))
         targets = [q for expr, q in self.network._queryables if key_matches(expr, key)]
         waiting = len(targets)
         if waiting == 0:

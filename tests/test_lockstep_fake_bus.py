@@ -31,6 +31,7 @@ from ovamos.shared import keys
 from ovamos.shared.fake_bus import FakeNetwork, key_matches
 from ovamos.shared.messages import PlanCommand, TaskEvent, TaskSpec, TaskStatus
 from ovamos.shared.motion import Pose
+from ovamos.shared.topology import TOPOLOGY
 from tests.sim_scenes import two_rooms
 
 ROBOT = "r1"
@@ -92,6 +93,32 @@ def test_lock_step_over_the_fake_bus_with_a_skewed_robot_clock(
         for svc in running:
             svc.stop()
     assert stale == []
+    assert undeclared(net, [svc.name for svc in running]) == []
+    assert {s for s, _, _ in net.used} >= {svc.name for svc in running}  # (each one checked)
     last = events[-1]
     assert last.status is TaskStatus.DONE or last.steps == 10, last
     assert mapping.state.after_action >= 9  # every command's frame was fused, in order
+
+
+def undeclared(net: FakeNetwork, services: list[str]) -> list[tuple[str, str, str]]:
+    """What ``services`` published, subscribed, answered or queried on ``net`` outside their ports in
+    the topology (issue 49: every message between services on a declared key with a typed message),
+    besides every service's own stats answer."""
+    out = []
+    for service, kind, key in sorted(net.used):
+        if service not in services or key == keys.stats(ROBOT, service, "0"):
+            continue
+        if key not in {port.key(ROBOT) for port in getattr(TOPOLOGY[service], kind)}:
+            out.append((service, kind, key))
+    return out
+
+
+def test_a_key_outside_the_topology_is_found() -> None:
+    """The check above can fail: a query the planner's ports do not declare (as its ask of
+    perception's stats was) is reported."""
+    net = FakeNetwork()
+    bus = net.bus(ROBOT, "planner")
+    bus.request(keys.stats(ROBOT, "perception"), PlanCommand, lambda _: None, 0.1)
+    bus.subscribe(keys.plan_trace(ROBOT), PlanCommand, lambda _: None)
+    assert undeclared(net, ["planner"]) == [("planner", "inputs", keys.plan_trace(ROBOT)),
+                                            ("planner", "queries", keys.stats(ROBOT, "perception"))]
