@@ -1,11 +1,11 @@
-"""The one import root: the folders ``shared/``, ``services/``, ``bench/`` and ``deploy/`` stay at the
-top of the checkout and install as ``ovamos.shared``, ``ovamos.services``, ``ovamos.bench`` and
-``ovamos.deploy``; everything else is in pyproject.toml. The package list is computed here because
+"""The one import root: the folders ``shared/``, ``services/``, ``world/``, ``bench/`` and ``deploy/``
+stay at the top of the checkout and install as ``ovamos.shared``, ``ovamos.services``, ``ovamos.world``,
+``ovamos.bench`` and ``ovamos.deploy``; everything else is in pyproject.toml. The package list is computed here because
 pyproject's ``packages.find`` cannot put a prefix on the packages it finds."""
 
 from setuptools import find_packages, setup
 
-MAPPED = ("shared", "services", "bench", "deploy")
+MAPPED = ("shared", "services", "world", "bench", "deploy")
 
 packages = ["ovamos", *(f"ovamos.{p}" for p in find_packages(include=["record", "record.*"], where="ovamos"))]
 for folder in MAPPED:

@@ -58,9 +58,9 @@ def rendered_frames(width: int, height: int, count: int = DISTINCT_FRAMES,
     """``count`` simulator frames of a generated home as (rgb uint8, depth z16), and the
     renderer's intrinsics."""
     from ovamos.bench.sim import camera_poses
-    from ovamos.services.sim.evaluator import GroundTruth
-    from ovamos.services.sim.generate import generate_scene
-    from ovamos.services.sim.render import SceneRenderer
+    from ovamos.world.evaluator import GroundTruth
+    from ovamos.world.generate import generate_scene
+    from ovamos.world.render import SceneRenderer
 
     scene = generate_scene(SCENE_SEED)
     out = []

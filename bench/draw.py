@@ -12,8 +12,8 @@ import numpy as np
 
 from ovamos.bench.episode import EpisodeResult
 from ovamos.bench.policies import LABELS, PAPER, POLICY_ORDER
-from ovamos.services.sim.draw import MARGIN_M, draw_scene
-from ovamos.services.sim.world import Scene
+from ovamos.world.draw import MARGIN_M, draw_scene
+from ovamos.world.scene import Scene
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 INK = (30, 30, 30)

@@ -46,17 +46,17 @@ from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
 from ovamos.services.planner.continuous import PathStep
 from ovamos.services.planner.policies import OVAMOS
 from ovamos.services.planner.task import SearchTask
-from ovamos.services.sim.episodes import EpisodeSpec
-from ovamos.services.sim.evaluator import GroundTruth, spl
-from ovamos.services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
-from ovamos.services.sim.prior import ObjectPrior
-from ovamos.services.sim.render import SceneRenderer
 from ovamos.services.sim.robot import MotionConfig, SimRobot
 from ovamos.services.sim.wheels import Motion, SerialSimRobot, WheeledSimRobot, base_motion, frame_pose, wheeled
-from ovamos.services.sim.world import Scene
 from ovamos.shared.messages import MapSnapshot, PerceptionResult, PlanCommand, TaskStatus
 from ovamos.shared.motion import Action, Pose, to_odom
 from ovamos.shared.simtime import SimClock
+from ovamos.world.episodes import EpisodeSpec
+from ovamos.world.evaluator import GroundTruth, spl
+from ovamos.world.perception import FrameLabels, SimPerception, SimPerceptionConfig
+from ovamos.world.prior import ObjectPrior
+from ovamos.world.render import SceneRenderer
+from ovamos.world.scene import Scene
 
 MAP_MARGIN_M = 2.0
 

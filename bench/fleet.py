@@ -37,15 +37,15 @@ from ovamos.demo import FLEET_EPISODES, FLEET_ID, fleet_entries, fleet_robots, w
 from ovamos.services.gateway.client import GatewayClient
 from ovamos.services.perception.backend import Job, PerceptionBackend
 from ovamos.services.perception.sim_backend import SimBackend
-from ovamos.services.sim.episodes import make_episode
-from ovamos.services.sim.evaluator import GroundTruth
-from ovamos.services.sim.prior import ObjectPrior
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
 from ovamos.shared.messages import PlanCommand, RgbdFrame
 from ovamos.shared.procs import free_port, loopback
 from ovamos.shared.zconfig import build_config
 from ovamos.supervisor import Supervisor
+from ovamos.world.episodes import make_episode
+from ovamos.world.evaluator import GroundTruth
+from ovamos.world.prior import ObjectPrior
 
 SEED = 0
 WIDTH, HEIGHT = 640, 480
@@ -64,7 +64,7 @@ def _homes(count: int) -> dict[str, Any]:
 
 
 def _frames(homes: dict[str, Any], per_robot: int) -> dict[str, list[RgbdFrame]]:
-    from ovamos.services.sim.render import SceneRenderer
+    from ovamos.world.render import SceneRenderer
     frames = {}
     for robot, (scene, _) in homes.items():
         with SceneRenderer(scene, WIDTH, HEIGHT) as renderer:

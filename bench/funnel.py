@@ -17,10 +17,10 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 from pydantic import BaseModel
 
-from ovamos.services.sim.occupancy import distance_to_box
-from ovamos.services.sim.world import Scene
 from ovamos.shared.detections import Detection
 from ovamos.shared.messages import Miss, ObjectInstance, RgbdFrame
+from ovamos.world.occupancy import distance_to_box
+from ovamos.world.scene import Scene
 
 #: A confirmed map object this close (horizontal, m) to a true instance's footprint is that
 #: instance: about the object map's merge distance, well under the gap between two pieces of

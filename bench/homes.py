@@ -22,9 +22,9 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from ovamos.services.sim.generate import generate_scene, home_tier
-from ovamos.services.sim.prior import ObjectPrior
-from ovamos.services.sim.world import Scene
+from ovamos.world.generate import generate_scene, home_tier
+from ovamos.world.prior import ObjectPrior
+from ovamos.world.scene import Scene
 
 PROCTHOR_10K: dict[str, float | None] = {
     "rooms per home (mean)": 4.05,

@@ -25,14 +25,14 @@ from ovamos.bench.episode import EpisodeConfig, EpisodeResult, StepLatency, epis
 from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.localization import LocalizationConfig
 from ovamos.services.planner.agent import AgentConfig
-from ovamos.services.sim.episodes import make_episode
-from ovamos.services.sim.evaluator import GroundTruth
 from ovamos.services.sim.odometry import odometry_errors
-from ovamos.services.sim.perception_presets import perception_preset
-from ovamos.services.sim.prior import ObjectPrior
 from ovamos.services.sim.robot import MotionConfig
-from ovamos.services.sim.world import Scene
 from ovamos.shared.motion import DriveMode
+from ovamos.world.episodes import make_episode
+from ovamos.world.evaluator import GroundTruth
+from ovamos.world.perception_presets import perception_preset
+from ovamos.world.prior import ObjectPrior
+from ovamos.world.scene import Scene
 
 
 class EpisodeFailed(RuntimeError):

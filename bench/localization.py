@@ -22,10 +22,10 @@ from ovamos.bench.sim import SCENE_SEED
 from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.localization import LocalizationConfig, Match
 from ovamos.services.mapping.state import MapState
-from ovamos.services.sim.evaluator import GroundTruth
-from ovamos.services.sim.generate import generate_scene
 from ovamos.services.sim.robot import MotionConfig, SimRobot
 from ovamos.shared.motion import Action, Pose
+from ovamos.world.evaluator import GroundTruth
+from ovamos.world.generate import generate_scene
 
 WALK_SEED = 0
 
@@ -50,7 +50,7 @@ def _walk(truth: GroundTruth, steps: int) -> list[tuple[Pose, Pose]]:
 
 
 def _frames(count: int) -> list[Any]:
-    from ovamos.services.sim.render import SceneRenderer
+    from ovamos.world.render import SceneRenderer
     scene = generate_scene(SCENE_SEED)
     with SceneRenderer(scene, 640, 480) as renderer:
         return [renderer.render(true.x, true.y, true.yaw, seq=i, stamp=float(i), posed_at=odom)

@@ -17,14 +17,14 @@ from rich.table import Table
 
 from ovamos.bench.sim import SCENE_SEED, camera_poses
 from ovamos.services.mapping.state import MapState
-from ovamos.services.sim.evaluator import GroundTruth
-from ovamos.services.sim.generate import generate_scene
+from ovamos.world.evaluator import GroundTruth
+from ovamos.world.generate import generate_scene
 
 LAYER_COUNTS = (1, 3, 10)
 
 
 def _frames(count: int) -> list[Any]:
-    from ovamos.services.sim.render import SceneRenderer
+    from ovamos.world.render import SceneRenderer
     scene = generate_scene(SCENE_SEED)
     with SceneRenderer(scene, 640, 480) as renderer:
         return [renderer.render(x, y, yaw, seq=i)

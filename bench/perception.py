@@ -29,16 +29,16 @@ from rich.table import Table
 from ovamos.bench.sim import SCENE_SEED, camera_poses
 from ovamos.services.perception.backend import PerceptionBackend
 from ovamos.services.perception.sim_backend import SimBackend
-from ovamos.services.sim.evaluator import GroundTruth
-from ovamos.services.sim.generate import generate_scene
 from ovamos.shared.messages import RgbdFrame
+from ovamos.world.evaluator import GroundTruth
+from ovamos.world.generate import generate_scene
 
 WIDTH, HEIGHT = 640, 480
 TARGETS_COUNT = 3
 
 
 def _render(count: int) -> tuple[Any, list[RgbdFrame]]:
-    from ovamos.services.sim.render import SceneRenderer
+    from ovamos.world.render import SceneRenderer
     scene = generate_scene(SCENE_SEED)
     with SceneRenderer(scene, WIDTH, HEIGHT) as renderer:
         return scene, [renderer.render(x, y, yaw, seq=i)

@@ -32,14 +32,14 @@ from ovamos.record.live import record
 from ovamos.record.recorder import RecorderConfig
 from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.state import MapState
-from ovamos.services.sim.evaluator import GroundTruth
-from ovamos.services.sim.generate import generate_scene
-from ovamos.services.sim.render import SceneRenderer
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
 from ovamos.shared.messages import MapSnapshot, RgbdFrame
 from ovamos.shared.procs import free_port, loopback
 from ovamos.shared.zconfig import build_config, open_session
+from ovamos.world.evaluator import GroundTruth
+from ovamos.world.generate import generate_scene
+from ovamos.world.render import SceneRenderer
 
 FRAME_HZ, MAP_HZ = 30.0, 2.0
 DISTINCT_FRAMES = 20

@@ -48,11 +48,11 @@ from ovamos.bench.stats import miss_reasons, paired_differences, policy_scores, 
 from ovamos.bench.tables import print_table
 from ovamos.bench.trajectory import write_tum
 from ovamos.services.mapping.render import write_png
-from ovamos.services.sim.generate import home_tier
 from ovamos.services.sim.odometry import odometry_errors
-from ovamos.services.sim.perception_presets import perception_preset
 from ovamos.services.sim.wheels import Motion
 from ovamos.shared.motion import MOTIONS
+from ovamos.world.generate import home_tier
+from ovamos.world.perception_presets import perception_preset
 
 TIMING_FIELDS = {"seconds"}  # wall clock: kept out of the comparable JSONL
 #: written only where they hold something (odometry errs): lines of ideal odometry stay as they were

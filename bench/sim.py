@@ -1,6 +1,6 @@
 """Simulator benchmark: rendered RGB-D frames per second.
 
-Times the whole :meth:`ovamos.services.sim.render.SceneRenderer.render` call (camera
+Times the whole :meth:`ovamos.world.render.SceneRenderer.render` call (camera
 placement, the lit and segmentation passes, read-back, metric depth and
 instance ids, the :class:`~ovamos.shared.messages.RgbdFrame`) at 640x480 and 320x240,
 in a procedurally generated home (fixed seed), from seeded random robot poses
@@ -18,8 +18,8 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from ovamos.services.sim.evaluator import GroundTruth
-from ovamos.services.sim.generate import generate_scene
+from ovamos.world.evaluator import GroundTruth
+from ovamos.world.generate import generate_scene
 
 RESOLUTIONS = ((640, 480), (320, 240))
 WARMUP = 3
@@ -54,7 +54,7 @@ def _gl_renderer() -> str:
 
 def run_benchmark(frames: int = 50, runs: int = 3, progress: Console | None = None
                   ) -> dict[str, Any]:
-    from ovamos.services.sim.render import SceneRenderer
+    from ovamos.world.render import SceneRenderer
 
     if frames < 1 or runs < 1:
         raise ValueError("frames and runs must be at least 1")

@@ -27,10 +27,10 @@ from ovamos.bench.episode import EpisodeConfig, run_episode
 from ovamos.demo import DEMO_EPISODE, DEMO_SEED, SERVICES, demo_entries, wait_for_services, write_configs
 from ovamos.services.gateway.client import GatewayClient
 from ovamos.services.gateway.models import TaskView
-from ovamos.services.sim.episodes import make_episode
-from ovamos.services.sim.prior import ObjectPrior
 from ovamos.shared.procs import free_port
 from ovamos.supervisor import Supervisor
+from ovamos.world.episodes import make_episode
+from ovamos.world.prior import ObjectPrior
 
 ROBOT = "sim"
 ABSENT_STEPS = 60

@@ -29,8 +29,8 @@ from ovamos.shared.log import setup_logging
 from ovamos.shared.zconfig import DEFAULT_ENDPOINT, Mode, ZenohConfigError, build_config, open_session
 
 if TYPE_CHECKING:
-    from ovamos.services.sim.world import Scene
     from ovamos.shared.status import LiveService
+    from ovamos.world.scene import Scene
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="OVAMOS multi-object search over Zenoh.")
@@ -967,7 +967,7 @@ def bench_search(
         max_steps: Annotated[Optional[int], typer.Option(help="Step limit override, for quick runs and "
                                                               "tests only (the paper's: 500).")] = None,
         perception: Annotated[str, typer.Option(help="Simulated perception preset: ideal, realistic or hard "
-                                                     "(services/sim/perception_presets.py).")] = "ideal",
+                                                     "(world/perception_presets.py).")] = "ideal",
         homes: Annotated[str, typer.Option(help="Home tier: default (40-150 m2, 3-7 rooms) or large "
                                                 "(150-300 m2, 8-12 rooms).")] = "default",
         resume: Annotated[bool, typer.Option(help="Keep the episodes --out already holds (a run cut short, "
@@ -1011,8 +1011,8 @@ def bench_search(
 
 
 def _scene(seed: int, scene_file: Path | None):
-    from ovamos.services.sim.generate import generate_scene
-    from ovamos.services.sim.world import Scene, SceneError
+    from ovamos.world.generate import generate_scene
+    from ovamos.world.scene import Scene, SceneError
     if scene_file is None:
         return generate_scene(seed)
     try:
@@ -1038,7 +1038,7 @@ def sim_scene(out: Annotated[Optional[Path], typer.Option(
     """Draw a scene from above: rooms, walls, objects with labels; or list the objects it holds."""
     import cv2
 
-    from ovamos.services.sim.draw import draw_scene
+    from ovamos.world.draw import draw_scene
     if out is None and not objects and not as_json:
         raise _fail("nothing to do: give --out PNG (the picture) and/or --objects (the list)")
     start, stoppable = None, None
@@ -1046,7 +1046,7 @@ def sim_scene(out: Annotated[Optional[Path], typer.Option(
         if seed is not None or scene_file is not None:
             raise _fail("--episode or --seed / --scene, not both")
         from ovamos.bench.search import SearchError, parse_episode_id
-        from ovamos.services.sim.episodes import make_episode
+        from ovamos.world.episodes import make_episode
         try:
             spec, scene, truth = make_episode(*parse_episode_id(episode))
         except SearchError as exc:
@@ -1106,9 +1106,9 @@ def sim_render(out: Annotated[Path, typer.Option(help="PNG to write: RGB | depth
     """Render what the robot's camera sees, side by side: RGB, depth, instance ids."""
     import cv2
 
-    from ovamos.services.sim.draw import side_by_side
-    from ovamos.services.sim.evaluator import GroundTruth
-    from ovamos.services.sim.render import SceneRenderer
+    from ovamos.world.draw import side_by_side
+    from ovamos.world.evaluator import GroundTruth
+    from ovamos.world.render import SceneRenderer
     scene = _scene(seed, scene_file)
     truth = GroundTruth(scene)
     if x is None or y is None:  # default: about 2 m from the biggest object, looking at it

@@ -35,12 +35,12 @@ from ovamos.bench.episode import scene_mapping
 from ovamos.services.gateway.client import GatewayClient, GatewayError
 from ovamos.services.gateway.models import TaskView
 from ovamos.services.perception.config import PerceptionServiceConfig
-from ovamos.services.sim.episodes import make_episode
-from ovamos.services.sim.prior import ObjectPrior
 from ovamos.services.sim.wheels import Motion
 from ovamos.shared.dds import in_own_namespace
 from ovamos.shared.procs import free_port, loopback
 from ovamos.supervisor import Entry, Supervisor
+from ovamos.world.episodes import make_episode
+from ovamos.world.prior import ObjectPrior
 
 DEMO_SEED, DEMO_EPISODE = 0, 4
 #: a fleet's homes: episodes of seed 0 the method solves in 72-217 steps (in-process, default

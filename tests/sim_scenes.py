@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ovamos.services.sim.world import Room, Scene, SceneObject, Wall
+from ovamos.world.scene import Room, Scene, SceneObject, Wall
 
 GREY = (0.5, 0.5, 0.5, 1.0)
 

@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from ovamos.bench.homes import PROCTHOR_10K, home_statistics
 from ovamos.cli import app
-from ovamos.services.sim.prior import ObjectPrior
+from ovamos.world.prior import ObjectPrior
 from tests.sim_scenes import two_rooms
 
 

@@ -24,10 +24,10 @@ from ovamos.services.camera.core import CameraCore
 from ovamos.services.camera.pose import BasePose, base_T_optical, camera_pose
 from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.state import MapState
-from ovamos.services.sim.occupancy import rasterize
 from ovamos.shared.camera import CAMERA_HEIGHT_M, OPTICAL_TO_BODY
 from ovamos.shared.camera import camera_pose as sim_camera_pose
 from ovamos.shared.messages import Intrinsics, Odometry
+from ovamos.world.occupancy import rasterize
 from tests.sim_scenes import two_rooms
 
 # -- the mount's conventions ---------------------------------------------------------------------
@@ -133,7 +133,7 @@ def surface_cells(depth_m: np.ndarray, k: Intrinsics, pose: tuple[float, ...], s
 @pytest.fixture(scope="module")
 def recording() -> Recording:
     """The path rendered once (the frames do not depend on the mount under test)."""
-    from ovamos.services.sim.render import SceneRenderer  # MuJoCo (EGL): only when these tests run
+    from ovamos.world.render import SceneRenderer  # MuJoCo (EGL): only when these tests run
 
     rng = np.random.default_rng(16)
     events: list[tuple[float, Odometry | Shot]] = []

@@ -35,7 +35,7 @@ SCALE = 0.001
 @pytest.fixture(scope="module")
 def rendered() -> tuple[list[tuple[np.ndarray, np.ndarray]], Intrinsics]:
     """Six views of the two-room house as (rgb8, z16 in millimetres), and the intrinsics."""
-    from ovamos.services.sim.render import SceneRenderer
+    from ovamos.world.render import SceneRenderer
 
     with SceneRenderer(two_rooms(), W, H) as renderer:
         frames = [renderer.render(1.5, 2.0, i * math.pi / 3) for i in range(6)]

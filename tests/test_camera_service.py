@@ -17,11 +17,11 @@ from ovamos.services.camera.config import CameraConfig
 from ovamos.services.camera.realsense import RealSenseBackend, RealSenseConfig
 from ovamos.services.camera.service import CameraService
 from ovamos.services.camera.software_device import SoftwareCamera
-from ovamos.services.sim.render import SceneRenderer
 from ovamos.shared import keys
 from ovamos.shared.camera import camera_pose
 from ovamos.shared.fake_bus import FakeNetwork
 from ovamos.shared.messages import CameraState, DriverMode, DriverState, Odometry, RgbdFrame
+from ovamos.world.render import SceneRenderer
 from tests.sim_scenes import two_rooms
 
 pytestmark = pytest.mark.serial  # real-time devices, rates or deadlines: run alone, after the parallel tests (make test-all)

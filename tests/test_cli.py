@@ -105,7 +105,7 @@ def test_demo_finds_every_target_through_the_http_api_and_cleans_up(tmp_path: Pa
     assert "robot unreachable" not in planner_log and "driver shut down" in planner_log
     # lock-step with the kinematic robot: the distributed run is the in-process episode, step by step
     from ovamos.bench.episode import EpisodeConfig, run_episode
-    from ovamos.services.sim.episodes import make_episode
+    from ovamos.world.episodes import make_episode
     local = run_episode(*make_episode(DEMO_SEED, DEMO_EPISODE), EpisodeConfig())
     assert task["steps"] == local.steps
     assert task["distance_m"] == pytest.approx(local.path_m, abs=1e-6)

@@ -22,10 +22,10 @@ import pytest
 from ovamos.cli import DEFAULT_ENDPOINTS, Deployment
 from ovamos.demo import DEMO_EPISODE, DEMO_SEED, suggested_targets
 from ovamos.record.channels import RawChannel
-from ovamos.services.sim.episodes import make_episode
 from ovamos.shared.messages import Odometry
 from ovamos.shared.procs import free_port, loopback, start_cli, stop
 from ovamos.shared.zconfig import RouterUnreachableError, build_config, open_session
+from ovamos.world.episodes import make_episode
 from tests.polling import wait_for
 
 pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all

@@ -16,9 +16,9 @@ from selenium.webdriver.common.keys import Keys
 
 from ovamos.demo import DEMO_EPISODE, DEMO_SEED, SERVICES, demo_entries, write_configs
 from ovamos.services.gateway.client import GatewayClient, GatewayError
-from ovamos.services.sim.episodes import make_episode
 from ovamos.shared.procs import free_port
 from ovamos.supervisor import Supervisor, port_open
+from ovamos.world.episodes import make_episode
 from tests.browser import LAPTOP, by_id, chromium, console_errors, row, screenshot, text_of, wait_text
 from tests.polling import wait_for
 

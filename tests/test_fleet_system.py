@@ -21,14 +21,14 @@ from scipy.ndimage import binary_dilation
 from ovamos.bench.episode import EpisodeConfig, run_episode
 from ovamos.demo import FLEET_ID, fleet_entries, wait_for_services, write_fleet_configs
 from ovamos.services.gateway.client import GatewayClient
-from ovamos.services.sim.episodes import make_episode
-from ovamos.services.sim.occupancy import grid_for, rasterize
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
 from ovamos.shared.messages import MapSnapshot
 from ovamos.shared.procs import free_port, kill, loopback
 from ovamos.shared.zconfig import build_config
 from ovamos.supervisor import Backoff, Supervisor, port_open
+from ovamos.world.episodes import make_episode
+from ovamos.world.occupancy import grid_for, rasterize
 from tests.polling import wait_for
 
 pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all

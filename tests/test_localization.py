@@ -25,12 +25,12 @@ from ovamos.services.mapping.core import MappingCore
 from ovamos.services.mapping.localization import LocalizationConfig, Localizer, ObstaclePoints
 from ovamos.services.mapping.projection import View, planar_pose, project
 from ovamos.services.mapping.state import MapState
-from ovamos.services.sim.episodes import make_episode
-from ovamos.services.sim.render import SceneRenderer
-from ovamos.services.sim.world import Room, Scene, Wall
 from ovamos.shared.camera import camera_pose
 from ovamos.shared.messages import MapSnapshot, Odometry, RgbdFrame
 from ovamos.shared.motion import IDENTITY, Pose
+from ovamos.world.episodes import make_episode
+from ovamos.world.render import SceneRenderer
+from ovamos.world.scene import Room, Scene, Wall
 from tests.sim_scenes import two_rooms
 
 START = Pose(x=1.5, y=2.0, yaw=0.0)  # the middle of two_rooms' kitchen

@@ -11,10 +11,10 @@ from ovamos.services.mapping.checkpoint import CheckpointError, load_checkpoint,
 from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.layers import aggregate, decay, fov_confidence, fuse
 from ovamos.services.mapping.state import MapState
-from ovamos.services.sim.render import SceneRenderer
-from ovamos.services.sim.world import Room, Scene, Wall
 from ovamos.shared.detections import Detection
 from ovamos.shared.messages import PerceptionResult
+from ovamos.world.render import SceneRenderer
+from ovamos.world.scene import Room, Scene, Wall
 from tests.sim_scenes import two_rooms
 
 CONFIG = MappingConfig(grid_cells=200)  # 10 x 10 m around the origin

@@ -13,9 +13,9 @@ import pytest
 from ovamos.services.mapping.checkpoint import load_checkpoint, session_path
 from ovamos.services.mapping.config import MappingServiceConfig
 from ovamos.services.mapping.core import MappingCore
-from ovamos.services.sim.render import SceneRenderer
 from ovamos.shared.messages import Odometry, PerceptionResult, RgbdFrame
 from ovamos.shared.sessions import SessionSwitch
+from ovamos.world.render import SceneRenderer
 from tests.sim_scenes import two_rooms
 
 LOG = logging.getLogger("test.mapping")

@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 
 from ovamos.services.mapping.objects import ObjectMap, detection_position, mask_points
-from ovamos.services.sim.render import SceneRenderer
 from ovamos.shared.camera import CAMERA_HEIGHT_M, camera_pose, pinhole
 from ovamos.shared.detections import Detection
 from ovamos.shared.messages import ObjectInstance, RgbdFrame
+from ovamos.world.render import SceneRenderer
 from tests.sim_scenes import two_rooms
 
 CELL = 0.05  # the map's resolution: "within one cell"

@@ -11,8 +11,8 @@ import threading
 
 from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.state import MapState
-from ovamos.services.sim.render import SceneRenderer
 from ovamos.shared.messages import MapSnapshot, PerceptionResult
+from ovamos.world.render import SceneRenderer
 from tests.sim_scenes import two_rooms
 
 FRAMES = 40

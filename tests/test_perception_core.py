@@ -80,7 +80,7 @@ def test_the_sim_backend_matches_the_simulators_perception_and_refuses_camera_fr
 
 def test_the_sim_backend_can_take_an_episodes_scene() -> None:
     backend = SimBackend.load(SimBackendConfig(episode_seed=3, episode_index=1))
-    from ovamos.services.sim.episodes import make_episode
+    from ovamos.world.episodes import make_episode
     _, scene, _ = make_episode(3, 1)
     assert dict(backend.perception.labels.classes) == {o.id: o.cls for o in scene.objects}
 

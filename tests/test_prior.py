@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from ovamos.services.sim.prior import DEFAULT_PATH, ObjectPrior, PriorError
-from ovamos.services.sim.world import ROOM_TYPES
+from ovamos.world.prior import DEFAULT_PATH, ObjectPrior, PriorError
+from ovamos.world.scene import ROOM_TYPES
 
 ROOT = Path(__file__).resolve().parents[1]
 PROCTHOR_DB = Path("/tmp/pt/whl/procthor/databases")

@@ -1,7 +1,7 @@
 """The scene renderer: deterministic pixels, metric z-depth, instance ids, a pose that agrees.
 
 Small hand-made scenes whose answers are known: a wall a given distance ahead,
-a box in front of or behind it. Importing ovamos.services.sim.render sets MUJOCO_GL=egl.
+a box in front of or behind it. Importing ovamos.world.render sets MUJOCO_GL=egl.
 """
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ import sys
 import numpy as np
 import pytest
 
-from ovamos.services.sim import render
-from ovamos.services.sim.render import SceneRenderer
-from ovamos.services.sim.world import WALL_THICKNESS, Room, Scene, SceneObject, Wall
 from ovamos.shared.camera import CAMERA_HEIGHT_M, DEPTH_RANGE_M
 from ovamos.shared.messages import RgbdFrame
+from ovamos.world import render
+from ovamos.world.render import SceneRenderer
+from ovamos.world.scene import WALL_THICKNESS, Room, Scene, SceneObject, Wall
 
 W, H = 160, 120
 CAMERA = (1.0, 0.0)  # where the camera stands in the scenes below, looking along +x (yaw 0)

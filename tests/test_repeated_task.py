@@ -4,8 +4,8 @@ second goes straight to what the first found (ovamos.bench.episode's world, the 
 from __future__ import annotations
 
 from ovamos.bench.episode import EpisodeConfig, EpisodeWorld, episode_config, run_task
-from ovamos.services.sim.episodes import make_episode
-from ovamos.services.sim.perception_presets import perception_preset
+from ovamos.world.episodes import make_episode
+from ovamos.world.perception_presets import perception_preset
 
 # Development seed 1, episode 18 (three targets, found by the first task): taking the confirmed
 # objects in the order the map confirmed them, the second task's first STOP came at step 69.

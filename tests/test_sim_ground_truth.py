@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from ovamos.services.sim.evaluator import GroundTruth, spl
 from ovamos.services.sim.robot import MotionConfig, SimRobot
 from ovamos.shared.motion import Action, Pose
+from ovamos.world.evaluator import GroundTruth, spl
 from tests.sim_scenes import two_rooms
 
 

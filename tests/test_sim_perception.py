@@ -9,11 +9,11 @@ import pytest
 
 from ovamos.services.perception.backend import Job, Seen
 from ovamos.services.perception.sim_backend import SimBackend
-from ovamos.services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
-from ovamos.services.sim.perception_presets import PERCEPTION_PRESETS, perception_preset
-from ovamos.services.sim.prior import ObjectPrior
-from ovamos.services.sim.render import SceneRenderer
-from ovamos.services.sim.world import Scene
+from ovamos.world.perception import FrameLabels, SimPerception, SimPerceptionConfig
+from ovamos.world.perception_presets import PERCEPTION_PRESETS, perception_preset
+from ovamos.world.prior import ObjectPrior
+from ovamos.world.render import SceneRenderer
+from ovamos.world.scene import Scene
 from tests.sim_scenes import two_rooms
 
 POSE = (1.6, 1.2, math.atan2(3.0 - 1.2, 0.4 - 1.6))  # kitchen, looking at the fridge

@@ -9,12 +9,12 @@ import cv2
 import numpy as np
 import pytest
 
-from ovamos.services.sim.episodes import EpisodeSpec, load_episodes, make_episode, save_episodes
-from ovamos.services.sim.evaluator import GroundTruth
-from ovamos.services.sim.generate import generate_scene, home_tier
-from ovamos.services.sim.occupancy import box_corners
-from ovamos.services.sim.prior import ObjectPrior
-from ovamos.services.sim.world import Scene, SceneError
+from ovamos.world.episodes import EpisodeSpec, load_episodes, make_episode, save_episodes
+from ovamos.world.evaluator import GroundTruth
+from ovamos.world.generate import generate_scene, home_tier
+from ovamos.world.occupancy import box_corners
+from ovamos.world.prior import ObjectPrior
+from ovamos.world.scene import Scene, SceneError
 
 SEEDS = range(8)
 
@@ -35,7 +35,7 @@ def test_same_seed_same_scene_and_another_seed_another(prior, scenes) -> None:
 
 
 def test_same_seed_renders_identical_frames(prior) -> None:
-    from ovamos.services.sim.render import SceneRenderer
+    from ovamos.world.render import SceneRenderer
 
     def frame_hash(seed: int) -> str:
         scene = generate_scene(seed, prior)

@@ -2,7 +2,7 @@
 
 One-off tool, not imported by the simulator: it turns the ProcTHOR databases
 (Allen Institute for AI, Apache-2.0, https://github.com/allenai/procthor) into
-``services/sim/data/object_prior.json``, which ``services/sim/prior.py`` loads.
+``world/data/object_prior.json``, which ``world/prior.py`` loads.
 
 Rerun (stdlib only; the procthor package is only used as a data carrier)::
 

@@ -1,7 +1,7 @@
 """Pictures of the mapping service's state, for people debugging a search.
 
 One BGR image of a :class:`~ovamos.shared.messages.MapSnapshot` seen from above (image
-up = world +y, as in :mod:`ovamos.services.sim.draw`): unexplored cells dark grey,
+up = world +y, as in :mod:`ovamos.world.draw`): unexplored cells dark grey,
 explored free cells light, obstacles black, the value map the planner decides on
 (decayed, :func:`value_image`) as a heat map over explored free cells, frontier waypoints,
 object instances with their labels, and optionally the robot with its heading, its path, the

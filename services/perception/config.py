@@ -8,10 +8,10 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
-from ovamos.services.sim.perception import SimPerceptionConfig
 from ovamos.shared.config import ServiceConfig, StrictModel
 from ovamos.shared.keys import check_chunk
 from ovamos.shared.messages import MAX_DETECTIONS
+from ovamos.world.perception import SimPerceptionConfig
 
 
 class SceneChoice(StrictModel):

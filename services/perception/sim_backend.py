@@ -1,7 +1,7 @@
 """The simulator's perception behind the backend interface (tests, demo, benchmarks).
 
 It needs the scene each simulated robot renders, only to know the class of each
-instance id in a frame (see :mod:`ovamos.services.sim.perception`); frames from a
+instance id in a frame (see :mod:`ovamos.world.perception`); frames from a
 real camera carry no instance ids and are refused with :class:`FrameRejected`.
 A simulated fleet has one home per robot: ``robots`` in the config names each
 robot's scene, the others use the default one.
@@ -21,11 +21,11 @@ from collections.abc import Sequence
 from ovamos.services.perception.backend import Job, Outcome, Seen
 from ovamos.services.perception.config import SceneChoice, SimBackendConfig
 from ovamos.services.perception.errors import BackendError, FrameRejected
-from ovamos.services.sim.perception import FrameLabels, SimPerception, SimPerceptionConfig
-from ovamos.services.sim.prior import ObjectPrior
-from ovamos.services.sim.world import Scene, SceneError
 from ovamos.shared.detections import Detection
 from ovamos.shared.messages import RgbdFrame
+from ovamos.world.perception import FrameLabels, SimPerception, SimPerceptionConfig
+from ovamos.world.prior import ObjectPrior
+from ovamos.world.scene import Scene, SceneError
 
 
 def _scene(choice: SceneChoice, prior: ObjectPrior) -> Scene:
@@ -35,7 +35,7 @@ def _scene(choice: SceneChoice, prior: ObjectPrior) -> Scene:
             return Scene.load(choice.scene_file)
         except SceneError as exc:
             raise BackendError(f"sim backend: {exc}") from None
-    from ovamos.services.sim.episodes import make_episode
+    from ovamos.world.episodes import make_episode
     _, scene, _ = make_episode(choice.episode_seed, choice.episode_index, prior)
     return scene
 

@@ -40,12 +40,12 @@ from pydantic import Field
 from ovamos.services.base_driver.kinematics import Geometry
 from ovamos.services.base_driver.ros2.config import Ros2BaseConfig
 from ovamos.services.camera.ros2 import Ros2CameraConfig
-from ovamos.services.sim.episodes import make_episode
-from ovamos.services.sim.render import SceneRenderer
 from ovamos.services.sim.robot import MotionConfig, SimRobot
 from ovamos.shared.config import StrictModel
 from ovamos.shared.motion import Pose
 from ovamos.shared.ros2 import node
+from ovamos.world.episodes import make_episode
+from ovamos.world.render import SceneRenderer
 
 __all__ = ["INSTANCE_IDS_TOPIC", "MAP_POSE_TOPIC", "Ros2SimRobotConfig", "Ros2SimRobot"]
 

@@ -44,12 +44,12 @@ from typing import Any
 from ovamos.services.base_driver.service import Base, BaseDriverService
 from ovamos.services.sim.config import SimServiceConfig
 from ovamos.services.sim.kinematic import KinematicBase
-from ovamos.services.sim.render import SceneRenderer
 from ovamos.services.sim.robot import SimRobot
 from ovamos.services.sim.wheels import SerialSimRobot, WheeledSimRobot, base_motion, frame_pose, wheeled
 from ovamos.shared.bus import BusCore
 from ovamos.shared.messages import RgbdFrame
 from ovamos.shared.motion import Pose
+from ovamos.world.render import SceneRenderer
 
 
 class SimRobotService(BaseDriverService):
@@ -68,12 +68,12 @@ class SimRobotService(BaseDriverService):
     def make_base(self) -> Base:
         c = self.config
         if c.scene_file is not None:
-            from ovamos.services.sim.evaluator import GroundTruth
-            from ovamos.services.sim.world import Scene
+            from ovamos.world.evaluator import GroundTruth
+            from ovamos.world.scene import Scene
             scene = Scene.load(c.scene_file)
             truth, start = GroundTruth(scene), c.start
         else:
-            from ovamos.services.sim.episodes import make_episode
+            from ovamos.world.episodes import make_episode
             spec, scene, truth = make_episode(c.episode_seed, c.episode_index)
             start = c.start or spec.start
         assert start is not None

@@ -24,13 +24,13 @@ from ovamos.services.base_driver.ros2.map_pose import planar
 from ovamos.services.camera.ros2 import Ros2Backend
 from ovamos.services.mapping.checkpoint import load_checkpoint
 from ovamos.services.mapping.config import MappingConfig
-from ovamos.services.sim.episodes import make_episode
-from ovamos.services.sim.render import SceneRenderer
 from ovamos.services.sim.ros2_robot import BUMP_TOPIC, CAMERA, MAP_POSE_TOPIC
 from ovamos.shared.messages import DriverMode
 from ovamos.shared.motion import Action, Pose, wrap_angle
 from ovamos.shared.procs import stop
 from ovamos.shared.ros2 import node
+from ovamos.world.episodes import make_episode
+from ovamos.world.render import SceneRenderer
 from tests.base_driver_helpers import command, free_run, run, turns_to_nearest_wall, wait_for_mode
 from tests.polling import wait_for
 from tests.ros2.test_ros2_camera import read_frame

@@ -6,7 +6,7 @@ bathroom, and the rest cover the other types. Doorways join rooms along a
 random spanning tree of the room-adjacency graph plus a few extra loops, so
 every room is reachable. Furniture stands against walls, away from
 doorways; which classes go in which room, and what stands on what, follows
-the object prior imported from ProcTHOR (``services/sim/prior.py``). Some
+the object prior imported from ProcTHOR (``world/prior.py``). Some
 small objects are tucked on the floor beside furniture, where they are
 visible only from some viewpoints.
 """
@@ -23,9 +23,9 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from ovamos.services.sim.occupancy import box_corners
-from ovamos.services.sim.prior import ObjectPrior
-from ovamos.services.sim.world import Room, Scene, SceneObject, Wall
+from ovamos.world.occupancy import box_corners
+from ovamos.world.prior import ObjectPrior
+from ovamos.world.scene import Room, Scene, SceneObject, Wall
 
 SIDES = ("south", "north", "west", "east")
 # Room types besides the living room (the biggest) and a bathroom (the smallest), taken in

@@ -30,10 +30,10 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from ovamos.services.sim.prior import ObjectPrior
-from ovamos.services.sim.world import Scene
 from ovamos.shared.detections import Detection
 from ovamos.shared.messages import RgbdFrame
+from ovamos.world.prior import ObjectPrior
+from ovamos.world.scene import Scene
 
 
 class SimPerceptionConfig(BaseModel):

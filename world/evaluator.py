@@ -21,7 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ovamos.services.sim.occupancy import (
+from ovamos.shared.grid import inflate
+from ovamos.shared.gridpaths import FreeSpaceGraph
+from ovamos.world.occupancy import (
     RESOLUTION,
     ROBOT_RADIUS,
     closest_point_on_box,
@@ -30,9 +32,7 @@ from ovamos.services.sim.occupancy import (
     rasterize,
     rasterize_walls,
 )
-from ovamos.services.sim.world import Scene, SceneObject
-from ovamos.shared.grid import inflate
-from ovamos.shared.gridpaths import FreeSpaceGraph
+from ovamos.world.scene import Scene, SceneObject
 
 SUCCESS_DISTANCE = 1.0
 SUPPORT_REACH_CELLS = 4  # beyond the robot radius: how far from its support an object is "reached"

@@ -7,9 +7,9 @@ import math
 import cv2
 import numpy as np
 
-from ovamos.services.sim.world import WALL_THICKNESS, Scene, SceneObject
 from ovamos.shared.grid import GridGeometry
 from ovamos.shared.robot import ROBOT
+from ovamos.world.scene import WALL_THICKNESS, Scene, SceneObject
 
 RESOLUTION = 0.05
 ROBOT_RADIUS = ROBOT.radius_m  # the robot's footprint as a disc (ovamos.shared.robot)

@@ -9,11 +9,11 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from ovamos.services.sim.evaluator import GroundTruth
-from ovamos.services.sim.generate import HomeTier, generate_scene, home_tier
-from ovamos.services.sim.prior import ObjectPrior
-from ovamos.services.sim.world import Scene, SceneError
 from ovamos.shared.motion import Pose
+from ovamos.world.evaluator import GroundTruth
+from ovamos.world.generate import HomeTier, generate_scene, home_tier
+from ovamos.world.prior import ObjectPrior
+from ovamos.world.scene import Scene, SceneError
 
 TARGETS_PER_EPISODE = 3
 MAX_STEPS = 500
@@ -33,7 +33,7 @@ class EpisodeSpec(BaseModel):
 def make_episode(base_seed: int, index: int, prior: ObjectPrior | None = None,
                  homes: str = "default") -> tuple[EpisodeSpec, Scene, GroundTruth]:
     """Episode ``index`` of the set drawn from ``base_seed`` in homes of tier ``homes``
-    (:data:`~ovamos.services.sim.generate.HOME_TIERS`), with its scene and ground truth.
+    (:data:`~ovamos.world.generate.HOME_TIERS`), with its scene and ground truth.
 
     Targets are distinct classes present in the scene that a STOP can succeed for (some place
     reachable from the start is within 1 m of an instance), at least one of them small (the

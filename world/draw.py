@@ -12,12 +12,12 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from ovamos.services.sim.occupancy import box_corners, wall_corners
-from ovamos.services.sim.world import Scene
 from ovamos.shared.camera import DEPTH_RANGE_M
 from ovamos.shared.messages import RgbdFrame
 from ovamos.shared.motion import Pose
 from ovamos.shared.robot import ROBOT
+from ovamos.world.occupancy import box_corners, wall_corners
+from ovamos.world.scene import Scene
 
 ROOM_COLOURS = {  # BGR, light so labels stay readable
     "kitchen": (200, 230, 250), "living_room": (210, 240, 210), "bedroom": (240, 220, 215),

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ovamos.services.sim.world import ROOM_TYPES
+from ovamos.world.scene import ROOM_TYPES
 
 DEFAULT_PATH = Path(__file__).parent / "data" / "object_prior.json"
 

@@ -1,4 +1,4 @@
-"""Renders what the robot's camera sees in a :class:`~ovamos.services.sim.world.Scene`: RGB, depth, ids.
+"""Renders what the robot's camera sees in a :class:`~ovamos.world.scene.Scene`: RGB, depth, ids.
 
 The scene becomes a static MuJoCo model once (a thin floor box per room, walls
 as boxes, every object as an oriented box); each :meth:`SceneRenderer.render`
@@ -30,10 +30,10 @@ from typing import Any
 
 import numpy as np
 
-from ovamos.services.sim.world import WALL_HEIGHT, WALL_THICKNESS, Scene
 from ovamos.shared.camera import CAMERA_HEIGHT_M, DEPTH_RANGE_M, HFOV_DEG, camera_pose, pinhole
 from ovamos.shared.messages import RgbdFrame
 from ovamos.shared.motion import Pose
+from ovamos.world.scene import WALL_HEIGHT, WALL_THICKNESS, Scene
 
 # Floor colour per room type (RGBA); unknown types get FLOOR_DEFAULT.
 FLOOR_RGBA: dict[str, tuple[float, float, float, float]] = {

@@ -1,6 +1,6 @@
 """Named settings of the simulated perception: ``ideal``, ``realistic`` and ``hard``.
 
-The simulator's detector and value scores (:mod:`ovamos.services.sim.perception`) have one
+The simulator's detector and value scores (:mod:`ovamos.world.perception`) have one
 constant per effect. ``ideal`` is the defaults the benchmark tables were first made with;
 ``realistic`` and ``hard`` take each constant from a published, policy-independent figure
 on the models the simulator stands in for (GroundingDINO Swin-T for detection, BLIP-2 ITM /
@@ -34,7 +34,7 @@ from __future__ import annotations
 
 from typing import Literal, get_args
 
-from ovamos.services.sim.perception import SimPerceptionConfig
+from ovamos.world.perception import SimPerceptionConfig
 
 PerceptionPreset = Literal["ideal", "realistic", "hard"]
 PERCEPTION_PRESETS: tuple[str, ...] = get_args(PerceptionPreset)
