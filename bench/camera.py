@@ -36,9 +36,9 @@ from ovamos.services.camera.realsense import RealSenseBackend, RealSenseConfig
 from ovamos.services.camera.software_device import SoftwareCamera
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import build_config, open_session
 from ovamos.shared.messages import JsonMessage, RgbdFrame
 from ovamos.shared.procs import free_port, loopback
-from ovamos.shared.zconfig import build_config, open_session
 
 ROBOT = "bench"
 FRAME_KEY, ACK_KEY = keys.rgbd(ROBOT), keys.bench(ROBOT, "camera-ack")

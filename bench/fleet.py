@@ -39,9 +39,9 @@ from ovamos.services.perception.backend import Job, PerceptionBackend
 from ovamos.services.perception.sim_backend import SimBackend
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.messages import PlanCommand, RgbdFrame
 from ovamos.shared.procs import free_port, loopback
-from ovamos.shared.zconfig import build_config
 from ovamos.supervisor import Supervisor
 from ovamos.world.episodes import make_episode
 from ovamos.world.evaluator import GroundTruth

@@ -34,9 +34,9 @@ from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.state import MapState
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import build_config, open_session
 from ovamos.shared.messages import MapSnapshot, RgbdFrame
 from ovamos.shared.procs import free_port, loopback
-from ovamos.shared.zconfig import build_config, open_session
 from ovamos.world.evaluator import GroundTruth
 from ovamos.world.generate import generate_scene
 from ovamos.world.render import SceneRenderer

@@ -10,7 +10,7 @@ Each comes in three transports (:data:`VARIANTS`), all in the same run through t
 router (shared memory on, as shipped): shared memory off in both clients (the
 network path, as between two hosts); on, with the frame in a buffer of the
 sender's own shared-memory provider (``+shm``: raw Zenoh's ``ShmProvider``, the
-bus's :mod:`ovamos.shared.shm`); and, for raw, on with a plain put of bytes
+bus's :mod:`ovamos.shared.bus.shm`); and, for raw, on with a plain put of bytes
 (``+zpool``: Zenoh's own pool for payloads over 3 KB, what a session does by default).
 Round trips alternate between the variants so drift on the machine hits all alike, and start
 ``gap_ms`` apart as frames from a camera would: sent back-to-back, a round trip
@@ -38,6 +38,8 @@ from rich.table import Table
 from ovamos.services.diag.testpattern import pattern_frame
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.shm import ShmPool
+from ovamos.shared.bus.zconfig import build_config, open_session
 from ovamos.shared.messages import JsonMessage, RgbdFrame
 from ovamos.shared.procs import (
     deferred_signals,
@@ -49,8 +51,6 @@ from ovamos.shared.procs import (
     stop,
     stop_spawned,
 )
-from ovamos.shared.shm import ShmPool
-from ovamos.shared.zconfig import build_config, open_session
 
 WARMUP = 20
 #: a frame not acknowledged within this is lost (a full queue dropped it): counted, not in the medians

@@ -48,8 +48,8 @@ from ovamos.bench.transport import (
 from ovamos.services.diag.testpattern import pattern_frame
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import open_session
 from ovamos.shared.messages import JsonMessage, RgbdFrame
-from ovamos.shared.zconfig import open_session
 
 __all__ = ["STAGES", "StageBus", "run_stages", "print_stages"]
 

@@ -8,7 +8,7 @@ interleaved so drift hits all alike:
 * ``tcp``: the routers linked over plain TCP (the ``laptop`` / ``robot`` profiles);
 * ``tls``: the same link over TLS with mutual authentication (certificates from ``ovamos certs``);
 * ``tls+acl``: the secure profiles' routers as shipped (``*-router-secure.json5``): mTLS and
-  access control, whose refusals the router reads from Zenoh's trace (:mod:`ovamos.shared.acl`).
+  access control, whose refusals the router reads from Zenoh's trace (:mod:`ovamos.shared.bus.acl`).
 
 Shared memory is off in the clients: between two hosts there is none, so the frame's bytes
 cross the link. The frame is the 640x480 RGB-D test pattern on ``sensors/rgbd`` (the robot's
@@ -32,6 +32,7 @@ from rich.table import Table
 from ovamos.bench.transport import AckedSender, measure, print_lost
 from ovamos.services.diag.testpattern import pattern_frame
 from ovamos.shared import keys
+from ovamos.shared.bus.zconfig import build_config, open_session
 from ovamos.shared.certs import init_ca, issue
 from ovamos.shared.deploy import DEPLOY_DIR
 from ovamos.shared.procs import (
@@ -43,7 +44,6 @@ from ovamos.shared.procs import (
     stop,
     stop_spawned,
 )
-from ovamos.shared.zconfig import build_config, open_session
 
 ROBOT = "bench"
 FRAME, ACK = keys.rgbd(ROBOT), keys.task_events(ROBOT)

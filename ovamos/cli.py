@@ -24,12 +24,12 @@ from rich.table import Column, Table
 from ovamos import __version__
 from ovamos.bench.policies import DEFAULT_POLICIES, POLICY_ORDER
 from ovamos.shared.atomic import write_atomic
+from ovamos.shared.bus.zconfig import DEFAULT_ENDPOINT, Mode, ZenohConfigError, build_config, open_session
 from ovamos.shared.deploy import shipped_profiles
 from ovamos.shared.log import setup_logging
-from ovamos.shared.zconfig import DEFAULT_ENDPOINT, Mode, ZenohConfigError, build_config, open_session
 
 if TYPE_CHECKING:
-    from ovamos.shared.status import LiveService
+    from ovamos.shared.bus.status import LiveService
     from ovamos.world.scene import Scene
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
@@ -169,7 +169,7 @@ CertName = Annotated[Optional[str], typer.Option(
 
 
 def _tls(certs: Path | None, cert: str | None):
-    from ovamos.shared.zconfig import TlsFiles
+    from ovamos.shared.bus.zconfig import TlsFiles
     if (certs is None) != (cert is None):
         raise _fail("--certs and --cert go together: the folder and this host's certificate name")
     return None if certs is None or cert is None else TlsFiles.from_folder(certs, cert)
@@ -406,7 +406,7 @@ def status(robot_id: RobotId = "*", zenoh_file: ZenohFile = None, connect: Conne
                help="Seconds to wait for a router, then as long for the services' answers.")] = 2.0,
            as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False) -> None:
     """List live services (from Zenoh liveliness) with their message counters."""
-    from ovamos.shared.status import live_services
+    from ovamos.shared.bus.status import live_services
     cfg = _tool_config(zenoh_file, connect, endpoints, timeout, "client")
     try:
         session = open_session(cfg)

@@ -312,7 +312,7 @@ def _link(options: DoctorOptions) -> list[Check]:
     """The other host's router, and this clock against its services'."""
     if options.other_host is None:
         return [Check("link", "skip", "no --other-host HOST:PORT given (the other host's router)")]
-    from ovamos.shared.zconfig import ZenohConfigError, build_config, open_session
+    from ovamos.shared.bus.zconfig import ZenohConfigError, build_config, open_session
     try:
         endpoint = laptop_endpoint(options.other_host, option="--other-host")
         session = open_session(build_config("client", connect=[endpoint], open_timeout_s=options.timeout_s))

@@ -151,7 +151,7 @@ class Profile(StrictModel):
         return _flat_endpoints(self._router_config([]).get_json("listen/endpoints"))
 
     def _router_config(self, listen: list[str]) -> Any:
-        from ovamos.shared.zconfig import ZenohConfigError, build_config
+        from ovamos.shared.bus.zconfig import ZenohConfigError, build_config
         assert self.router is not None
         try:
             return build_config("router", file=self.router.config, listen=listen, require_certs=False)
@@ -349,8 +349,8 @@ def check_certs(profile: Profile, certs: Path | None) -> None:
     """A secure profile's certificate folder has the CA and this host's pair, valid now."""
     if not profile.secure:
         return
+    from ovamos.shared.bus.zconfig import TlsFiles
     from ovamos.shared.certs import CertError, check_certificate, check_key
-    from ovamos.shared.zconfig import TlsFiles
     assert profile.router is not None and profile.router.cert is not None
     files = TlsFiles.from_folder(certs or DEFAULT_CERTS, profile.router.cert)
     try:

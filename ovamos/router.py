@@ -3,19 +3,19 @@ reported.
 
 With ``access_control`` enabled (the secure profiles' routers), every message the
 rules refuse is logged, sampled per sender and key, and counted per key in the
-router's stats (:mod:`ovamos.shared.acl` reads them from Zenoh's trace); the router then
+router's stats (:mod:`ovamos.shared.bus.acl` reads them from Zenoh's trace); the router then
 answers ``ovamos status`` as service ``router`` with a liveliness token, like any
 service. A TLS handshake Zenoh refused (no certificate, another CA) is logged too.
 
 Before it opens, a router checks what would otherwise fail only on the other host: its
-certificates (:func:`ovamos.shared.zconfig.check_tls`, each logged with its days left, a warning
+certificates (:func:`ovamos.shared.bus.zconfig.check_tls`, each logged with its days left, a warning
 within :data:`~ovamos.shared.certs.EXPIRY_WARNING_DAYS`, an error when one expires while it runs),
-that its plain listeners are on loopback (:func:`ovamos.shared.zconfig.check_plain_listeners`), that
+that its plain listeners are on loopback (:func:`ovamos.shared.bus.zconfig.check_plain_listeners`), that
 its certificate names the addresses its ``tls/`` listeners are reached at, and, once open, what
 the peer at each ``tls/`` connect endpoint presents (:func:`check_peer`: another CA, expired,
 or not naming the address this router dials, which the peer would otherwise only answer with
 ``BadCertificate`` in its own log). The robots' certificates are bound to their own keys
-(:func:`ovamos.shared.acl.bind_robots`).
+(:func:`ovamos.shared.bus.acl.bind_robots`).
 """
 
 from __future__ import annotations
@@ -37,11 +37,9 @@ import zenoh
 from cryptography import x509
 from cryptography.exceptions import InvalidSignature
 
-from ovamos.shared.acl import AclConfigError, AclMonitor, Denial, bind_robots
 from ovamos.shared.bus import Bus
-from ovamos.shared.certs import EXPIRY_WARNING_DAYS, CertInfo, certificate_info, check_certificate
-from ovamos.shared.log import fields, sampled
-from ovamos.shared.zconfig import (
+from ovamos.shared.bus.acl import AclConfigError, AclMonitor, Denial, bind_robots
+from ovamos.shared.bus.zconfig import (
     ZenohConfigError,
     check_plain_listeners,
     check_tls,
@@ -50,6 +48,8 @@ from ovamos.shared.zconfig import (
     open_session,
     tls_settings,
 )
+from ovamos.shared.certs import EXPIRY_WARNING_DAYS, CertInfo, certificate_info, check_certificate
+from ovamos.shared.log import fields, sampled
 
 log = logging.getLogger("ovamos.router")
 _AFTER_THREAD = re.compile(r"ThreadId\(\d+\)\s+(.*)$")

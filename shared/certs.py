@@ -2,7 +2,7 @@
 
 A private certificate authority (``init``) signs one key and certificate per role (``issue``):
 the common name (CN) says who holds it, ``laptop``, ``robot`` (a fleet's robots: ``robot-<id>``,
-:func:`ovamos.shared.acl.robot_common_names`) or a tool such as ``operator``, and the routers' access
+:func:`ovamos.shared.bus.acl.robot_common_names`) or a tool such as ``operator``, and the routers' access
 control (``deploy/zenoh/*-secure.json5``) grants each CN its keys.
 Zenoh's TLS link then authenticates both ends (mTLS): a peer without a certificate of this CA
 gets no session at all.
@@ -14,7 +14,7 @@ Files in the folder (PEM):
 * ``NAME.pem`` and ``NAME.key`` per issued role (the key stays on the host that plays it).
 
 Keys are ECDSA P-256, written with mode 0600, in a folder made 0700. What every router and
-service that uses a certificate runs at start-up (through :mod:`ovamos.shared.zconfig`): a missing,
+service that uses a certificate runs at start-up (through :mod:`ovamos.shared.bus.zconfig`): a missing,
 unreadable, not-yet-valid or expired certificate (:func:`check_certificate`), a key others can
 read or that is not the certificate's (:func:`check_key`), a CA others can write
 (:func:`check_ca`: whoever can replace it decides whom this host trusts) is each one clear error

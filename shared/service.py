@@ -19,14 +19,15 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, ClassVar
-
-import zenoh
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus, BusCore, Publisher
 from ovamos.shared.config import ServiceConfig, ServiceConfigError, read_config
 from ovamos.shared.topology import TOPOLOGY, Node
+
+if TYPE_CHECKING:  # the bus is what imports zenoh (a contract)
+    import zenoh
 
 __all__ = ["Service", "ServiceConfig", "ServiceConfigError", "load_config", "run_loop", "run_service",
            "subscribe_robots"]

@@ -11,8 +11,8 @@ import pytest
 import zenoh
 
 from ovamos.services.gateway.client import GatewayClient
+from ovamos.shared.bus.zconfig import build_config, open_session
 from ovamos.shared.procs import free_port, loopback, start_cli, stop
-from ovamos.shared.zconfig import build_config, open_session
 from tests.gateway_mocks import MockPlanner, RunningGateway, gateway_config
 from tests.polling import port_open, wait_for
 

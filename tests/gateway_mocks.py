@@ -19,6 +19,7 @@ from ovamos.services.gateway.config import GatewayConfig
 from ovamos.services.gateway.service import GatewayService
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.messages import (
     DecisionTrace,
     DriverMode,
@@ -36,7 +37,6 @@ from ovamos.shared.messages import (
 )
 from ovamos.shared.procs import free_port
 from ovamos.shared.service import run_service
-from ovamos.shared.zconfig import build_config
 from tests.polling import port_open, wait_for
 
 ROBOT = "sim"

@@ -27,9 +27,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import zenoh
 
 from ovamos.shared import keys
+from ovamos.shared.bus.zconfig import TlsFiles, build_config, open_session
 from ovamos.shared.log import setup_logging
 from ovamos.shared.messages import EStop, PlanCommand
-from ovamos.shared.zconfig import TlsFiles, build_config, open_session
 
 _lock = threading.Lock()
 

@@ -8,10 +8,10 @@ import threading
 from ovamos.services.perception.config import PerceptionServiceConfig
 from ovamos.services.perception.service import PerceptionService
 from ovamos.shared import keys
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.fake_bus import FakeNetwork
 from ovamos.shared.messages import PerceptionResult, RgbdFrame, TaskEvent, TaskSpec
 from ovamos.shared.service import run_service
-from ovamos.shared.zconfig import build_config
 from ovamos.world.render import SceneRenderer
 from tests.sim_scenes import two_rooms
 

@@ -7,10 +7,10 @@ from typing import Any
 
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.status import live_services
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.messages import DriverState, Odometry, PlanCommand
 from ovamos.shared.service import Service, ServiceConfig, run_service
-from ovamos.shared.status import live_services
-from ovamos.shared.zconfig import build_config
 from tests.polling import wait_for
 
 ROBOT = "r1"

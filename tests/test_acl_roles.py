@@ -19,10 +19,10 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from ovamos.shared.acl import AclConfigError, bind_robots, robot_common_names
+from ovamos.shared.bus.acl import AclConfigError, bind_robots, robot_common_names
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.certs import init_ca, issue
 from ovamos.shared.procs import free_port, loopback
-from ovamos.shared.zconfig import build_config
 from tests.polling import port_open, wait_for
 
 pytestmark = [pytest.mark.system, pytest.mark.serial]  # real-time devices, rates or deadlines: run alone, after the parallel tests (make test-all)

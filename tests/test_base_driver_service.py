@@ -12,9 +12,9 @@ from ovamos.services.base_driver.odrive.config import CanConfig, ODriveConfig
 from ovamos.services.base_driver.service import BaseDriverService
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.messages import DriverMode, EStop, PlanCommand
 from ovamos.shared.motion import Action
-from ovamos.shared.zconfig import build_config
 from tests.polling import wait_for
 from tests.service_helpers import ROBOT, Planner, Running, service_stats
 

@@ -13,9 +13,9 @@ import zenoh
 from ovamos.services.diag.testpattern import pattern_frame
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.status import live_services
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.messages import JsonMessage, RgbdFrame
-from ovamos.shared.status import live_services
-from ovamos.shared.zconfig import build_config
 from tests.polling import wait_for
 
 

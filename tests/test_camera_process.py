@@ -21,10 +21,10 @@ from ovamos.services.camera.service import CameraService
 from ovamos.services.camera.software_device import SoftwareCamera
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.status import live_services
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.camera import camera_pose
 from ovamos.shared.messages import CameraState, Odometry, RgbdFrame, ServiceStats
-from ovamos.shared.status import live_services
-from ovamos.shared.zconfig import build_config
 from ovamos.world.render import SceneRenderer
 from tests.polling import wait_for
 from tests.service_helpers import ROBOT, Running

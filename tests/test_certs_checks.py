@@ -21,9 +21,9 @@ import pytest
 import zenoh
 
 from ovamos.router import log_certificates
+from ovamos.shared.bus.zconfig import TlsFiles, ZenohConfigError, build_config, check_plain_listeners, open_session
 from ovamos.shared.certs import CertInfo, check_certificate, init_ca, issue
 from ovamos.shared.procs import free_port, loopback
-from ovamos.shared.zconfig import TlsFiles, ZenohConfigError, build_config, check_plain_listeners, open_session
 from tests.polling import ovamos_unwrapped as ovamos
 from tests.polling import port_open, wait_for
 

@@ -22,9 +22,9 @@ import pytest
 from ovamos.cli import DEFAULT_ENDPOINTS, Deployment
 from ovamos.demo import DEMO_EPISODE, DEMO_SEED, suggested_targets
 from ovamos.record.channels import RawChannel
+from ovamos.shared.bus.zconfig import RouterUnreachableError, build_config, open_session
 from ovamos.shared.messages import Odometry
 from ovamos.shared.procs import free_port, loopback, start_cli, stop
-from ovamos.shared.zconfig import RouterUnreachableError, build_config, open_session
 from ovamos.world.episodes import make_episode
 from tests.polling import wait_for
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 from rich.console import Console
 
 from ovamos.cli import live_table
+from ovamos.shared.bus.status import LiveService
 from ovamos.shared.messages import CounterSet, ServiceStats
-from ovamos.shared.status import LiveService
 
 
 def test_status_keeps_its_headers_and_numbers_whole_at_80_columns() -> None:

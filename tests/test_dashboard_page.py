@@ -18,8 +18,8 @@ from ovamos.services.gateway.client import GatewayClient
 from ovamos.services.gateway.page import STATIC
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.messages import Goal, ObjectInstance, TaskStatus, TraceOption
-from ovamos.shared.zconfig import build_config
 from tests.browser import (
     PHONE,
     by_id,

@@ -17,8 +17,8 @@ import pytest
 from ovamos.doctor import CHRONY_FIX, DoctorOptions, diagnose
 from ovamos.profiles import PROFILE_DIR
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import build_config, open_session
 from ovamos.shared.procs import free_port, loopback
-from ovamos.shared.zconfig import build_config, open_session
 from tests.polling import wait_for
 
 pytestmark = pytest.mark.system  # processes and routers: make test-all

@@ -23,9 +23,9 @@ from ovamos.demo import FLEET_ID, fleet_entries, wait_for_services, write_fleet_
 from ovamos.services.gateway.client import GatewayClient
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.messages import MapSnapshot
 from ovamos.shared.procs import free_port, kill, loopback
-from ovamos.shared.zconfig import build_config
 from ovamos.supervisor import Backoff, Supervisor, port_open
 from ovamos.world.episodes import make_episode
 from ovamos.world.occupancy import grid_for, rasterize

@@ -18,9 +18,9 @@ from ovamos.services.gateway.client import GatewayClient, GatewayError
 from ovamos.services.gateway.config import TOKEN_ENV, GatewayConfig
 from ovamos.services.gateway.models import TaskView
 from ovamos.services.gateway.service import GatewayService
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.messages import FoundObject, TaskStatus
 from ovamos.shared.service import ServiceConfigError, load_config, run_service
-from ovamos.shared.zconfig import build_config
 from tests.gateway_mocks import ODOM_SESSION, ROBOT, MockMapping, MockPlanner, RunningGateway, gateway_config
 from tests.polling import wait_for
 

@@ -14,7 +14,7 @@ from fastapi.testclient import TestClient
 
 from ovamos.services.gateway.service import create_app
 from ovamos.shared.bus import Bus
-from ovamos.shared.zconfig import build_config
+from ovamos.shared.bus.zconfig import build_config
 from tests.gateway_mocks import ROBOT, gateway_config
 
 JSON = {"content-type": "application/json"}

@@ -16,9 +16,9 @@ from ovamos.services.mapping.config import MappingServiceConfig
 from ovamos.services.mapping.service import MappingService
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.status import live_services
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.messages import MapSnapshot, Odometry, PerceptionResult, RgbdFrame
-from ovamos.shared.status import live_services
-from ovamos.shared.zconfig import build_config
 from ovamos.world.render import SceneRenderer
 from tests.polling import wait_for
 from tests.service_helpers import Running

@@ -98,8 +98,8 @@ def test_the_cpu_gets_full_precision() -> None:
 def test_the_service_runs_the_hf_backend_from_its_config(model_dirs, inproc_router, frame) -> None:
     from ovamos.shared import keys
     from ovamos.shared.bus import Bus
+    from ovamos.shared.bus.zconfig import build_config
     from ovamos.shared.messages import PerceptionResult, RgbdFrame
-    from ovamos.shared.zconfig import build_config
     from tests.perception_helpers import ROBOT, RunningPerception
     from tests.polling import wait_for
 

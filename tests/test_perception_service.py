@@ -16,12 +16,12 @@ from ovamos.services.perception.service import PerceptionService
 from ovamos.services.perception.sim_backend import SimBackend
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.status import live_services
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.codec import pack
 from ovamos.shared.fake_bus import FakeNetwork
 from ovamos.shared.messages import PerceptionResult, RgbdFrame, TaskSpec
 from ovamos.shared.service import INFO_EVERY_S
-from ovamos.shared.status import live_services
-from ovamos.shared.zconfig import build_config
 from tests.perception_helpers import ROBOT, Robot, RunningPerception, render_frames
 from tests.polling import wait_for
 from tests.sim_scenes import two_rooms

@@ -23,9 +23,9 @@ import pytest
 from ovamos.services.gateway.client import GatewayClient
 from ovamos.services.planner.task import SearchTask
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.messages import FoundObject, MapSnapshot, ObjectInstance, TaskSpec, TaskStatus
 from ovamos.shared.procs import kill
-from ovamos.shared.zconfig import build_config
 from tests.conftest import StartCli
 from tests.gateway_mocks import RunningGateway, gateway_config
 from tests.polling import wait_for

@@ -19,6 +19,7 @@ from ovamos.services.planner.config import PlannerServiceConfig
 from ovamos.services.planner.service import PlannerService
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.messages import (
     DriverMode,
     DriverState,
@@ -31,7 +32,6 @@ from ovamos.shared.messages import (
     TaskSpec,
     TaskStatus,
 )
-from ovamos.shared.zconfig import build_config
 from tests.perception_helpers import RunningPerception
 from tests.polling import wait_for
 from tests.service_helpers import Running

@@ -13,10 +13,10 @@ import pytest
 from ovamos.services.diag.testpattern import pattern_frame
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.status import live_services
+from ovamos.shared.bus.zconfig import build_config, open_session
 from ovamos.shared.messages import RgbdFrame
 from ovamos.shared.procs import free_port, kill, loopback, stop
-from ovamos.shared.status import live_services
-from ovamos.shared.zconfig import build_config, open_session
 from tests.polling import port_open, status_cli, wait_for
 
 pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all

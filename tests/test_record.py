@@ -42,9 +42,9 @@ from ovamos.services.mapping.checkpoint import load_checkpoint
 from ovamos.services.mapping.config import MappingServiceConfig
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import build_config, open_session
 from ovamos.shared.messages import MapSnapshot, Odometry, ServiceStats
 from ovamos.shared.procs import free_port, kill, loopback, start_cli, stop
-from ovamos.shared.zconfig import build_config, open_session
 from ovamos.supervisor import Entry, Supervisor, port_open
 from ovamos.world.episodes import make_episode
 from tests.polling import wait_for

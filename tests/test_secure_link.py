@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 
 from ovamos.profiles import PROFILE_DIR, ProfileError, load_profile, supervisor_for
-from ovamos.shared.acl import TraceParser
+from ovamos.shared.bus.acl import TraceParser
+from ovamos.shared.bus.zconfig import TlsFiles, ZenohConfigError, build_config
 from ovamos.shared.certs import CertError, check_certificate, init_ca, issue, list_certificates
-from ovamos.shared.zconfig import TlsFiles, ZenohConfigError, build_config
 from tests.polling import ovamos_unwrapped as ovamos
 
 pytestmark = pytest.mark.system  # processes, routers, browsers or real-time devices: make test-all

@@ -13,9 +13,9 @@ from ovamos.services.sim.config import SimServiceConfig
 from ovamos.services.sim.service import SimRobotService
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.messages import DriverMode, PlanCommand, RgbdFrame
 from ovamos.shared.motion import Action, Pose
-from ovamos.shared.zconfig import build_config
 from tests.polling import wait_for
 from tests.service_helpers import ROBOT, Planner, Running
 from tests.sim_scenes import two_rooms

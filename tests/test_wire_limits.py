@@ -31,6 +31,7 @@ from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.perception.config import HfBackendConfig
 from ovamos.shared import codec, keys, messages
 from ovamos.shared.bus import Bus
+from ovamos.shared.bus.zconfig import build_config
 from ovamos.shared.codec import FLAG_ZLIB, DecodeError
 from ovamos.shared.detections import Detection
 from ovamos.shared.messages import (
@@ -67,7 +68,6 @@ from ovamos.shared.messages import (
 )
 from ovamos.shared.motion import Action
 from ovamos.shared.robot import Primitives
-from ovamos.shared.zconfig import build_config
 from tests.polling import wait_for
 from tests.test_codec import assemble, split  # the payload surgery of the codec tests
 

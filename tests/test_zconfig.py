@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 import zenoh
 
-from ovamos.shared.zconfig import DEFAULT_ENDPOINT, LEASE_MS, RETRY, ZenohConfigError, build_config
+from ovamos.shared.bus.zconfig import DEFAULT_ENDPOINT, LEASE_MS, RETRY, ZenohConfigError, build_config
 
 DEPLOY_DIR = Path(__file__).resolve().parents[1] / "deploy" / "zenoh"
 

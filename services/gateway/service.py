@@ -64,9 +64,9 @@ from ovamos.services.gateway.store import TaskRecord, TaskStore
 from ovamos.services.gateway.tasks import Notify, TaskManager
 from ovamos.shared import keys
 from ovamos.shared.bus import Bus, BusCore, Publisher
+from ovamos.shared.bus.status import live_services
 from ovamos.shared.messages import MapSnapshot
 from ovamos.shared.service import Service, ServiceConfigError, subscribe_robots
-from ovamos.shared.status import live_services
 from ovamos.shared.topology import TOPOLOGY
 
 __all__ = ["GatewayService", "create_app", "wire", "fetch_snapshot", "alive_services"]

@@ -29,12 +29,12 @@ from typing import Any, Generic, Literal, Protocol, Self, TypeVar
 import zenoh
 
 from ovamos.shared import keys
+from ovamos.shared.bus.shm import ShmPool
+from ovamos.shared.bus.shm import enabled as shm_enabled
+from ovamos.shared.bus.zconfig import open_session
 from ovamos.shared.inbox import Inbox
 from ovamos.shared.log import fields, sampled
 from ovamos.shared.messages import CounterSet, DecodeError, ServiceStats
-from ovamos.shared.shm import ShmPool
-from ovamos.shared.shm import enabled as shm_enabled
-from ovamos.shared.zconfig import open_session
 
 log = logging.getLogger("ovamos.bus")
 
@@ -374,7 +374,7 @@ class Bus(BusCore):
     ``dispatch="thread"`` (tools, tests, embedding programs): a thread of the bus
     takes the inbox's events. ``"caller"``: the owner takes them
     (:func:`ovamos.shared.service.run_service` runs them between a service's ticks).
-    ``shm``: large payloads go out through this shared-memory pool (:mod:`ovamos.shared.shm`);
+    ``shm``: large payloads go out through this shared-memory pool (:mod:`ovamos.shared.bus.shm`);
     :meth:`open` gives one when the session's config has shared memory on.
     """
 
