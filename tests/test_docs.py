@@ -81,6 +81,21 @@ class _Demo(BaseModel):
     maybe: _Inner | None = None
 
 
+def test_the_architecture_page_names_every_import_contract_and_service() -> None:
+    """docs/architecture.md is the map of the layers: each contract `make lint` runs is listed there
+    by its name, and each service of the topology is named."""
+    import tomllib
+
+    from ovamos.shared.topology import TOPOLOGY
+    page = (DOCS / "architecture.md").read_text()
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+    assert [c["name"] for c in contracts if f"- {c['name']}\n" not in page] == []
+    listed = re.findall(r"^- (.+)$", page.split("as `make lint` names them")[1].split("## ")[0], re.M)
+    assert sorted(listed) == sorted(c["name"] for c in contracts)  # none listed that is not run
+    services = (DOCS / "services.md").read_text()
+    assert [s for s in TOPOLOGY if f"| `{s}` |" not in services] == []
+
+
 def test_a_changed_field_changes_the_config_reference(tmp_path: Path) -> None:
     before = gen.config_reference({"demo": _Demo}, root=tmp_path)
     assert "| `inner.rate_hz` | `float`, > 0 | `5.0` | how often \\| and \\*why\\* |" in before
