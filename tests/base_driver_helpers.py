@@ -7,6 +7,7 @@ import math
 from collections.abc import Callable
 
 from ovamos.services.base_driver.controller import BaseDriver
+from ovamos.services.base_driver.hardware import HardwareDefaults
 from ovamos.services.base_driver.kinematics import integrate_arc
 from ovamos.services.sim.robot import SimRobot
 from ovamos.services.sim.wheels import WheeledSimRobot
@@ -55,7 +56,7 @@ def heading_deg(a: Pose, b: Pose) -> float:
     return math.degrees(math.remainder(b.yaw - a.yaw, 2 * math.pi))
 
 
-class FakeHardware:
+class FakeHardware(HardwareDefaults):
     """An ideal base behind the BaseHardware protocol, on an injected clock: the wheels follow
     the last setpoint exactly; tests set its sensors and failures directly."""
 

@@ -109,7 +109,6 @@ class BaseController:
         self.config = config
         self.clock = clock
         self.hardware = hardware if hardware is not None else make_hardware(config, clock)
-        self._estop_hw: Callable[[], None] = getattr(self.hardware, "estop", self.hardware.halt)
         self.geometry = Geometry(config.wheel_radius_m, config.track_width_m)
         self._counters: Counter[str] = Counter()
         self._lock = threading.RLock()
@@ -128,11 +127,9 @@ class BaseController:
         self._last_command_at = -math.inf
         self._completed = _Completed()
         self._odom = WheelOdometry(self.geometry, config.initial_pose)
-        # optional hooks of a hardware with inputs of its own: an e-stop, a contact report
-        for hook, handler in (("bind_estop", self.engage_estop), ("bind_bump", self.bump)):
-            bind = getattr(self.hardware, hook, None)
-            if bind is not None:
-                bind(handler)
+        # a hardware with inputs of its own (an e-stop, a contact report) is given their handlers
+        self.hardware.bind_estop(self.engage_estop)
+        self.hardware.bind_bump(self.bump)
         self.odom_session = new_odom_session()  # the integration starts here, once per process
         self._odom_seq = 0
         self._feedback: WheelFeedback | None = None
@@ -225,8 +222,7 @@ class BaseController:
         return fb
 
     def _stale_reason(self, now: float, age: float) -> str:
-        explain = getattr(self.hardware, "stale_reason", None)
-        reason = explain(now) if explain is not None else ""
+        reason = self.hardware.stale_reason(now)
         if reason:
             return reason
         if age == math.inf:
@@ -318,7 +314,7 @@ class BaseController:
             if self._active is not None:
                 self._finish("aborted")
             self._v = self._w = 0.0
-            self._estop_hw()
+            self.hardware.estop()
             self._counters["estops"] += 1
 
     def clear_estop(self, source: str) -> None:
@@ -354,7 +350,7 @@ class BaseController:
             fb = self._read_feedback(now)
             self._take_bumps()
             if self._estop is not None:
-                self._estop_hw()  # repeated: cheap, and re-sent if the base did not take it
+                self.hardware.estop()  # repeated: cheap, and re-sent if the base did not take it
                 return
             if self._phase == "enabling":
                 self._check_enabled(fb, now)

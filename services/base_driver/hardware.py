@@ -11,6 +11,7 @@ Dynamixel Protocol 2.0 (TurtleBot 3).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -60,12 +61,10 @@ class BaseHardware(Protocol):
     :meth:`halt` is called every control cycle while the base is halted: keep it cheap. Positions
     must stay continuous across a re-open (the controller's odometry does not re-baseline).
 
-    Optional, looked up by the controller: ``estop()`` (an e-stop stronger than :meth:`halt`,
-    e.g. the ODrive's Estop message), ``stale_reason(now) -> str`` (why feedback is late, in
-    the interface's words), ``bind_estop(engage)`` (an interface with an e-stop input of its
-    own, such as a ROS topic, is given the controller's ``engage_estop(source, reason)``) and
-    ``bind_bump(bump)`` (one with a contact input that is not a bumper fault, the controller's
-    ``bump(backward)``: the move ends blocked)."""
+    The capabilities not every base has (:meth:`estop`, :meth:`stale_reason`, :meth:`bind_estop`,
+    :meth:`bind_bump`) are part of the interface too: an implementation states what it has by
+    overriding :class:`HardwareDefaults`' answers for a base without them, rather than the
+    controller probing it for methods."""
 
     name: str
 
@@ -88,3 +87,38 @@ class BaseHardware(Protocol):
 
     def close(self) -> None:
         """Release the port or bus (idempotent)."""
+
+    def estop(self) -> None:
+        """An e-stop: stronger than :meth:`halt` where the base has one (the ODrive's Estop message)."""
+
+    def stale_reason(self, now: float) -> str:
+        """Why feedback is late, in the interface's words ("" when it has none to give)."""
+
+    def bind_estop(self, engage: Callable[[str, str], None]) -> None:
+        """An interface with an e-stop input of its own (a ROS topic) is given the controller's
+        ``engage_estop(source, reason)``."""
+
+    def bind_bump(self, bump: Callable[[bool], None]) -> None:
+        """An interface with a contact input that is not a bumper fault is given the controller's
+        ``bump(backward)`` (the move ends blocked)."""
+
+
+class HardwareDefaults:
+    """The answers of a base without the optional capabilities: its e-stop is :meth:`halt`, it says
+    nothing of late feedback, it has no e-stop or contact input of its own. Every implementation
+    derives from it and overrides what its base has."""
+
+    def halt(self) -> None:
+        raise NotImplementedError
+
+    def estop(self) -> None:
+        self.halt()
+
+    def stale_reason(self, now: float) -> str:
+        return ""
+
+    def bind_estop(self, engage: Callable[[str, str], None]) -> None:
+        return None
+
+    def bind_bump(self, bump: Callable[[bool], None]) -> None:
+        return None

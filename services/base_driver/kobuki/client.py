@@ -33,7 +33,7 @@ from typing import Any
 
 import serial
 
-from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
+from ovamos.services.base_driver.hardware import HardwareDefaults, HardwareError, WheelFeedback
 from ovamos.services.base_driver.kobuki.config import KobukiConfig
 from ovamos.services.base_driver.kobuki.protocol import (
     BASIC_SENSOR_DATA_ID,
@@ -57,7 +57,7 @@ __all__ = ["KobukiHardware"]
 log = logging.getLogger("ovamos.kobuki")
 
 
-class KobukiHardware:
+class KobukiHardware(HardwareDefaults):
     """A Kobuki over pyserial. See the module docstring for how a lost port is reported."""
 
     name = "kobuki"

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import can
 
 from ovamos.services.base_driver.config import DriverConfig
-from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
+from ovamos.services.base_driver.hardware import HardwareDefaults, HardwareError, WheelFeedback
 from ovamos.services.base_driver.kinematics import Geometry
 from ovamos.services.base_driver.odrive.config import AxisConfig
 from ovamos.services.base_driver.odrive.protocol import (
@@ -108,7 +108,7 @@ class _Listener(can.Listener):
         pass
 
 
-class ODriveCanHardware:
+class ODriveCanHardware(HardwareDefaults):
     """See the module docstring. ``bus_factory`` defaults to ``can.Bus(**config.odrive.can)``."""
 
     name = "odrive_can"

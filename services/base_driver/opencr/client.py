@@ -43,7 +43,7 @@ from typing import Any
 
 import serial
 
-from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
+from ovamos.services.base_driver.hardware import HardwareDefaults, HardwareError, WheelFeedback
 from ovamos.services.base_driver.opencr import table as T
 from ovamos.services.base_driver.opencr.config import OpenCRConfig
 
@@ -61,7 +61,7 @@ def _i32(data: list[int] | bytes, offset: int) -> int:
     return int.from_bytes(bytes(data[offset:offset + 4]), "little", signed=True)
 
 
-class OpenCRHardware:
+class OpenCRHardware(HardwareDefaults):
     """:class:`~ovamos.services.base_driver.hardware.BaseHardware` for a TurtleBot 3 (OpenCR firmware)."""
 
     name = "opencr"

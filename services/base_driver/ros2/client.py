@@ -35,7 +35,7 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
-from ovamos.services.base_driver.hardware import HardwareError, WheelFeedback
+from ovamos.services.base_driver.hardware import HardwareDefaults, HardwareError, WheelFeedback
 from ovamos.services.base_driver.ros2.config import Ros2BaseConfig
 from ovamos.services.base_driver.ros2.map_pose import OdomHistory, map_T_odom, planar, std_of
 from ovamos.shared.motion import Pose
@@ -44,7 +44,7 @@ from ovamos.shared.ros2 import Ros2Unavailable, node, stamp_s
 __all__ = ["Ros2Hardware"]
 
 
-class Ros2Hardware:
+class Ros2Hardware(HardwareDefaults):
     """The :class:`~ovamos.services.base_driver.hardware.BaseHardware` of a ROS 2 base (module docstring)."""
 
     name = "ros2"
