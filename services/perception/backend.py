@@ -60,6 +60,11 @@ class PerceptionBackend(Protocol):
         see the frames together as far as they can."""
         ...
 
+    def unknown_targets(self, targets: Sequence[str]) -> tuple[tuple[str, ...], str]:
+        """Of ``targets``, those it can never see and why in words a person acts on; ``((), "")``
+        for an open vocabulary (a real model's: any word goes)."""
+        ...
+
 
 def load_backend(config: PerceptionServiceConfig) -> PerceptionBackend:
     """The configured backend; modules are imported here so an unused backend costs nothing."""

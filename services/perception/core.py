@@ -78,9 +78,6 @@ class PerceptionCore:
         self._last_ms: float | None = None
         self._last_batch = 0
         self._last_rejection = ""
-        # a closed-vocabulary backend's (the sim's) check of a target list; None: any word goes
-        self._vocabulary: Callable[[Sequence[str]], tuple[tuple[str, ...], str]] | None = \
-            getattr(backend, "unknown_targets", None)
         self._unknown: dict[str, tuple[tuple[str, ...], str]] = {}  # per robot: targets never seen, why
 
     # -- inputs --------------------------------------------------------------------------------
@@ -121,9 +118,7 @@ class PerceptionCore:
 
     def _check_vocabulary(self, robot: str) -> None:
         """Note (and say once) which of the robot's targets the backend can never see."""
-        if self._vocabulary is None:
-            return
-        unknown, why = self._vocabulary(self._targets[robot].targets)
+        unknown, why = self.backend.unknown_targets(self._targets[robot].targets)
         if not unknown:
             self._unknown.pop(robot, None)
         elif self._unknown.get(robot) != (unknown, why):

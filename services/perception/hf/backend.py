@@ -36,6 +36,10 @@ class HfBackend:
                                           config.text_threshold, config.max_detections)
         self.segmenter = SamSegmenter(segmenter, placement)
 
+    def unknown_targets(self, targets: Sequence[str]) -> tuple[tuple[str, ...], str]:
+        """An open vocabulary: any word is a target the models may see."""
+        return (), ""
+
     @classmethod
     def load(cls, config: HfBackendConfig) -> HfBackend:
         """All three models from their local directories. Every directory is checked before
