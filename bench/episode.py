@@ -23,7 +23,6 @@ weighs success by the shortest tour through all targets over the path driven.
 
 from __future__ import annotations
 
-import math
 import time
 import zlib
 from collections import Counter
@@ -57,8 +56,6 @@ from ovamos.world.perception import FrameLabels, SimPerception, SimPerceptionCon
 from ovamos.world.prior import ObjectPrior
 from ovamos.world.render import SceneRenderer
 from ovamos.world.scene import Scene
-
-MAP_MARGIN_M = 2.0
 
 
 class StepLatency(BaseModel):
@@ -175,12 +172,8 @@ class TaskRun:
 
 
 def scene_mapping(scene: Scene, base: MappingConfig | None = None) -> MappingConfig:
-    """A map grid that covers the scene with a margin: the benchmark's stand-in for a map
-    large enough for any building (a smaller grid keeps the per-step copies cheap)."""
-    base = base or MappingConfig()
-    side = max(scene.width, scene.depth) + 2 * MAP_MARGIN_M
-    return base.model_copy(update={"center": (scene.width / 2, scene.depth / 2),
-                                   "grid_cells": int(math.ceil(side / base.resolution))})
+    """A map grid that covers the scene with a margin (:meth:`MappingConfig.covering`)."""
+    return (base or MappingConfig()).covering(scene.width, scene.depth)
 
 
 def episode_config(policy: str, base: EpisodeConfig | None = None) -> EpisodeConfig:

@@ -31,9 +31,9 @@ from rich.live import Live
 from rich.table import Table
 
 from ovamos import fleet
-from ovamos.bench.episode import scene_mapping
 from ovamos.services.gateway.client import GatewayClient, GatewayError
 from ovamos.services.gateway.models import TaskView
+from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.perception.config import PerceptionServiceConfig
 from ovamos.services.sim.wheels import Motion
 from ovamos.shared.dds import in_own_namespace
@@ -107,7 +107,7 @@ def _robot_configs(folder: Path, seed: int, episode: int, *, width: int, height:
     stepwise, free-running ones (``frame_hz``) when the robot drives continuously; the simulated
     robot's odometry erring as the preset ``odometry`` says, the map localizing or not."""
     _, scene, _ = make_episode(seed, episode)
-    mapping = scene_mapping(scene)
+    mapping = MappingConfig().covering(scene.width, scene.depth)
     episode_keys = {"episode_seed": seed, "episode_index": episode}
     lock_step = motion == "stepwise"
     robot = {"mapping": {"grid_cells": mapping.grid_cells, "center": list(mapping.center), "publish_hz": 5.0,

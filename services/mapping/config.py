@@ -8,6 +8,7 @@ when it follows a new odometry session.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from pydantic import Field
@@ -52,6 +53,14 @@ class MappingConfig(ServiceConfig):
         default=16, ge=1,
         description="the newest fused frames whose targets are remembered: such a frame arriving "
                     "again adds no update counts, a second result for it only new targets' values")
+
+    def covering(self, width_m: float, depth_m: float, margin_m: float = 2.0) -> MappingConfig:
+        """This config with a grid that covers a ``width_m`` x ``depth_m`` building (its corner at the
+        origin) with ``margin_m`` round it: the simulated homes' maps, a smaller grid than a map
+        for any building (the per-step copies stay cheap)."""
+        side = max(width_m, depth_m) + 2 * margin_m
+        return self.model_copy(update={"center": (width_m / 2, depth_m / 2),
+                                       "grid_cells": int(math.ceil(side / self.resolution))})
 
 
 class MappingServiceConfig(MappingConfig):
