@@ -34,7 +34,6 @@ from ovamos.services.planner.decide import Decision, DecisionConfig, GoalKind, a
 from ovamos.services.planner.navigator import NavigationConfig, Navigator, NavMap, Unreachable
 from ovamos.services.planner.outcome import explain, target_misses
 from ovamos.services.planner.plus import goal_budget, strict_objects
-from ovamos.services.planner.policies import POLICIES
 from ovamos.services.planner.task import SearchTask
 from ovamos.shared.messages import MapSnapshot, ObjectInstance, TargetMiss, TaskStatus
 from ovamos.shared.motion import Action, DriveMode, Pose
@@ -187,7 +186,7 @@ class SearchAgent:
     def __init__(self, task: SearchTask, config: AgentConfig | None = None) -> None:
         self.task = task
         self.config = config or AgentConfig()
-        self.policy = POLICIES[self.config.decision.policy]
+        self.policy = self.config.decision.chosen
         self.navigator = Navigator(self.config.navigation)
         self.goal: Decision | None = None
         self.decisions = 0

@@ -35,7 +35,6 @@ from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
 from ovamos.services.planner.candidates import frontier_scores
 from ovamos.services.planner.decide import GoalKind, decision_values, explored_window
 from ovamos.services.planner.navigator import NavMap
-from ovamos.services.planner.policies import POLICIES
 from ovamos.shared.grid import GridGeometry, disc
 from ovamos.shared.messages import MAX_PATH_OBSTACLES, MAX_PATH_POINTS, MapSnapshot
 from ovamos.shared.motion import Action, Pose
@@ -248,7 +247,7 @@ def best_frontier_score(snapshot: MapSnapshot, remaining: list[str], config: Age
         return 0.0
     rows, cols, grid = explored_window(snapshot)
     decision = config.decision
-    values = decision_values(snapshot, POLICIES[decision.policy].targets(remaining), decision, (rows, cols))
+    values = decision_values(snapshot, decision.chosen.targets(remaining), decision, (rows, cols))
     if values is None:
         return 0.0
     return float(frontier_scores(snapshot.frontiers, values, grid, decision.candidates.frontier_radius_m).max())

@@ -29,7 +29,7 @@ from ovamos.services.planner.candidates import (
     frontier_scores,
 )
 from ovamos.services.planner.plus import ManyFrontierPOMDP, PlusConfig, detection_candidates, frontier_bonuses
-from ovamos.services.planner.policies import OVAMOS, POLICIES, Choice, PolicyName
+from ovamos.services.planner.policies import OVAMOS, POLICIES, Choice, Policy, PolicyName
 from ovamos.services.planner.pomdp import POMDPConfig, SearchPOMDP, root_particles
 from ovamos.services.planner.pouct import POUCT
 from ovamos.shared.grid import GridGeometry, inflate
@@ -53,6 +53,12 @@ class DecisionConfig(BaseModel):
     snap_radius_m: float = Field(default=0.5, ge=0, description="action points in obstacles move this far at most")
     avoid_radius_m: float = Field(default=0.5, ge=0, description="unreachable goals block this much")
     seed: int = 0
+
+    @property
+    def chosen(self) -> Policy:
+        """The policy :attr:`policy` names (validated when the config was read): the one lookup of a
+        policy by name, where the config enters; the planner passes the object on."""
+        return POLICIES[self.policy]
 
 
 class GoalKind(str, Enum):
@@ -90,7 +96,7 @@ def decision_values(snapshot: MapSnapshot, remaining: Sequence[str], config: Dec
     """The value map ``config.policy`` decides on: :func:`ovamos.services.mapping.layers.value_map`
     of the remaining targets, decayed unless the policy's values do not decay."""
     return value_map(snapshot, remaining, config.decay_tau, config.decay_kappa,
-                     decayed=POLICIES[config.policy].decays, window=window)
+                     decayed=config.chosen.decays, window=window)
 
 
 class ActionDistances:
@@ -185,7 +191,7 @@ def decide(snapshot: MapSnapshot, robot_xy: tuple[float, float], remaining: Sequ
     places already looked at from close by: candidates and frontiers there are not chosen
     again, but an object confirmed there is (a value peak is where objects get confirmed).
     """
-    policy = POLICIES[config.policy]
+    policy = config.chosen
     avoid = _points(avoid)
     radius = config.avoid_radius_m
     remaining = policy.targets(remaining)
