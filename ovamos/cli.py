@@ -257,8 +257,9 @@ def run(service: Annotated[str, typer.Argument(help="Service to run.")],
         config: Annotated[Optional[Path], typer.Option(help="Service config (TOML or JSON).")] = None,
         zenoh_file: ZenohFile = None, connect: Connect = None, listen: Listen = None,
         set_: Annotated[Optional[list[str]], typer.Option(
-            "--set", help="KEY=JSON: replace a top-level setting of the config (repeatable; a fleet "
-                          "profile tells each process its robots and scene this way).")] = None,
+            "--set", help="KEY=JSON: set a top-level setting of the config, a JSON object changing only "
+                          "the keys it names in its section (repeatable; a fleet profile tells each "
+                          "process its robots and scene this way, the demo its episode).")] = None,
         log_json: LogJson = False, log_level: LogLevel = "INFO") -> None:
     """Run one service until SIGINT / SIGTERM."""
     from ovamos.registry import UnknownServiceError, service_class

@@ -31,6 +31,7 @@ from rich.live import Live
 from rich.table import Table
 
 from ovamos import fleet
+from ovamos.profiles import Profile, load_profile, resolve_profile
 from ovamos.services.gateway.client import GatewayClient, GatewayError
 from ovamos.services.gateway.models import TaskView
 from ovamos.services.mapping.config import MappingConfig
@@ -122,13 +123,16 @@ def _robot_configs(folder: Path, seed: int, episode: int, *, width: int, height:
     # the base's topics and geometry are the defaults, as the simulated robot's, which also
     # reports contact on BUMP_TOPIC and, localizing, its pose on MAP_POSE_TOPIC
     topics = {"bump": BUMP_TOPIC, **({"localization": MAP_POSE_TOPIC} if localization == "base" else {})}
+    loopback_only = {"network": "loopback"}  # the rehearsal's DDS: the demo's namespace, nothing else
     return {**robot, "ros2_robot": {**episode_keys, "width": width, "height": height, "robot": body, "base": topics},
-            "base_driver": {"driver": {"hardware": "ros2", "command_timeout_s": 0.5, "ros2": topics}},
-            "rosview": {},  # the search on /ovamos/*, for RViz (deploy/ros2/ovamos.rviz)
-            "camera": {"backend": "ros2", "lock_step": lock_step, "ros2": {"instance_ids": INSTANCE_IDS_TOPIC}}}
+            "base_driver": {"driver": {"ros2": {**topics, **loopback_only}}},
+            "rosview": loopback_only,  # the search on /ovamos/*, for RViz (deploy/ros2/ovamos.rviz)
+            "camera": {"lock_step": lock_step, "ros2": {"instance_ids": INSTANCE_IDS_TOPIC, **loopback_only}}}
 
 
 def _write(folder: Path, configs: dict[str, dict[str, Any]]) -> dict[str, Path]:
+    """Each entry's changes to its profile's config, one JSON file each (what the demo changed, to
+    read; :func:`demo_entries` passes them on as ``ovamos run --set``)."""
     folder.mkdir(parents=True, exist_ok=True)
     paths = {}
     for name, config in configs.items():
@@ -140,8 +144,8 @@ def _write(folder: Path, configs: dict[str, dict[str, Any]]) -> dict[str, Path]:
 def write_configs(folder: Path, *, seed: int, episode: int, robot_id: str, http_port: int,
                   width: int = 320, height: int = 240, base: str = "kinematic", motion: str = "stepwise",
                   odometry: str = "ideal", localization: str = "off") -> dict[str, Path]:
-    """One JSON config per service, all describing the same episode (scene, start pose); ``base``
-    is how the simulated robot moves (see ``SimServiceConfig.motion``), ``motion`` how the planner
+    """Each service's changes to the demo profile's config (:func:`demo_profile`), all describing the
+    same episode (scene, start pose); ``base`` is how the simulated robot moves (see ``SimServiceConfig.motion``), ``motion`` how the planner
     drives it (``[agent] motion``), ``odometry`` how its odometry errs, ``localization`` whether the
     map localizes (:data:`LOCALIZATIONS`)."""
     episode_keys = {"episode_seed": seed, "episode_index": episode}
@@ -188,34 +192,39 @@ def write_fleet_configs(folder: Path, *, seed: int, episodes: dict[str, int], ht
     return _write(folder, configs)
 
 
+def demo_profile(base: str = "kinematic", *, fleet_of: Sequence[str] = ()) -> Profile:
+    """The shipped profile the demo runs (``ovamos up`` runs the same): ``all``, ``all-ros2`` on the
+    ros2 base, ``fleet`` with the robots ``fleet_of``."""
+    if fleet_of:
+        return load_profile(resolve_profile("fleet")).model_copy(update={"robots": list(fleet_of),
+                                                                          "robot_id": FLEET_ID})
+    return load_profile(resolve_profile("all-ros2" if base == ROS2_BASE else "all"))
+
+
 def demo_entries(configs: dict[str, Path], *, robot_id: str, zenoh_port: int,
                  record: Path | None = None, base: str = "kinematic") -> list[Entry]:
-    """The router, a recorder writing ``record`` (if given; it starts before the services and stops
-    after them, so it holds the whole run), the services, and on the ros2 base the ROS 2 robot."""
+    """The demo profile's router (on ``zenoh_port``) and services with the demo's ``configs`` on top
+    (:func:`write_configs`); a recorder writing ``record`` (if given; it starts before the services
+    and stops after them, so it holds the whole run), and on the ros2 base the ROS 2 robot."""
+    profile = demo_profile(base).model_copy(update={"robot_id": robot_id})
+    router, *services = profile.entries(endpoint=loopback(zenoh_port), changes=_changes(configs))
     robot = [Entry("ros2_robot", ("sim", "ros2", "--config", str(configs["ros2_robot"])))] \
         if base == ROS2_BASE else []
-    return [_router(zenoh_port), *_recorders([robot_id], zenoh_port, record), *robot] + \
-        [_service(name, robot_id, configs[name], zenoh_port) for name in demo_services(base)]
+    return [router, *_recorders([robot_id], zenoh_port, record), *robot, *services]
 
 
 def fleet_entries(configs: dict[str, Path], *, robots: list[str], zenoh_port: int,
                   record: Path | None = None) -> list[Entry]:
-    """:func:`demo_entries` for a fleet (configs from :func:`write_fleet_configs`): per-robot
-    services as ``NAME-ROBOT``, perception and the gateway once, under :data:`FLEET_ID`; with
-    ``record``, one recording per robot (``run-R.mcap`` beside it)."""
-    entries = [_router(zenoh_port), *_recorders(robots, zenoh_port, record)]
-    for name in SERVICES:
-        if name in fleet.FLEET_WIDE:
-            entries.append(_service(name, FLEET_ID, configs[name], zenoh_port))
-        else:
-            entries += [_service(name, robot, configs.get(f"{name}-{robot}", configs.get(name)), zenoh_port,
-                                 entry=f"{name}-{robot}") for robot in robots]
-    return entries
+    """:func:`demo_entries` for a fleet (configs from :func:`write_fleet_configs`), the ``fleet``
+    profile's: per-robot services as ``NAME-ROBOT``, perception and the gateway once, under
+    :data:`FLEET_ID`; with ``record``, one recording per robot (``run-R.mcap`` beside it)."""
+    router, *services = demo_profile(fleet_of=robots).entries(endpoint=loopback(zenoh_port),
+                                                              changes=_changes(configs))
+    return [router, *_recorders(robots, zenoh_port, record), *services]
 
 
-def _router(zenoh_port: int) -> Entry:
-    return Entry("router", ("router", "--listen", loopback(zenoh_port), "--log-level", "WARNING"),
-                 ready=("127.0.0.1", zenoh_port))
+def _changes(configs: dict[str, Path]) -> dict[str, dict[str, Any]]:
+    return {name: json.loads(path.read_text()) for name, path in configs.items() if name != "ros2_robot"}
 
 
 def _recorders(robots: list[str], zenoh_port: int, record: Path | None) -> list[Entry]:
@@ -228,11 +237,6 @@ def _recorders(robots: list[str], zenoh_port: int, record: Path | None) -> list[
 
 def _recording(record: Path, robot: str, robots: int) -> Path:
     return record if robots == 1 else record.with_name(f"{record.stem}-{robot}{record.suffix}")
-
-
-def _service(name: str, robot_id: str, config: Path | None, zenoh_port: int, *, entry: str | None = None) -> Entry:
-    return Entry(entry or name, ("run", name, "--robot-id", robot_id, *(("--config", str(config)) if config else ()),
-                                 "--connect", loopback(zenoh_port)))
 
 
 def _progress(views: dict[str, TaskView | None], elapsed: float) -> Table:

@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import json
 import tomllib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from pydantic import Field, PrivateAttr, ValidationError, field_validator
 
 from ovamos.registry import SERVICES
-from ovamos.shared.config import StrictModel, format_override
+from ovamos.shared.config import StrictModel, format_override, merged
 from ovamos.shared.deploy import PROFILE_DIR, shipped_profiles
 from ovamos.shared.motion import DriveMode
 from ovamos.supervisor import DEFAULT_LOG_DIR, Backoff, Entry, Supervisor
@@ -95,7 +95,8 @@ class Profile(StrictModel):
 
     def entries(self, router_connect: Sequence[str] | None = None,
                 endpoint: str | None = None, *, certs: Path | None = None,
-                listen_link: str | None = None, motion: DriveMode | None = None) -> list[Entry]:
+                listen_link: str | None = None, motion: DriveMode | None = None,
+                changes: Mapping[str, dict[str, Any]] | None = None) -> list[Entry]:
         """The processes to supervise.
 
         ``router_connect`` replaces the router's connect endpoints (``--connect-laptop``
@@ -104,14 +105,18 @@ class Profile(StrictModel):
         shipped one); ``listen_link`` replaces its ``tls/`` listener, or adds one beside the loopback
         one (``--listen-link``).
         ``certs`` is the certificate folder of a router with a ``cert``. ``motion`` sets how the
-        robot drives (:func:`motion_settings`); None: as the services' configs say.
+        robot drives (:func:`motion_settings`); None: as the services' configs say. ``changes``: settings
+        changed on top of a service's config (``ovamos run --set``, merged section by section), by
+        entry name (``mapping-r2``) or else by service (``planner``): the demo's episode and ports.
         """
+        changes = changes or {}
         found = [self._router_entry(router_connect, endpoint, certs, listen_link)] if self.router else []
         if not self.robots:
-            return found + [self._service_entry(s, endpoint, motion=motion) for s in self.services]
-        return found + self._fleet_entries(endpoint, motion)
+            return found + [self._service_entry(s, endpoint, motion=motion, changes=changes) for s in self.services]
+        return found + self._fleet_entries(endpoint, motion, changes)
 
-    def _fleet_entries(self, endpoint: str | None, motion: DriveMode | None) -> list[Entry]:
+    def _fleet_entries(self, endpoint: str | None, motion: DriveMode | None,
+                       changes: Mapping[str, dict[str, Any]]) -> list[Entry]:
         """A fleet's processes, in the profile's order: per-robot services once per robot."""
         from ovamos import fleet
         sim = next((s for s in self.services if s.service == "sim"), None)
@@ -120,11 +125,11 @@ class Profile(StrictModel):
         for spec in self.services:
             if spec.service in fleet.FLEET_WIDE:
                 settings = fleet.fleet_wide_settings(spec.service, service_config(spec), self.robots, homes)
-                entries.append(self._service_entry(spec, endpoint, settings=settings, motion=motion))
+                entries.append(self._service_entry(spec, endpoint, settings=settings, motion=motion, changes=changes))
                 continue
             entries += [self._service_entry(spec, endpoint, robot=robot, name=f"{spec.entry_name}-{robot}",
                                             settings=fleet.robot_settings(spec.service, homes.get(robot)),
-                                            motion=motion)
+                                            motion=motion, changes=changes)
                         for robot in self.robots]
         return entries
 
@@ -172,14 +177,19 @@ class Profile(StrictModel):
 
     def _service_entry(self, spec: ServiceSpec, endpoint: str | None, *, robot: str | None = None,
                        name: str | None = None, settings: dict[str, Any] | None = None,
-                       motion: DriveMode | None = None) -> Entry:
+                       motion: DriveMode | None = None, changes: Mapping[str, dict[str, Any]] | None = None
+                       ) -> Entry:
         if motion is not None:
             settings = {**(settings or {}), **motion_settings(spec.service, service_config(spec), motion)}
+        entry = name or spec.entry_name
+        changed = (changes or {}).get(entry, (changes or {}).get(spec.service))
+        if changed:
+            settings = merged(settings or {}, changed)
         argv = ["run", spec.service, "--robot-id", robot or spec.robot_id or self.robot_id,
                 "--instance", spec.instance, *_opt("--config", spec.config), *_opt("--zenoh", spec.zenoh),
                 *_repeat("--connect", [endpoint] if endpoint else spec.connect),
                 *_repeat("--set", [format_override(k, v) for k, v in (settings or {}).items()])]
-        return Entry(name or spec.entry_name, tuple(argv), delay_s=spec.delay_s)
+        return Entry(entry, tuple(argv), delay_s=spec.delay_s)
 
 
 def motion_settings(service: str, config: Any, motion: DriveMode) -> dict[str, Any]:

@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-__all__ = ["StrictModel", "ServiceConfig", "ServiceConfigError", "read_config", "parse_overrides",
+__all__ = ["StrictModel", "ServiceConfig", "ServiceConfigError", "read_config", "merged", "parse_overrides",
            "format_override"]
 
 
@@ -55,12 +55,23 @@ def read_config(model: type[C], path: str | Path | None, overrides: dict[str, An
         if not isinstance(data, dict):
             raise ServiceConfigError(f"config {path} must hold a table/object of settings, "
                                      f"not {type(data).__name__}")
-    data.update(overrides or {})
+    data = merged(data, overrides or {})
     try:
         return model.model_validate(data)
     except ValidationError as exc:
         problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
         raise ServiceConfigError(f"invalid {what}: {problems}") from None
+
+
+def merged(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``changes`` applied: a table into the table it changes, key by key, so a change
+    to one setting of a section keeps the section's others (a profile's config, the demo's or a
+    fleet's changes on top); anything else replaces the value."""
+    out = dict(base)
+    for key, value in changes.items():
+        old = out.get(key)
+        out[key] = merged(old, value) if isinstance(old, dict) and isinstance(value, dict) else value
+    return out
 
 
 def format_override(key: str, value: Any) -> str:

@@ -9,6 +9,7 @@ leftover processes) only shows with real ones.
 from __future__ import annotations
 
 import io
+import json
 import os
 import signal
 import subprocess
@@ -382,20 +383,21 @@ def test_a_service_config_that_does_not_fit_its_service_is_refused(tmp_path: Pat
 
 def test_unknown_profile_names_list_the_shipped_ones() -> None:
     assert resolve_profile("all") == PROFILE_DIR / "all.toml"
-    with pytest.raises(ProfileError, match="all, fleet, laptop, laptop-secure, robot, robot-ros2, robot-secure"):
+    with pytest.raises(ProfileError, match="all, all-ros2, fleet, laptop, laptop-secure, robot, robot-ros2, robot-secure"):
         resolve_profile("everything")
 
 
 def test_shipped_profiles_are_complete_and_valid() -> None:
     """all / laptop / robot (and the secure two) parse, reference existing files, and say what the
     design asks."""
-    assert [p.stem for p in SHIPPED] == ["all", "fleet", "laptop-secure", "laptop", "robot-ros2", "robot-secure",
-                                         "robot"]
+    assert [p.stem for p in SHIPPED] == ["all-ros2", "all", "fleet", "laptop-secure", "laptop", "robot-ros2",
+                                         "robot-secure", "robot"]
     wanted = {"all": {"gateway", "perception", "mapping", "planner", "sim"},
               "laptop": {"gateway", "perception", "mapping", "planner"},
               "robot": {"base_driver", "camera"}}
     wanted |= {"laptop-secure": wanted["laptop"], "robot-secure": wanted["robot"], "fleet": wanted["all"],
-               "robot-ros2": wanted["robot"] | {"rosview"}}
+               "robot-ros2": wanted["robot"] | {"rosview"},
+               "all-ros2": wanted["laptop"] | wanted["robot"] | {"rosview"}}
     for path in SHIPPED:
         profile = load_profile(path)  # also checks that every referenced file exists
         check_service_configs(profile)  # registered services: configs fit their models
@@ -419,7 +421,8 @@ def test_shipped_service_configs_fit_their_services() -> None:
         load_config(service_class(path.stem.split("-")[0]), path)
         checked.append(path.stem)
     assert checked == ["base_driver-kobuki", "base_driver-opencr", "base_driver-ros2-tb3", "base_driver-ros2-tb4",
-                       "base_driver", "camera-ros2-oakd", "camera-ros2-realsense", "camera", "gateway-laptop",
+                       "base_driver-ros2", "base_driver", "camera-ros2-oakd", "camera-ros2-realsense", "camera-ros2",
+                       "camera", "gateway-laptop",
                        "gateway", "mapping", "perception-fleet", "perception-hf", "perception-sim", "planner", "rosview", "sim"]
 
 
@@ -463,3 +466,52 @@ def test_a_profile_built_in_code_with_an_unknown_service_is_refused() -> None:
     from ovamos.profiles import Profile
     with pytest.raises(ProfileError, match=r"services\[0\] \(mapper\): unknown service 'mapper'"):
         check_service_configs(Profile.model_validate({"services": [{"service": "mapper"}]}))
+
+
+def _without_changes(argv: tuple[str, ...]) -> tuple[str, ...]:
+    out: list[str] = []
+    skip = False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg == "--set":
+            skip = True
+        else:
+            out.append(arg)
+    return tuple(out)
+
+
+@pytest.mark.parametrize("robots", [1, 2])
+def test_the_demo_runs_a_shipped_profile_with_its_episode_on_top(tmp_path: Path, robots: int) -> None:
+    """Issue 49: ``ovamos demo`` and ``ovamos up`` are one description. The demo's processes are the
+    ``all`` profile's (``fleet`` for a fleet), in its order, with its configs and Zenoh files, the
+    demo changing settings on top (``--set``, each what the demo wrote in its config folder), so a
+    profile edited for ``ovamos up`` is what the demo runs."""
+    from ovamos.demo import (
+        FLEET_ID,
+        demo_entries,
+        fleet_entries,
+        fleet_episodes,
+        fleet_robots,
+        write_configs,
+        write_fleet_configs,
+    )
+    from ovamos.shared.config import parse_overrides
+    from ovamos.shared.procs import loopback
+    if robots == 1:
+        configs = write_configs(tmp_path, seed=0, episode=4, robot_id="sim", http_port=9999)
+        entries = demo_entries(configs, robot_id="sim", zenoh_port=7999)
+        profile = load_profile(resolve_profile("all"))
+    else:
+        ids = fleet_robots(robots)
+        configs = write_fleet_configs(tmp_path, seed=0, episodes=fleet_episodes(0, 4, robots), http_port=9999)
+        entries = fleet_entries(configs, robots=ids, zenoh_port=7999)
+        profile = load_profile(resolve_profile("fleet")).model_copy(update={"robots": ids, "robot_id": FLEET_ID})
+    up = profile.entries(endpoint=loopback(7999))
+    assert [(e.name, _without_changes(e.argv)) for e in entries] == [(e.name, _without_changes(e.argv)) for e in up]
+    for entry in entries[1:]:
+        changed = parse_overrides([a for i, a in enumerate(entry.argv) if i and entry.argv[i - 1] == "--set"])
+        written = configs.get(entry.name, configs.get(entry.argv[1]))  # per robot, else per service
+        wrote = {} if written is None else json.loads(written.read_text())
+        assert set(wrote) <= set(changed), entry.name
+        assert all(changed[k] == v for k, v in wrote.items() if not isinstance(v, dict)), entry.name
