@@ -6,6 +6,7 @@ from pydantic import Field
 
 from ovamos.shared.config import ServiceConfig
 from ovamos.shared.ros2 import NETWORK_FIELD, Network
+from ovamos.shared.sessions import SessionSwitch
 
 __all__ = ["RosViewConfig"]
 
@@ -17,3 +18,6 @@ class RosViewConfig(ServiceConfig):
     path_step_m: float = Field(default=0.05, gt=0, description="a path pose every this far")
     path_poses: int = Field(default=5000, ge=2, description="the path keeps this many poses at most")
     network: Network = NETWORK_FIELD
+    session_switch: SessionSwitch = Field(
+        default_factory=SessionSwitch, description="when odometry of a new odometry session is followed (the "
+        "driver restarted): others are counted, never drawn")

@@ -36,6 +36,7 @@ from ovamos.shared.messages import FINAL, DecisionTrace, MapSnapshot, Odometry, 
 from ovamos.shared.motion import Pose
 from ovamos.shared.ros2 import Ros2Unavailable, node
 from ovamos.shared.service import Service
+from ovamos.shared.sessions import SessionFollower
 
 COLOURS: dict[str, tuple[float, float, float]] = {
     "frontier": (0.2, 0.6, 1.0), "candidate": (1.0, 0.6, 0.0), "goal": (1.0, 0.0, 1.0),
@@ -54,6 +55,7 @@ class RosViewService(Service):
         self._snapshot: MapSnapshot | None = None
         self._trace: DecisionTrace | None = None
         self._path: deque[Odometry] = deque(maxlen=config.path_poses)
+        self.sessions = SessionFollower(config.session_switch)
         self._changed = {"map": False, "path": False, "markers": False}
         self._pubs: dict[str, Any] = {}
         self._layers: set[str] = set()  # the value layers published last
@@ -84,8 +86,13 @@ class RosViewService(Service):
             self._changed["markers"] = True
 
     def _on_odom(self, odom: Odometry) -> None:
+        """The robot's path, of the driver's odometry session only (followed on evidence, as every
+        consumer of odometry: a forged stream is counted, not drawn)."""
+        before = self.sessions.current
+        if not self.sessions.observe("odom", odom.odom_session, odom.seq):
+            return
         last = self._path[-1] if self._path else None
-        if last is not None and last.odom_session != odom.odom_session:
+        if before is not None and odom.odom_session != before:
             self._path.clear()  # a restarted driver: a path of the new odometry frame
         elif last is not None and math.hypot(odom.x - last.x, odom.y - last.y) < self.config.path_step_m:
             return
@@ -182,4 +189,4 @@ class RosViewService(Service):
 
     def info(self) -> dict[str, Any]:
         return {"published": dict(self.published), "path_poses": len(self._path),
-                "map_seq": None if self._snapshot is None else self._snapshot.seq}
+                "map_seq": None if self._snapshot is None else self._snapshot.seq, "sessions": self.sessions.info()}

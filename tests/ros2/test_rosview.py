@@ -133,3 +133,23 @@ def test_a_late_viewer_gets_the_marks_and_what_the_task_drops_goes_from_ros_too(
         service.stop()
         if viewer is not None:
             viewer.close()
+
+
+def test_the_path_follows_the_drivers_odometry_session_and_a_forged_stream_is_not_drawn() -> None:
+    """Issue 49: odometry of another session cleared the path and drew its poses. Now a forged stream
+    while the driver talks is counted and leaves the path as it was; a restart (the old session
+    quiet, a new one streaming) starts a path of the new session."""
+    clock = [0.0]
+    service = RosViewService(FakeNetwork().bus("r1", "rosview"), RosViewConfig())
+    service.sessions = type(service.sessions)(service.config.session_switch, clock=lambda: clock[0])
+    for k in range(1, 6):
+        clock[0] += 0.1
+        service._on_odom(Odometry(seq=k, stamp=clock[0], x=0.1 * k, y=0.0, yaw=0.0, odom_session="A"))
+        service._on_odom(Odometry(seq=k, stamp=clock[0], x=9.0, y=9.0, yaw=0.0, odom_session="forged"))
+    assert [round(o.x, 1) for o in service._path] == [0.1, 0.2, 0.3, 0.4, 0.5]
+    assert service.info()["sessions"]["stray"] == {"odom": 5}
+    clock[0] += 1.0  # A quiet: B streams
+    for k in range(1, 6):
+        clock[0] += 0.1
+        service._on_odom(Odometry(seq=k, stamp=clock[0], x=0.1 * k, y=1.0, yaw=0.0, odom_session="B"))
+    assert {o.odom_session for o in service._path} == {"B"} and service.sessions.current == "B"
