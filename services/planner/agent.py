@@ -85,21 +85,23 @@ class AgentConfig(BaseModel):
                     "(services/planner/continuous.py)")
     careful_steps: int = Field(
         default=5, ge=0,
-        description="continuous: after a bump, this many steps drive careful paths (short and slow, the "
-                    "bumps named: careful_path_m, careful_m_s) or, where the path would bring the footprint "
-                    "within careful_clearance_m of a bump, primitives (the navigator's 0.25 m moves, each "
-                    "checked on the map with the bump): a path re-planned past a bump the camera cannot see "
-                    "at full speed grazes it again")
+        description="continuous: after a bump, this many steps drive primitives (the navigator's 0.25 m "
+                    "moves, each checked on the map with the bump), or careful paths where careful_path_m "
+                    "is set: a path re-planned past a bump the camera cannot see, at full speed, grazes it "
+                    "again")
     careful_path_m: float = Field(
-        default=0.5, ge=0,
-        description="continuous: a careful path is the navigator's path cut to this length (0: the careful "
-                    "steps are primitives, as before careful paths existed)")
+        default=0.0, ge=0,
+        description="continuous: > 0: the careful steps are careful paths, the navigator's path cut to this "
+                    "length, at careful_m_s, the bumps named, and the navigator's map grows each bump by "
+                    "careful_clearance_m; 0 (the default): primitives. Off because on the development seed "
+                    "(40 episodes, OpenCR) careful paths of 0.5 m at 0.15 m/s lost SR and MSPL against "
+                    "primitives (docs/benchmarks/search.md#careful-paths-after-a-bump)")
     careful_m_s: float = Field(default=0.15, gt=0, description="continuous: a careful path's top speed")
     careful_clearance_m: float = Field(
         default=0.05, ge=0,
-        description="continuous: the navigator's map grows each bump remembered (one point of an obstacle "
-                    "the map may not have) so that its paths keep the robot's footprint this far from it; a "
-                    "careful path that would still come closer is a primitive")
+        description="continuous, with careful paths: the navigator's map grows each bump remembered (one "
+                    "point of an obstacle the map may not have) so that its paths keep the robot's footprint "
+                    "this far from it; a careful path that would still come closer is a primitive")
     decide_every_s: float = Field(
         default=1.0, gt=0,
         description="continuous: re-decide this often while a path is followed (a step: about one "
@@ -384,12 +386,12 @@ class SearchAgent:
 
     @property
     def _bump_radius_m(self) -> float:
-        """How far round a bump the map is taken as blocked: a point stepwise (the paper's; the
-        navigator's 0.25 m moves are checked against it), and continuous as far as keeps the
-        navigator's paths ``careful_clearance_m`` off it with the whole footprint (a path followed at
-        speed past a point cleared by the navigator's radius alone grazed it again)."""
+        """How far round a bump the map is taken as blocked: a point (the paper's; the navigator's
+        0.25 m moves are checked against it), and with careful paths as far as keeps the navigator's
+        paths ``careful_clearance_m`` off it with the whole footprint (a path followed past a point
+        cleared by the navigator's radius alone may graze the obstacle it marks)."""
         c = self.config
-        if c.motion != "continuous":
+        if c.motion != "continuous" or c.careful_path_m == 0:
             return 0.0
         return max(0.0, ROBOT.radius_m + c.careful_clearance_m - c.navigation.robot_radius)
 

@@ -8,11 +8,11 @@ covered so far) when one of :meth:`Redecision.due`'s events happens (a target co
 object, the path walled off, a much better frontier) or ``decide_every_s`` has passed, never
 waiting for the robot to stop. The path goes with the mapped obstacles near it
 (:func:`obstacles_near`): the robot has no map, and its follower slows near them. Within
-``careful_steps`` of a bump the path is a careful one (:func:`careful_path`): short, slow, the
-bumps named, and only where it keeps the footprint off every bump (else a primitive, which the
-navigator checks against the bump cell by cell). Every other step (the look-around, a turn with
-nowhere to go, ovamos-plus's check turns, the STOP beside a found object) stays a primitive, so a
-found target still ends with the robot within its STOP distance and a STOP.
+``careful_steps`` of a bump a step is a primitive, which the navigator checks against the bump
+cell by cell, or, with ``careful_path_m`` set, a careful path (:func:`careful_path`: short, slow,
+the bumps named, and only where it keeps the footprint off every bump). Every other step (the
+look-around, a turn with nowhere to go, ovamos-plus's check turns, the STOP beside a found object)
+stays a primitive, so a found target still ends with the robot within its STOP distance and a STOP.
 
 A step is then a decision tick: ``decide_every_s`` defaults to about the time a MOVE_FORWARD's
 0.25 m takes at a TurtleBot's top speed, so the agent's step-counted rules (re-decide every 4,
@@ -108,7 +108,7 @@ def careful_path(path: Sequence[Point], pose: Pose, bumps: Sequence[Point], conf
     """The first ``careful_path_m`` of ``path``, from the robot's place on, or None where driving it would bring the
     footprint within ``careful_clearance_m`` of a bump (or nearer one than the robot stands now; the
     navigator's map grows bumps for this, :meth:`SearchAgent._nav_map`) or careful paths are off
-    (``careful_path_m`` 0)."""
+    (``careful_path_m`` 0, the default)."""
     if config.careful_path_m == 0:
         return None
     cut = _cut(np.array([(pose.x, pose.y), *path], float), config.careful_path_m)
