@@ -95,7 +95,7 @@ class AgentConfig(BaseModel):
                     "length, at careful_m_s, the bumps named, and the navigator's map grows each bump by "
                     "careful_clearance_m; 0 (the default): primitives. Off because on the development seed "
                     "(40 episodes, OpenCR) careful paths of 0.5 m at 0.15 m/s lost SR and MSPL against "
-                    "primitives (docs/benchmarks/search.md#careful-paths-after-a-bump)")
+                    "primitives (docs/benchmarks/search.md#careful-paths-after-a-bump-development-seed)")
     careful_m_s: float = Field(default=0.15, gt=0, description="continuous: a careful path's top speed")
     careful_clearance_m: float = Field(
         default=0.05, ge=0,
