@@ -762,5 +762,5 @@ class UnknownTargets(JsonMessage):
     vocabulary, the sim backend's: ``did you mean 'candle'?``): the planner fails the task with
     ``reason`` rather than wait for a map layer that never comes. Sent with each task it is true of."""
 
-    targets: tuple[Name, ...] = Field(min_length=1)
+    targets: tuple[Name, ...] = Field(min_length=1, max_length=MAX_TARGETS)
     reason: str = Field(max_length=MAX_TEXT_CHARS)

@@ -65,6 +65,7 @@ from ovamos.shared.messages import (
     TaskSpec,
     TaskStatus,
     TraceOption,
+    UnknownTargets,
 )
 from ovamos.shared.motion import Action
 from ovamos.shared.robot import Primitives
@@ -385,6 +386,11 @@ def test_strings_are_bounded() -> None:
         TaskSpec(task_id="t", targets=("x" * (MAX_NAME_CHARS + 1),), stamp=0.0)
     with pytest.raises(ValidationError):
         TaskSpec(task_id="t", targets=tuple(f"t{i}" for i in range(MAX_TARGETS + 1)), stamp=0.0)
+    unknown = SAMPLES[UnknownTargets][0]
+    with pytest.raises(DecodeError, match="invalid UnknownTargets: targets: Tuple should have at most"):
+        UnknownTargets.from_bytes(json_with(unknown, "targets", json.dumps([f"t{i}" for i in range(MAX_TARGETS + 1)])))
+    with pytest.raises(DecodeError, match="invalid UnknownTargets: reason: String should have at most"):
+        UnknownTargets.from_bytes(json_with(unknown, "reason", json.dumps("r" * (MAX_TEXT_CHARS + 1))))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -434,6 +440,7 @@ SAMPLES: dict[type, list[Any]] = {
                                   options=(TraceOption(kind="candidate", x=1, y=2, value=0.5, belief=0.4,
                                                        path_m=3.5, q=0.2, visits=10),
                                            TraceOption(kind="frontier", x=0, y=0, value=0.1)))],
+    UnknownTargets: [UnknownTargets(targets=("candel",), reason="unknown target 'candel': did you mean 'candle'?")],
 }
 
 
