@@ -51,7 +51,7 @@ import statistics
 from pathlib import Path
 from typing import Any
 
-OUT = Path(__file__).resolve().parents[1] / "services" / "sim" / "data" / "object_prior.json"
+OUT = Path(__file__).resolve().parents[1] / "world" / "data" / "object_prior.json"
 SOURCE = ("ProcTHOR databases (placement-annotations.json, receptacles.json, asset-database.json, "
           "asset_groups/) from the procthor 0.0.1.dev2 wheel, Allen Institute for AI, "
           "https://github.com/allenai/procthor")
