@@ -18,6 +18,7 @@ Times are the consumer's own monotonic clock at receipt: stamps in messages are 
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections import Counter
@@ -27,6 +28,7 @@ from dataclasses import dataclass
 from pydantic import Field
 
 from ovamos.shared.config import StrictModel
+from ovamos.shared.log import sampled
 
 __all__ = ["SessionSwitch", "SessionFollower", "Evidence"]
 
@@ -115,6 +117,17 @@ class SessionFollower:
             self._current_at = now
             return True
         self.stray[stream] += 1
+        return False
+
+    def admit(self, stream: str, session: str, order: float, log: logging.Logger) -> bool:
+        """:meth:`observe`, saying in ``log`` (sampled) what it ignored: the one warning every
+        consumer that logs its strays gives."""
+        if self.observe(stream, session, order):
+            return True
+        if sampled(self.stray[stream]):
+            log.warning("ignored %s %s of odometry session %r: the driver's is %r and no sustained stream of %r "
+                        "says it restarted (%d such so far)", stream.replace("_", " "), order, session,
+                        self.current, session, self.stray[stream])
         return False
 
     def reconnected(self) -> None:

@@ -92,11 +92,7 @@ class MappingCore:
         message completes the evidence of a restart; others are counted (and sampled in the log)."""
         if self._left_behind(kind, seq, session):
             return False
-        if not self._sessions.observe(kind, session, seq):
-            if sampled(self._sessions.stray[kind]):
-                self.log.warning("ignored %s %d of odometry session %r: the driver's is %r, and no "
-                                 "sustained stream of %r says it restarted", kind, seq, session,
-                                 self._sessions.current, session)
+        if not self._sessions.admit(kind, session, seq, self.log):
             return False
         if self._sessions.current != self._session:
             evidence = self._sessions.switched_on

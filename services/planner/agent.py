@@ -26,7 +26,6 @@ import math
 from dataclasses import dataclass
 from enum import Enum
 
-import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -35,6 +34,7 @@ from ovamos.services.planner.navigator import NavigationConfig, Navigator, NavMa
 from ovamos.services.planner.outcome import explain, target_misses
 from ovamos.services.planner.plus import goal_budget, strict_objects
 from ovamos.services.planner.task import SearchTask
+from ovamos.shared.grid import inflate
 from ovamos.shared.messages import MapSnapshot, ObjectInstance, TargetMiss, TaskStatus
 from ovamos.shared.motion import Action, DriveMode, Pose
 from ovamos.shared.robot import PRIMITIVES, ROBOT, Primitives
@@ -375,13 +375,11 @@ class SearchAgent:
         if self._trail_free and self.trail:
             obstacle &= ~self._swept(nav)
         rows, cols = _cells_inside(nav, bumps)
+        if self._bump_radius_m > 0 and len(rows):
+            bumped = np.zeros(obstacle.shape, bool)
+            bumped[rows, cols] = True
+            obstacle |= inflate(bumped, self._bump_radius_m, nav.grid.resolution)
         obstacle[rows, cols] = True
-        grow = round(self._bump_radius_m / nav.grid.resolution)
-        if grow > 0 and len(rows):
-            grown = np.zeros(obstacle.shape, np.uint8)
-            for r, c in zip(rows.tolist(), cols.tolist()):
-                cv2.circle(grown, (c, r), grow, 1, -1)
-            obstacle |= grown.astype(bool)
         return NavMap(obstacle, nav.explored, nav.grid)
 
     @property

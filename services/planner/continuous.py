@@ -95,7 +95,7 @@ def path_for(agent: SearchAgent, step: Step, pose: Pose) -> tuple[tuple[Point, .
     points = agent.navigator.path
     if len(points) == 0:
         return None
-    path = tuple((round(float(x), 4), round(float(y), 4)) for x, y in points[:MAX_PATH_POINTS])
+    path = _rounded(points[:MAX_PATH_POINTS])
     since = agent.bumps.since(agent.task.steps)
     if since is None or since >= agent.config.careful_steps:
         return path, False
@@ -123,7 +123,12 @@ def careful_path(path: Sequence[Point], pose: Pose, bumps: Sequence[Point], conf
     # from where the robot stands: its follower then drives the first leg as planned (turning in
     # place first where it heads elsewhere) rather than an arc to a point further on, which cuts
     # toward what it bumped
-    return tuple((round(float(x), 4), round(float(y), 4)) for x, y in cut)
+    return _rounded(cut)
+
+
+def _rounded(points: Sequence[Sequence[float]] | np.ndarray) -> tuple[Point, ...]:
+    """Waypoints as a command carries them: to 0.1 mm."""
+    return tuple((round(float(x), 4), round(float(y), 4)) for x, y in points)
 
 
 def _cut(polyline: np.ndarray, length: float) -> np.ndarray:

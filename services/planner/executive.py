@@ -63,7 +63,6 @@ from pydantic import BaseModel, ConfigDict, Field
 from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
 from ovamos.services.planner.continuous import PERIOD, Redecision, booked_step, path_step
 from ovamos.services.planner.task import SearchTask, SearchTaskError
-from ovamos.shared.log import sampled
 from ovamos.shared.messages import (
     FINAL,
     CameraState,
@@ -194,11 +193,7 @@ class Executive:
         shows of a restart counts, and a forged stream of either reaches no pose, path or event);
         others are counted and sampled in the log."""
         before = self._odom_session
-        if not self.sessions.observe(stream, session, order):
-            if sampled(self.sessions.stray[stream]):
-                log.warning("ignored %s of odometry session %r: the driver's is %r and no sustained "
-                            "stream of %r says it restarted (%d such so far)", stream.replace("_", " "),
-                            session, self.sessions.current, session, self.sessions.stray[stream])
+        if not self.sessions.admit(stream, session, order, log):
             return False
         if before is not None and session != before:
             self._new_odom_session(session, before)
