@@ -72,6 +72,11 @@ def max_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+def _readers() -> set[threading.Thread]:
+    """The camera reader threads alive in this process (another test's may still be ending)."""
+    return {t for t in threading.enumerate() if t.name == "camera-reader"}
+
+
 def _camera_stats(bus: Bus) -> ServiceStats | None:
     """What the camera service answers on its stats key, or None while it is not up yet."""
     found = [s.stats for s in live_services(bus.session, ROBOT) if s.service == "camera" and s.stats]
@@ -169,6 +174,7 @@ def test_a_max_playback_waits_for_odometry_before_it_reads(inproc_router: str,
                                                           max_recording: Path) -> None:
     """No odometry yet: the reader reads nothing (a frame captured before the first odometry
     could only be skipped), and stopping the service then ends it at once."""
+    before = _readers()
     with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-robot") as bus:
         running = Running(CameraService, inproc_router, _max_config(max_recording))
         try:
@@ -177,7 +183,7 @@ def test_a_max_playback_waits_for_odometry_before_it_reads(inproc_router: str,
         finally:
             running.close()  # asserts the service's thread ended
     # the reader saw the stop (one still waiting would outlive the service's 5 s join, a daemon)
-    assert not [t for t in threading.enumerate() if t.name == "camera-reader"]
+    assert not _readers() - before
 
 
 def test_a_max_playback_waiting_for_the_service_stops_cleanly(inproc_router: str,
@@ -185,6 +191,7 @@ def test_a_max_playback_waiting_for_the_service_stops_cleanly(inproc_router: str
     """Odometry that stops after one message: the core holds its odometry.max_pending frames
     waiting for newer odometry, the reader waits for room, and stopping the service then ends it
     at once."""
+    before = _readers()
     config = _max_config(max_recording)
     with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-robot") as bus:
         odom = bus.publisher(keys.odom(ROBOT), Odometry)
@@ -205,4 +212,4 @@ def test_a_max_playback_waiting_for_the_service_stops_cleanly(inproc_router: str
         finally:
             running.close()  # asserts the service's thread ended
     # the reader saw the stop, not odometry.wait_s freeing room (it would outlive the service's 5 s join)
-    assert not [t for t in threading.enumerate() if t.name == "camera-reader"]
+    assert not _readers() - before
