@@ -92,6 +92,24 @@ def test_a_frame_posed_off_by_a_known_offset_is_matched_back(renderer: SceneRend
     assert localizer.counters["matched"] == 1
 
 
+@pytest.mark.parametrize("dyaw_deg", [-9.0, 7.0])
+def test_a_frame_a_bump_turned_further_than_odometrys_word_is_matched_from_a_turned_start(
+        renderer: SceneRenderer, dyaw_deg: float) -> None:
+    """A bump turns the robot by degrees its odometry never sees, far outside odometry's own prior
+    (the default, about a degree): from odometry's heading alone the scan finds too few walls and is
+    refused; started turned as well, it is matched back."""
+    state = _mapped(renderer)
+    frame = renderer.render(START.x, START.y, 0.0, seq=99, stamp=99.0)
+    knocked = frame.model_copy(update={"camera_pose": camera_pose(START.x, START.y, math.radians(dyaw_deg))})
+    unbounded = LocalizationConfig(enabled=True, max_step_deg=15.0)  # the per-frame bound aside
+    localizer, _ = _match(state, knocked, unbounded.model_copy(update={"yaw_starts_deg": ()}))
+    assert localizer.last is not None and localizer.last.verdict == "few_inliers"
+    localizer, corrected = _match(state, knocked, unbounded)
+    assert localizer.last is not None and localizer.last.verdict == "matched", localizer.last
+    assert math.hypot(corrected.x - START.x, corrected.y - START.y) < 0.02
+    assert abs(math.degrees(math.remainder(corrected.yaw, 2 * math.pi))) < 0.5
+
+
 def test_a_blank_wall_is_refused_not_matched() -> None:
     """Facing one long wall, the scan fixes the pose across the wall only: refused, odometry kept."""
     wall = Scene(seed=None, width=12.0, depth=4.0, rooms=(Room(id=0, type="hall", x0=0, y0=0, x1=12, y1=4),),

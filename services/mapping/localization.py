@@ -57,6 +57,10 @@ class LocalizationConfig(BaseModel):
     fine_m: float = Field(default=0.1, gt=0, description="second pass and inliers: points within this "
                           "of a mapped obstacle")
     iterations: int = Field(default=8, ge=1, description="Gauss-Newton iterations per pass")
+    yaw_starts_deg: tuple[float, ...] = Field(default=(4.0, 8.0), description="the first pass starts from "
+                                              "odometry's heading or one turned this many degrees either way, "
+                                              "whichever scan lies nearer the map's walls (a bump turns the "
+                                              "robot by degrees odometry never sees; empty: odometry's only)")
     min_inlier_ratio: float = Field(default=0.4, ge=0, le=1, description="fewer scan points on mapped "
                                     "obstacles after the match: refused (a place not mapped yet)")
     min_constraint: float = Field(default=0.02, ge=0, description="the smallest eigenvalue of the match's "
@@ -206,7 +210,8 @@ class Localizer:
         # the first pass reaches as far as odometry may have drifted, no farther: points beyond
         # what it can explain (a wall seen for the first time beside a mapped one) must not pull
         reach = float(np.clip(3 / math.sqrt(prior[0]), c.fine_m, c.coarse_m))
-        delta = np.zeros(3)  # (tx, ty, theta): p' = R(theta) (p - centre) + centre + t
+        # (tx, ty, theta): p' = R(theta) (p - centre) + centre + t
+        delta = _start(fields, scan, centre, reach, prior, c)
         for fine, cap in ((False, reach), (True, c.fine_m)):
             use = fields.value(_moved(scan, centre, delta), False) < cap
             if np.count_nonzero(use) < c.min_points:
@@ -233,6 +238,22 @@ class Localizer:
         sigma_rad = math.radians(c.odometry_sigma_deg + c.odometry_sigma_deg_per_turn_deg * math.degrees(
             self._turned_rad) + c.odometry_sigma_deg_per_m * self._moved_m)
         return np.array([sigma_m ** -2, sigma_m ** -2, sigma_rad ** -2])
+
+
+def _start(fields: _Fields, scan: np.ndarray, centre: np.ndarray, reach: float, prior: np.ndarray,
+           config: LocalizationConfig) -> np.ndarray:
+    """Where the first pass starts: odometry's pose, or turned by one of ``yaw_starts_deg`` either
+    way, whichever costs least (distances capped at ``reach``, odometry's word included). From
+    odometry's heading alone, a scan a bump turned by 5 degrees slides into the nearest wrong
+    alignment of parallel walls and stays there."""
+    weight = config.scan_independent_points / (len(scan) * config.scan_sigma_m ** 2)
+
+    def cost(delta: np.ndarray) -> float:
+        value = np.minimum(fields.value(_moved(scan, centre, delta), False), reach)
+        return float(weight * (value @ value) + delta @ (prior * delta))
+
+    yaws = [0.0, *(sign * math.radians(a) for a in config.yaw_starts_deg for sign in (-1.0, 1.0))]
+    return min((np.array([0.0, 0.0, yaw]) for yaw in yaws), key=cost)
 
 
 def _descend(fields: _Fields, points: np.ndarray, centre: np.ndarray, delta: np.ndarray, fine: bool,
