@@ -37,6 +37,7 @@ class Frames:
         self.go = threading.Event()
         self.delivered = 0
         self.ended = False
+        self.stopped_by: list[str] = []  # the thread of each stop()
 
     def start(self) -> None:
         self.delivered, self.ended = 0, False
@@ -54,7 +55,7 @@ class Frames:
                              intrinsics=INTRINSICS, device_time_s=n / 30.0, host_time_s=time.monotonic())
 
     def stop(self) -> None:
-        pass
+        self.stopped_by.append(threading.current_thread().name)
 
 
 class Rig:
@@ -136,6 +137,8 @@ def test_stopping_while_the_reader_waits_for_room_does_not_hang() -> None:
     assert time.monotonic() - started < 2.0  # the waiting reader saw the stop (join gives up at 5 s)
     assert not rig.service._reader.is_alive()
     assert rig.backend.delivered == CAPACITY
+    # only the reader touches the backend: an SDK stopped from another thread mid-call can hang
+    assert rig.backend.stopped_by == ["camera-reader"]
 
 
 def test_a_live_camera_keeps_the_newest_captures_while_the_service_is_busy() -> None:

@@ -186,6 +186,14 @@ class CameraService(Service):
 
     # -- the reader thread: blocking SDK calls, enqueue only ----------------------------------------
     def _read_loop(self) -> None:
+        """The only thread that touches the backend: an SDK stopped from another thread while this
+        one is inside it can hang both."""
+        try:
+            self._read_until_stopped()
+        finally:
+            self._stop_backend()
+
+    def _read_until_stopped(self) -> None:
         running = False
         while not self._stopping.is_set():
             try:
@@ -250,4 +258,5 @@ class CameraService(Service):
             self._pacer.wake()  # a reader waiting for room sees the stop now
         if self._reader.is_alive():
             self._reader.join(timeout=5)
-        self._stop_backend()
+        if self._reader.is_alive():  # inside the SDK: it stops the backend when it comes out
+            self.log.warning("camera: the reader is still in the camera SDK 5 s after the stop")
