@@ -39,6 +39,8 @@ def policy_scores(results: Sequence[EpisodeResult]) -> dict[str, dict[str, float
             ate = [e.ate_median_m for e in errors]
             scores[policy] |= {"ate_median_m": round(float(np.median(ate)), 3),
                                "ate_p95_m": round(float(np.percentile(ate, 95)), 3),
+                               "ate_aligned_median_m": round(float(np.median([e.ate_aligned_median_m
+                                                                              for e in errors])), 3),
                                "rpe_median_m": round(float(np.median([e.rpe_trans_median_m for e in errors])), 4),
                                "rpe_median_deg": round(float(np.median([e.rpe_rot_median_deg for e in errors])), 3)}
     return scores

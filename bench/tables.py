@@ -37,7 +37,8 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
         drifted = all("ate_median_m" in scores[p] for p in present)  # odometry erred: how far off
         table = Table("method", "episodes", "SR", "MSPL", "targets found", "wrong STOPs", "steps",
                       *(("search s (median / p90)",) if timed else ()),
-                      *(("ATE m (median / p95)", "RPE (10 steps)") if drifted else ()), "paper SR", "paper MSPL",
+                      *(("ATE m (median / p95)", "ATE aligned m", "RPE (10 steps)") if drifted else ()),
+                      "paper SR", "paper MSPL",
                       title=f"{title} (seed {result['seed']}{limit})")
         for policy in present:
             s = scores[policy]
@@ -48,6 +49,7 @@ def print_table(console: Console, result: dict[str, Any]) -> None:
                           f"{s['targets_found']:.1f}%", str(s.get("wrong_stops", "")), f"{s.get('steps', 0):.0f}",
                           *((f"{s['median_search_s']:.0f} / {s['p90_search_s']:.0f}",) if timed else ()),
                           *((f"{s['ate_median_m']:.3f} / {s['ate_p95_m']:.3f}",
+                             f"{s.get('ate_aligned_median_m', 0.0):.3f}",
                              f"{s['rpe_median_m']:.3f} m, {s['rpe_median_deg']:.2f} deg") if drifted else ()),
                           paper_sr, paper_mspl)
         console.print(table)

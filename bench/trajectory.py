@@ -8,6 +8,11 @@ is needed; the timestamps handed to evo are the index in seconds.
 - ATE: evo's APE on the translation part, with no alignment (no Umeyama): both paths start at the
   same known start pose, and the drift away from it is what is measured, so aligning the estimate
   onto the truth would hide it.
+- aligned ATE: the same after aligning the estimate onto the truth (rotation and translation in
+  the plane, no scale: Umeyama's), as the TUM RGB-D benchmark defines ATE: the shape of the believed
+  path, whatever turn of the whole map was made early. A map consistent with itself but turned
+  about the start serves the search as well as an unturned one (goals, objects and the robot are
+  all in it), and only this figure says so.
 - RPE: the relative pose error between poses ``rpe_delta`` apart (consecutive, non-overlapping
   pairs: 0..d, d..2d, ...), its translation in metres and its rotation angle in degrees: the drift
   per stretch, whatever happened before it.
@@ -15,6 +20,7 @@ is needed; the timestamps handed to evo are the index in seconds.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -35,13 +41,14 @@ class TrajectoryErrors(BaseModel):
     ate_rmse_m: float
     ate_median_m: float
     ate_max_m: float
+    ate_aligned_median_m: float = 0.0  # after alignment (see the module); 0 in lines written before it
     rpe_trans_median_m: float  # per rpe_delta poses; 0 when the run has fewer than rpe_delta + 1
     rpe_rot_median_deg: float  # per rpe_delta poses; 0 when the run has fewer than rpe_delta + 1
     poses: int
 
 
 def trajectory_errors(true: Sequence[Planar], estimated: Sequence[Planar], rpe_delta: int = 10) -> TrajectoryErrors:
-    """ATE (no alignment) and RPE over ``rpe_delta`` poses of ``estimated`` against ``true``.
+    """ATE (without and with alignment) and RPE over ``rpe_delta`` poses of ``estimated`` against ``true``.
 
     Raises ValueError when the sequences are empty or differ in length (they must be the same
     instants), or when ``rpe_delta`` is below 1."""
@@ -55,6 +62,8 @@ def trajectory_errors(true: Sequence[Planar], estimated: Sequence[Planar], rpe_d
     ref, est = _trajectory(true), _trajectory(estimated)
     ate = APE(PoseRelation.translation_part)
     ate.process_data((ref, est))
+    aligned = APE(PoseRelation.translation_part)
+    aligned.process_data((ref, _trajectory(_aligned(true, estimated))))
     rpe_trans = rpe_rot = 0.0
     if len(true) > rpe_delta:  # evo refuses a run with no pair at all
         rpe_trans = _rpe_median(ref, est, PoseRelation.translation_part, rpe_delta)
@@ -62,8 +71,24 @@ def trajectory_errors(true: Sequence[Planar], estimated: Sequence[Planar], rpe_d
     return TrajectoryErrors(ate_rmse_m=_round(ate.get_statistic(StatisticsType.rmse)),
                             ate_median_m=_round(ate.get_statistic(StatisticsType.median)),
                             ate_max_m=_round(ate.get_statistic(StatisticsType.max)),
+                            ate_aligned_median_m=_round(aligned.get_statistic(StatisticsType.median)),
                             rpe_trans_median_m=_round(rpe_trans), rpe_rot_median_deg=_round(rpe_rot),
                             poses=len(true))
+
+
+def _aligned(true: Sequence[Planar], estimated: Sequence[Planar]) -> list[Planar]:
+    """``estimated`` turned and shifted in the plane onto ``true`` (least squares on the positions:
+    Umeyama's without scale, in 2D; evo's own refuses a straight path, whose 3D covariance is
+    degenerate). A path that never moved keeps its heading and is only shifted."""
+    t, e = np.asarray(true, dtype=float), np.asarray(estimated, dtype=float)
+    mt, me = t[:, :2].mean(axis=0), e[:, :2].mean(axis=0)
+    a, b = e[:, :2] - me, t[:, :2] - mt
+    cross = float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
+    dot = float(np.sum(a * b))
+    theta = math.atan2(cross, dot) if abs(cross) + abs(dot) > 1e-12 else 0.0
+    c, s = math.cos(theta), math.sin(theta)
+    xy = np.stack([c * a[:, 0] - s * a[:, 1], s * a[:, 0] + c * a[:, 1]], axis=1) + mt
+    return [(float(x), float(y), float(yaw + theta)) for (x, y), yaw in zip(xy, e[:, 2])]
 
 
 def write_tum(path: Path, poses: Sequence[Planar], stamps: Sequence[float] | None = None) -> None:

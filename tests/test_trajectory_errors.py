@@ -21,7 +21,7 @@ def straight(n: int, step: float = 1.0) -> list[Planar]:
 def test_identical_trajectories_have_no_error() -> None:
     errors = trajectory_errors(CURVE, list(CURVE), rpe_delta=10)
     assert errors.model_dump() == {"ate_rmse_m": 0.0, "ate_median_m": 0.0, "ate_max_m": 0.0,
-                                   "rpe_trans_median_m": 0.0, "rpe_rot_median_deg": 0.0, "poses": 31}
+                                   "ate_aligned_median_m": 0.0, "rpe_trans_median_m": 0.0, "rpe_rot_median_deg": 0.0, "poses": 31}
 
 
 def test_one_pose_has_no_error() -> None:
@@ -50,6 +50,7 @@ def test_rotation_about_the_start_is_not_aligned_away() -> None:
     assert errors.ate_max_m == pytest.approx(9 * chord, abs=1e-4)
     assert errors.ate_median_m == pytest.approx(4.5 * chord, abs=1e-4)
     assert errors.ate_rmse_m == pytest.approx(chord * math.sqrt(sum(i * i for i in range(10)) / 10), abs=1e-4)
+    assert errors.ate_aligned_median_m == pytest.approx(0.0, abs=1e-4)  # its shape is the truth's
     # a constant rotation leaves every relative motion as it was
     assert errors.rpe_trans_median_m == pytest.approx(0.0, abs=1e-4)
     assert errors.rpe_rot_median_deg == pytest.approx(0.0, abs=1e-4)
@@ -71,6 +72,8 @@ def test_linear_yaw_drift_grows_the_error() -> None:
     assert errors.ate_max_m == pytest.approx(drift[-1], abs=1e-4)
     assert errors.ate_median_m == pytest.approx(statistics.median(drift), abs=1e-4)
     assert errors.ate_rmse_m == pytest.approx(math.sqrt(statistics.fmean(d * d for d in drift)), abs=1e-4)
+    # a curve is not a line, however it is turned: aligned, the error shrinks but stays
+    assert 0.1 < errors.ate_aligned_median_m < errors.ate_median_m / 2
     stretch = (sum(math.cos(j * bias) for j in range(delta)) - delta, sum(math.sin(j * bias) for j in range(delta)))
     assert errors.rpe_trans_median_m == pytest.approx(math.hypot(*stretch), abs=1e-4)
     assert errors.rpe_rot_median_deg == pytest.approx(delta * 0.5, abs=1e-4)

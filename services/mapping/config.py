@@ -14,6 +14,7 @@ from pathlib import Path
 from pydantic import Field
 
 from ovamos.services.mapping.localization import LocalizationConfig
+from ovamos.services.mapping.loops import LoopConfig
 from ovamos.shared.config import ServiceConfig
 from ovamos.shared.messages import MAX_MAP_SIDE
 from ovamos.shared.robot import ROBOT
@@ -49,6 +50,9 @@ class MappingConfig(ServiceConfig):
     localization: LocalizationConfig = Field(
         default_factory=LocalizationConfig, description="frames matched against the map, which then "
         "lives in a map frame that odometry drift does not move (services/mapping/localization.py)")
+    loops: LoopConfig = Field(default_factory=LoopConfig, description="while the map localizes by scan: "
+                              "a pose graph over keyframes that re-places the map when an old place is "
+                              "seen again (services/mapping/loops.py)")
     remember_frames: int = Field(
         default=16, ge=1,
         description="the newest fused frames whose targets are remembered: such a frame arriving "

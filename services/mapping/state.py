@@ -24,6 +24,7 @@ import numpy as np
 from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.layers import fov_confidence, fuse
 from ovamos.services.mapping.localization import Localizer, ObstaclePoints
+from ovamos.services.mapping.loops import LoopCloser
 from ovamos.services.mapping.objects import ObjectMap
 from ovamos.services.mapping.projection import View, placed, planar_pose, project
 from ovamos.shared.detections import Detection
@@ -59,6 +60,11 @@ class MapState:
                                  **_evidence(c))
         self.localizer = Localizer(c.localization) if c.localization.enabled else None
         self.obstacle_points = ObstaclePoints(self.grid) if self.localizer is not None else None
+        self.loops = (LoopCloser(c.loops, c.localization, self.grid, self.localizer.counters)
+                      if self.localizer is not None and c.localization.source == "scan" and c.loops.enabled
+                      else None)
+        # what the keyframes did not draw (a resumed map's): kept when obstacles are drawn again
+        self._obstacle_base = np.zeros(self.grid.shape, bool)
         self.seq = -1
         self.after_action = 0  # newest RgbdFrame.after_action fused: the map's causal freshness
         # bounding box (row0, row1, col0, col1) of everything explored: frontier search stays in it
@@ -179,7 +185,23 @@ class MapState:
                                      self.obstacle_points, odom)
         if match.accepted and not match.correction.identity:
             frame, view = placed(frame, match.correction), view.moved(match.correction)
+        if self.loops is not None:
+            at = planar_pose(frame)
+            map_T_odom = self.loops.add(odom, at, view.obstacles, match.accepted)
+            if map_T_odom is not None:  # a loop closed: the keyframes were re-placed, and this frame
+                self.localizer.map_T_odom = map_T_odom
+                shift = map_T_odom.compose(odom).compose(at.inverse())
+                frame, view = placed(frame, shift), view.moved(shift)
+                self._draw_keyframes()
         return frame, view
+
+    def _draw_keyframes(self) -> None:
+        """The obstacles drawn again from the loop closer's keyframes at their solved poses (and
+        what they did not draw: a resumed map's)."""
+        assert self.loops is not None
+        self.obstacle = self._obstacle_base.copy()
+        self.obstacle_points = ObstaclePoints(self.grid)
+        self.loops.draw(self.obstacle, self.obstacle_points)
 
     def _project(self, frame: RgbdFrame) -> View:
         c = self.config
@@ -291,6 +313,7 @@ class MapState:
         if snapshot.confidence is None or snapshot.searched is None:
             raise ValueError("no confidences or searched areas (a published snapshot, not a checkpoint)")
         state.obstacle = snapshot.obstacle.copy()
+        state._obstacle_base = snapshot.obstacle.copy()
         state.explored = snapshot.explored.copy()
         for i, target in enumerate(snapshot.layers):
             state.values[target] = snapshot.values[i].copy()
