@@ -12,7 +12,7 @@ $(PY):
 
 # The extras `make test` installs, and the README's by-hand install line (tests/test_install.py
 # holds the two together): everything, for the tests, the docs and the benchmarks.
-EXTRAS := dev,docs,sim,perception,camera,ros2,cluster
+EXTRAS := dev,docs,sim,perception,camera,ros2,cluster,slam
 # torch, pinned and installed first: from PyPI, Linux's build is the CUDA one (what a GPU laptop
 # wants); TORCH_INDEX=https://download.pytorch.org/whl/cpu takes PyTorch's CPU-only build (a CI box,
 # a robot), as PyTorch's own instructions give it. A bare "torch" requirement in the extras would

@@ -88,7 +88,7 @@ def _error(pair: tuple[Pose, Pose]) -> tuple[float, float]:
 
 
 def test_a_robot_back_where_the_map_began_is_put_back_and_its_keyframes_with_it() -> None:
-    closer, placed, counters = _run(LoopConfig())
+    closer, placed, counters = _run(LoopConfig(enabled=True))
     assert counters["loop_solved"] >= 1 and counters["loop_refused"] == 0, counters
     out = _error(placed[20])  # out at (4, 2): 6 degrees off, as the knock left it
     assert out[1] == pytest.approx(6.0, abs=0.1)
@@ -104,21 +104,22 @@ def test_a_robot_back_where_the_map_began_is_put_back_and_its_keyframes_with_it(
 
 
 def test_a_solution_that_would_move_the_robot_too_far_is_refused_and_nothing_moves() -> None:
-    closer, placed, counters = _run(LoopConfig(max_shift_deg=2.0))
+    closer, placed, counters = _run(LoopConfig(enabled=True, max_shift_deg=2.0))
     assert counters["loop_refused"] >= 1 and counters["loop_solved"] == 0, counters
     assert _error(placed[-1])[1] == pytest.approx(6.0, abs=0.1)  # still knocked: odometry's word kept
     assert [kf.pose for kf in closer.keyframes] == [believed for believed, _ in placed]  # never re-placed
 
 
 def test_one_keyframes_tie_moves_nothing_until_the_next_one_says_the_same() -> None:
-    _, _, counters = _run(LoopConfig(confirmations=1000))
+    _, _, counters = _run(LoopConfig(enabled=True, confirmations=1000))
     assert counters["loop_unconfirmed"] >= 2 and counters["loop_solved"] == 0, counters
 
 
-def test_the_map_closes_loops_only_while_it_localizes_by_scan() -> None:
-    assert MapState(MappingConfig(grid_cells=100)).loops is None  # localization off
+def test_the_map_closes_loops_only_when_asked_and_while_it_localizes_by_scan() -> None:
+    loops = LoopConfig(enabled=True)
+    assert MapState(MappingConfig(grid_cells=100, loops=loops)).loops is None  # localization off
     on = MappingConfig(grid_cells=100, localization=LocalizationConfig(enabled=True))
-    assert MapState(on).loops is not None
-    assert MapState(on.model_copy(update={"loops": LoopConfig(enabled=False)})).loops is None
-    base = on.model_copy(update={"localization": LocalizationConfig(enabled=True, source="base")})
+    assert MapState(on).loops is None  # off by default
+    assert MapState(on.model_copy(update={"loops": loops})).loops is not None
+    base = on.model_copy(update={"localization": LocalizationConfig(enabled=True, source="base"), "loops": loops})
     assert MapState(base).loops is None

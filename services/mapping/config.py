@@ -52,7 +52,7 @@ class MappingConfig(ServiceConfig):
         "lives in a map frame that odometry drift does not move (services/mapping/localization.py)")
     loops: LoopConfig = Field(default_factory=LoopConfig, description="while the map localizes by scan: "
                               "a pose graph over keyframes that re-places the map when an old place is "
-                              "seen again (services/mapping/loops.py)")
+                              "seen again (services/mapping/loops.py; off by default)")
     remember_frames: int = Field(
         default=16, ge=1,
         description="the newest fused frames whose targets are remembered: such a frame arriving "

@@ -38,8 +38,9 @@ class LoopConfig(BaseModel):
     the map. Applies while the map localizes by scan (``[localization] enabled``, ``source = "scan"``)."""
 
     model_config = ConfigDict(extra="forbid")
-    enabled: bool = Field(default=True, description="close loops while the map localizes by scan (off: "
-                          "scan-to-map matching alone)")
+    enabled: bool = Field(default=False, description="close loops while the map localizes by scan (needs "
+                          "ovamos[slam]; off: scan-to-map matching alone, which measured as well: "
+                          "docs/method.md#loop-closure)")
     keyframe_m: float = Field(default=0.3, gt=0, description="a keyframe every this much of the camera's "
                               "travel in the map ...")
     keyframe_deg: float = Field(default=25.0, gt=0, description="... or of its turning")
@@ -111,7 +112,10 @@ class LoopCloser:
 
     def __init__(self, config: LoopConfig, matching: LocalizationConfig, grid: GridGeometry,
                  counters: Counter[str]) -> None:
-        import gtsam  # a base dependency; imported where loops close, as evo is where errors are computed
+        try:
+            import gtsam  # the slam extra's; imported where loops close, as evo is where errors are computed
+        except ImportError as exc:
+            raise RuntimeError("[loops] enabled needs GTSAM: pip install 'ovamos[slam]'") from exc
 
         self.config, self.grid, self.counters = config, grid, counters
         self._gtsam = gtsam

@@ -192,10 +192,10 @@ class MapState:
                 self.localizer.map_T_odom = map_T_odom
                 shift = map_T_odom.compose(odom).compose(at.inverse())
                 frame, view = placed(frame, shift), view.moved(shift)
-                self._draw_keyframes()
+                self.draw_keyframes()
         return frame, view
 
-    def _draw_keyframes(self) -> None:
+    def draw_keyframes(self) -> None:
         """The obstacles drawn again from the loop closer's keyframes at their solved poses (and
         what they did not draw: a resumed map's)."""
         assert self.loops is not None
