@@ -19,10 +19,10 @@ ROBOT = "r1"
 class Running:
     """``cls`` run by :func:`run_service` in a thread; :meth:`close` stops and joins it."""
 
-    def __init__(self, cls: type[Service], endpoint: str, config: ServiceConfig) -> None:
+    def __init__(self, cls: type[Service], endpoint: str, config: ServiceConfig, robot_id: str = ROBOT) -> None:
         self.stop = threading.Event()
         self.thread = threading.Thread(target=run_service, args=(cls, build_config(connect=[endpoint]), config),
-                                       kwargs={"robot_id": ROBOT, "instance": "0", "stop": self.stop})
+                                       kwargs={"robot_id": robot_id, "instance": "0", "stop": self.stop})
         self.thread.start()
 
     def close(self) -> None:

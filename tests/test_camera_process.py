@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,7 @@ from ovamos.shared.camera import camera_pose
 from ovamos.shared.messages import CameraState, Odometry, RgbdFrame, ServiceStats
 from ovamos.world.render import SceneRenderer
 from tests.polling import wait_for
-from tests.service_helpers import ROBOT, Running
+from tests.service_helpers import Running
 from tests.sim_scenes import two_rooms
 
 W, H, FPS, FRAMES = 160, 120, 30, 12
@@ -72,14 +73,21 @@ def max_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.fixture
+def robot() -> str:
+    """A robot id of this test's own: a camera service another test left running (connected to a
+    router that a later test's router took the port of) answers for its robot id, not for this."""
+    return f"cam-{uuid.uuid4().hex[:8]}"
+
+
 def _readers() -> set[threading.Thread]:
     """The camera reader threads alive in this process (another test's may still be ending)."""
     return {t for t in threading.enumerate() if t.name == "camera-reader"}
 
 
-def _camera_stats(bus: Bus) -> ServiceStats | None:
+def _camera_stats(bus: Bus, robot: str) -> ServiceStats | None:
     """What the camera service answers on its stats key, or None while it is not up yet."""
-    found = [s.stats for s in live_services(bus.session, ROBOT) if s.service == "camera" and s.stats]
+    found = [s.stats for s in live_services(bus.session, robot) if s.service == "camera" and s.stats]
     return found[0] if found else None
 
 
@@ -95,12 +103,12 @@ class _Robot:
     and what the camera publishes. Subscribers are callbacks appending to lists (through the
     bus's inbox, which keeps every ordinary event), so the test side loses no frame."""
 
-    def __init__(self, bus: Bus) -> None:
+    def __init__(self, bus: Bus, robot: str) -> None:
         self.frames: list[RgbdFrame] = []
         self.states: list[CameraState] = []
-        bus.subscribe(keys.rgbd(ROBOT), RgbdFrame, self.frames.append)
-        bus.subscribe(keys.camera_state(ROBOT), CameraState, self.states.append)
-        self._odom = bus.publisher(keys.odom(ROBOT), Odometry)
+        bus.subscribe(keys.rgbd(robot), RgbdFrame, self.frames.append)
+        bus.subscribe(keys.camera_state(robot), CameraState, self.states.append)
+        self._odom = bus.publisher(keys.odom(robot), Odometry)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._base, daemon=True)
         self.sent = 0  # odometry messages put so far
@@ -123,18 +131,18 @@ class _Robot:
         return any("end of recording" in s.fault for s in self.states)
 
 
-def test_a_recording_is_played_posed_and_its_end_reported(inproc_router: str, tmp_path: Path) -> None:
+def test_a_recording_is_played_posed_and_its_end_reported(inproc_router: str, robot: str, tmp_path: Path) -> None:
     path = tmp_path / "run.db3"
     _record(path)
-    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-robot") as bus, _Robot(bus) as robot:
-        wait_for(lambda: robot.sent >= 5, 10, "odometry streaming before the camera starts")
+    with Bus.open(build_config(connect=[inproc_router]), robot, "test-robot") as bus, _Robot(bus, robot) as base:
+        wait_for(lambda: base.sent >= 5, 10, "odometry streaming before the camera starts")
         config = CameraConfig(backend="file", file=FileConfig(path=path, rate="realtime"), lock_step=False)
-        running = Running(CameraService, inproc_router, config)
+        running = Running(CameraService, inproc_router, config, robot)
         try:
-            wait_for(robot.ended, 30, "the end of the recording on camera/state")
+            wait_for(base.ended, 30, "the end of the recording on camera/state")
         finally:
             running.close()
-    frames = robot.frames
+    frames = base.frames
     assert len({f.seq for f in frames}) >= FRAMES - 4  # real-time playback may lose its first ones
     expected = np.asarray(camera_pose(*POSE)).reshape(4, 4)
     for frame in frames:
@@ -142,43 +150,44 @@ def test_a_recording_is_played_posed_and_its_end_reported(inproc_router: str, tm
         assert frame.depth.dtype == np.uint16 and frame.rgb.shape == (H, W, 3)
 
 
-def test_max_rate_playback_delivers_every_frame_in_order(inproc_router: str, max_recording: Path) -> None:
+def test_max_rate_playback_delivers_every_frame_in_order(inproc_router: str, robot: str,
+                                                      max_recording: Path) -> None:
     """``rate = "max"`` promises every frame: the reader waits for the service (and for room among
     the frames the core holds for odometry) instead of dropping the oldest capture."""
-    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-robot") as bus, _Robot(bus) as robot:
-        running = Running(CameraService, inproc_router, _max_config(max_recording))
+    with Bus.open(build_config(connect=[inproc_router]), robot, "test-robot") as bus, _Robot(bus, robot) as base:
+        running = Running(CameraService, inproc_router, _max_config(max_recording), robot)
         try:
-            wait_for(robot.ended, 30, "the end of the recording on camera/state")
+            wait_for(base.ended, 30, "the end of the recording on camera/state")
 
             def settled() -> ServiceStats | None:  # nothing left in the core, all it published here
-                stats = _camera_stats(bus)
+                stats = _camera_stats(bus, robot)
                 info = stats.info if stats is not None else {}
-                done = info.get("pending") == 0 and info.get("published") == len(robot.frames)
+                done = info.get("pending") == 0 and info.get("published") == len(base.frames)
                 return stats if done else None
             stats = wait_for(settled, 30, "the camera's published frames to arrive")
         finally:
             running.close()
-    marks = [_mark(f) for f in robot.frames]
+    marks = [_mark(f) for f in base.frames]
     capture = stats.counters.get("camera/capture")
     assert marks == list(range(MAX_FRAMES)), (
         f"{len(marks)} of {MAX_FRAMES} frames; missing {sorted(set(range(MAX_FRAMES)) - set(marks))}; "
         f"capture dropped {capture.dropped if capture else 0}; received {stats.info['received']}, "
         f"skipped {stats.info['skipped']}, rejected {stats.info['rejected']}")
-    assert [f.seq for f in robot.frames] == list(range(MAX_FRAMES))
+    assert [f.seq for f in base.frames] == list(range(MAX_FRAMES))
     expected = np.asarray(camera_pose(*POSE)).reshape(4, 4)
-    for frame in robot.frames:
+    for frame in base.frames:
         np.testing.assert_allclose(frame.pose_matrix, expected, atol=1e-6)
 
 
-def test_a_max_playback_waits_for_odometry_before_it_reads(inproc_router: str,
+def test_a_max_playback_waits_for_odometry_before_it_reads(inproc_router: str, robot: str,
                                                           max_recording: Path) -> None:
     """No odometry yet: the reader reads nothing (a frame captured before the first odometry
     could only be skipped), and stopping the service then ends it at once."""
     before = _readers()
-    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-robot") as bus:
-        running = Running(CameraService, inproc_router, _max_config(max_recording))
+    with Bus.open(build_config(connect=[inproc_router]), robot, "test-robot") as bus:
+        running = Running(CameraService, inproc_router, _max_config(max_recording), robot)
         try:
-            stats = wait_for(lambda: _camera_stats(bus), 30, "the camera's stats")
+            stats = wait_for(lambda: _camera_stats(bus, robot), 30, "the camera's stats")
             assert stats.info["paced_posing"] is False and stats.info["received"] == 0
         finally:
             running.close()  # asserts the service's thread ended
@@ -186,27 +195,27 @@ def test_a_max_playback_waits_for_odometry_before_it_reads(inproc_router: str,
     assert not _readers() - before
 
 
-def test_a_max_playback_waiting_for_the_service_stops_cleanly(inproc_router: str,
+def test_a_max_playback_waiting_for_the_service_stops_cleanly(inproc_router: str, robot: str,
                                                               max_recording: Path) -> None:
     """Odometry that stops after one message: the core holds its odometry.max_pending frames
     waiting for newer odometry, the reader waits for room, and stopping the service then ends it
     at once."""
     before = _readers()
     config = _max_config(max_recording)
-    with Bus.open(build_config(connect=[inproc_router]), ROBOT, "test-robot") as bus:
-        odom = bus.publisher(keys.odom(ROBOT), Odometry)
-        running = Running(CameraService, inproc_router, config)
+    with Bus.open(build_config(connect=[inproc_router]), robot, "test-robot") as bus:
+        odom = bus.publisher(keys.odom(robot), Odometry)
+        running = Running(CameraService, inproc_router, config, robot)
         try:
             one = Odometry(seq=1, stamp=time.time(), x=POSE[0], y=POSE[1], yaw=POSE[2])
 
             def heard() -> bool:  # one message, sent until the camera has it (repeats are dropped)
-                stats = _camera_stats(bus)
+                stats = _camera_stats(bus, robot)
                 if stats is None or not stats.info.get("paced_posing"):
                     odom.put(one)
                     return False
                 return True
             wait_for(heard, 30, "the camera to hear odometry")
-            wait_for(lambda: (stats := _camera_stats(bus)) is not None
+            wait_for(lambda: (stats := _camera_stats(bus, robot)) is not None
                      and stats.info.get("paced_in_flight") == config.odometry.max_pending,
                      30, "the reader waiting for room")
         finally:
