@@ -18,5 +18,6 @@ REPORT_SEEDS: dict[int, str] = {
     2026: "the search tables (docs/benchmarks/search.md)",
     5503743: "odometry and localization (docs/benchmarks/search.md#odometry-and-localization)",
     6639414: "continuous motion against stepwise (docs/benchmarks/search.md#continuous-motion)",
+    8899186: "odometry and localization with turned starts (docs/benchmarks/search.md#odometry-and-localization)",
 }
 """Each report seed and what it reports: a new one is added here, and in the docs, before it is run."""
