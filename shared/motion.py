@@ -10,6 +10,7 @@ import math
 from enum import Enum
 from typing import Literal, get_args
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 DriveMode = Literal["stepwise", "continuous"]
@@ -51,6 +52,12 @@ class Pose(BaseModel):
         """The point (``x``, ``y``) of the frame this pose places, in the parent frame."""
         c, s = math.cos(self.yaw), math.sin(self.yaw)
         return self.x + c * x - s * y, self.y + s * x + c * y
+
+    def apply_points(self, points: np.ndarray) -> np.ndarray:
+        """:meth:`apply` for N x 2 points at once (their dtype kept)."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        return np.stack([c * points[:, 0] - s * points[:, 1] + self.x,
+                         s * points[:, 0] + c * points[:, 1] + self.y], axis=1).astype(points.dtype, copy=False)
 
     @property
     def identity(self) -> bool:

@@ -73,7 +73,7 @@ def _run(config: LoopConfig) -> tuple[LoopCloser, list[tuple[Pose, Pose]], Count
     for i, true in enumerate(_walk()):
         odom = true if i < 12 else _about_start(KNOCK, true)  # odometry: the truth, then knocked
         believed = map_T_odom.compose(odom)
-        obstacles = np.array([believed.apply(*p) for p in (true.inverse().apply(x, y) for x, y in _seen(true))])
+        obstacles = believed.apply_points(true.inverse().apply_points(_seen(true)))
         moved = closer.add(odom, believed, obstacles, matched=i != 12)  # the knock: nothing matched
         if moved is not None:
             map_T_odom = moved

@@ -33,7 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from ovamos.shared.grid import GridGeometry
 from ovamos.shared.motion import IDENTITY, Pose, wrap_angle
 
-__all__ = ["LocalizationConfig", "Localizer", "Match", "ObstaclePoints"]
+__all__ = ["LocalizationConfig", "Localizer", "Match", "ObstaclePoints", "mark_obstacles"]
 
 Verdict = Literal["matched", "no_map", "few_points", "few_inliers", "degenerate"]
 
@@ -117,6 +117,17 @@ class ObstaclePoints:
                         g.resolution / 2)
         return np.stack([mean[:, 0] + (g.x0 + cols * g.resolution), mean[:, 1] + (g.y0 + rows * g.resolution)],
                         axis=1)
+
+
+def mark_obstacles(points: np.ndarray, grid: GridGeometry, obstacle: np.ndarray,
+                   cells: ObstaclePoints | None) -> None:
+    """``points`` (N x 2 world xy) marked in ``obstacle`` (on ``grid``) and, where the map keeps
+    them, in ``cells``; points off the grid are dropped."""
+    rows, cols = grid.to_cell(points[:, 0], points[:, 1])
+    inside = (rows >= 0) & (rows < grid.rows) & (cols >= 0) & (cols < grid.cols)
+    obstacle[rows[inside], cols[inside]] = True
+    if cells is not None:
+        cells.add(points[inside], rows[inside], cols[inside])
 
 
 @dataclass(frozen=True)
@@ -247,13 +258,19 @@ def _start(fields: _Fields, scan: np.ndarray, centre: np.ndarray, reach: float, 
     odometry's heading alone, a scan a bump turned by 5 degrees slides into the nearest wrong
     alignment of parallel walls and stays there."""
     weight = config.scan_independent_points / (len(scan) * config.scan_sigma_m ** 2)
-
-    def cost(delta: np.ndarray) -> float:
-        value = np.minimum(fields.value(_moved(scan, centre, delta), False), reach)
-        return float(weight * (value @ value) + delta @ (prior * delta))
-
     yaws = [0.0, *(sign * math.radians(a) for a in config.yaw_starts_deg for sign in (-1.0, 1.0))]
-    return min((np.array([0.0, 0.0, yaw]) for yaw in yaws), key=cost)
+    return min((np.array([0.0, 0.0, yaw]) for yaw in yaws),
+               key=lambda d: _cost(fields, scan, centre, d, False, weight, prior, reach))
+
+
+def _cost(fields: _Fields, points: np.ndarray, centre: np.ndarray, delta: np.ndarray, fine: bool,
+          weight: float, prior: np.ndarray, cap: float = math.inf) -> float:
+    """``weight`` * (the moved points' distances to the walls, each at most ``cap``)^2 + odometry's
+    word against moving at all."""
+    value = fields.value(_moved(points, centre, delta), fine)
+    if cap < math.inf:
+        value = np.minimum(value, cap)
+    return float(weight * (value @ value) + delta @ (prior * delta))
 
 
 def _descend(fields: _Fields, points: np.ndarray, centre: np.ndarray, delta: np.ndarray, fine: bool,
@@ -262,8 +279,7 @@ def _descend(fields: _Fields, points: np.ndarray, centre: np.ndarray, delta: np.
     (odometry's word against moving at all), each step halved until the cost falls (the field is
     bilinear between cells, so a full step can overshoot); stops when no step helps."""
     def cost(d: np.ndarray) -> float:
-        value = fields.value(_moved(points, centre, d), fine)
-        return float(weight * (value @ value) + d @ (prior * d))
+        return _cost(fields, points, centre, d, fine, weight, prior)
 
     current = cost(delta)
     for _ in range(iterations):

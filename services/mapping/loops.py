@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from ovamos.services.mapping.localization import LocalizationConfig, Localizer, ObstaclePoints
+from ovamos.services.mapping.localization import LocalizationConfig, Localizer, ObstaclePoints, mark_obstacles
 from ovamos.shared.grid import GridGeometry
 from ovamos.shared.motion import Pose, wrap_angle
 
@@ -155,7 +155,7 @@ class LoopCloser:
         if len(obstacles) > c.keyframe_points:
             obstacles = obstacles[np.linspace(0, len(obstacles) - 1, c.keyframe_points).astype(np.int64)]
         k = len(self.keyframes)
-        self.keyframes.append(Keyframe(odom, pose, _to_local(obstacles, pose)))
+        self.keyframes.append(Keyframe(odom, pose, pose.inverse().apply_points(obstacles).astype(np.float32)))
         self.counters["keyframes"] += 1
         g = self._gtsam
         self._values.insert(k, _pose2(g, pose))
@@ -230,7 +230,7 @@ class LoopCloser:
         cells = ObstaclePoints(window)
         old = [kf for kf in self.keyframes[:k - c.gap + 1] if _distance(kf.pose, pose) <= c.submap_m]
         for kf in sorted(old, key=lambda kf: _distance(kf.pose, pose))[:c.submap_keyframes]:
-            _draw(_to_map(kf.points, kf.pose), window, obstacle, cells)
+            mark_obstacles(kf.pose.apply_points(kf.points), window, obstacle, cells)
         # the old keyframes saw the floor by their walls: a point elsewhere was out of their view
         explored = cv2.dilate(obstacle.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
         localizer = Localizer(self._matching)
@@ -242,26 +242,7 @@ class LoopCloser:
     def draw(self, obstacle: np.ndarray, cells: ObstaclePoints) -> None:
         """Every keyframe's points at its pose onto ``obstacle`` (the map's grid) and ``cells``."""
         for kf in self.keyframes:
-            _draw(_to_map(kf.points, kf.pose), self.grid, obstacle, cells)
-
-
-def _draw(points: np.ndarray, grid: GridGeometry, obstacle: np.ndarray, cells: ObstaclePoints) -> None:
-    rows, cols = grid.to_cell(points[:, 0], points[:, 1])
-    inside = (rows >= 0) & (rows < grid.rows) & (cols >= 0) & (cols < grid.cols)
-    obstacle[rows[inside], cols[inside]] = True
-    cells.add(points[inside], rows[inside], cols[inside])
-
-
-def _to_local(points: np.ndarray, pose: Pose) -> np.ndarray:
-    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-    d = points - (pose.x, pose.y)
-    return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1).astype(np.float32)
-
-
-def _to_map(points: np.ndarray, pose: Pose) -> np.ndarray:
-    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-    return np.stack([c * points[:, 0] - s * points[:, 1] + pose.x, s * points[:, 0] + c * points[:, 1] + pose.y],
-                    axis=1)
+            mark_obstacles(kf.pose.apply_points(kf.points), self.grid, obstacle, cells)
 
 
 def _distance(a: Pose, b: Pose) -> float:

@@ -27,12 +27,8 @@ class View:
 
     def moved(self, transform: Pose) -> View:
         """The same view seen from ``transform`` * its pose (a localization's correction)."""
-        def apply(points: np.ndarray) -> np.ndarray:
-            c, s = math.cos(transform.yaw), math.sin(transform.yaw)
-            return np.stack([c * points[:, 0] - s * points[:, 1] + transform.x,
-                             s * points[:, 0] + c * points[:, 1] + transform.y], axis=1).astype(points.dtype)
-        return View(apply(self.obstacles), transform.apply(*self.camera), self.heading + transform.yaw,
-                    self.hfov, apply(self.polygon))
+        return View(transform.apply_points(self.obstacles), transform.apply(*self.camera),
+                    self.heading + transform.yaw, self.hfov, transform.apply_points(self.polygon))
 
 
 def planar_pose(frame: RgbdFrame) -> Pose:

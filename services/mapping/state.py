@@ -23,7 +23,7 @@ import numpy as np
 
 from ovamos.services.mapping.config import MappingConfig
 from ovamos.services.mapping.layers import fov_confidence, fuse
-from ovamos.services.mapping.localization import Localizer, ObstaclePoints
+from ovamos.services.mapping.localization import Localizer, ObstaclePoints, mark_obstacles
 from ovamos.services.mapping.loops import LoopCloser
 from ovamos.services.mapping.objects import ObjectMap
 from ovamos.services.mapping.projection import View, placed, planar_pose, project
@@ -64,7 +64,7 @@ class MapState:
                       if self.localizer is not None and c.localization.source == "scan" and c.loops.enabled
                       else None)
         # what the keyframes did not draw (a resumed map's): kept when obstacles are drawn again
-        self._obstacle_base = np.zeros(self.grid.shape, bool)
+        self._obstacle_base = np.zeros(self.grid.shape, bool) if self.loops is not None else None
         self.seq = -1
         self.after_action = 0  # newest RgbdFrame.after_action fused: the map's causal freshness
         # bounding box (row0, row1, col0, col1) of everything explored: frontier search stays in it
@@ -198,7 +198,7 @@ class MapState:
     def draw_keyframes(self) -> None:
         """The obstacles drawn again from the loop closer's keyframes at their solved poses (and
         what they did not draw: a resumed map's)."""
-        assert self.loops is not None
+        assert self.loops is not None and self._obstacle_base is not None
         self.obstacle = self._obstacle_base.copy()
         self.obstacle_points = ObstaclePoints(self.grid)
         self.loops.draw(self.obstacle, self.obstacle_points)
@@ -224,11 +224,7 @@ class MapState:
         self._bbox = box
 
     def _mark_obstacles(self, view: View) -> None:
-        rows, cols = self.grid.to_cell(view.obstacles[:, 0], view.obstacles[:, 1])
-        inside = (rows >= 0) & (rows < self.grid.rows) & (cols >= 0) & (cols < self.grid.cols)
-        self.obstacle[rows[inside], cols[inside]] = True
-        if self.obstacle_points is not None:
-            self.obstacle_points.add(view.obstacles[inside], rows[inside], cols[inside])
+        mark_obstacles(view.obstacles, self.grid, self.obstacle, self.obstacle_points)
 
     def _view_cells(self, view: View) -> tuple[tuple[slice, slice] | None, np.ndarray, np.ndarray]:
         """The window of cells around the view polygon, which of them it covers, and their
@@ -313,7 +309,8 @@ class MapState:
         if snapshot.confidence is None or snapshot.searched is None:
             raise ValueError("no confidences or searched areas (a published snapshot, not a checkpoint)")
         state.obstacle = snapshot.obstacle.copy()
-        state._obstacle_base = snapshot.obstacle.copy()
+        if state.loops is not None:
+            state._obstacle_base = snapshot.obstacle.copy()
         state.explored = snapshot.explored.copy()
         for i, target in enumerate(snapshot.layers):
             state.values[target] = snapshot.values[i].copy()
