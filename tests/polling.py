@@ -19,17 +19,17 @@ import pytest
 from ovamos.shared.procs import loopback
 
 
-def wait_for(predicate: Callable[[], object], timeout: float = 20.0, what: str = "condition",
+def wait_for(predicate: Callable[[], object], timeout: float = 20.0, what: str | Callable[[], str] = "condition",
              interval: float = 0.1) -> object:
     """Poll every ``interval`` s until ``predicate()`` is truthy; fail the test with ``what`` after
-    ``timeout``."""
+    ``timeout`` (a callable: asked then, so the message can say what was still missing)."""
     deadline = time.monotonic() + timeout
     while True:
         value = predicate()
         if value:
             return value
         if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout} s waiting for {what}")
+            pytest.fail(f"timed out after {timeout} s waiting for {what() if callable(what) else what}")
         time.sleep(interval)
 
 

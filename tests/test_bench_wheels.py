@@ -65,22 +65,24 @@ def test_primitives_in_simulated_time_land_where_they_land_in_real_time(base: st
     script = [Action.TURN_RIGHT, Action.TURN_LEFT, *(Action.TURN_LEFT,) * turns,
               *(Action.MOVE_FORWARD,) * (math.ceil(distance / 0.25) + 1)]
     simulated = _wheels(base, SimClock())
-    real = _wheels(base, None)
-    try:
+    try:  # the whole walk in simulated time first: no busy main thread beside the real-time one
         simulated.wait_ready()
-        wait_for(lambda: real.driver.state().mode is DriverMode.READY, timeout=10, what="real-time base ready")
-        for n, action in enumerate(script, 1):
-            command = PlanCommand(action_id=n, stamp=0.0, action=action)
-            outcome = simulated.run_command(command)
-            assert real.driver.submit(command) == "accepted"
-            wait_for(lambda: real.driver.state().last_completed >= n, timeout=15, what=f"command {n}")
-            assert (n, real.driver.state().last_outcome) == (n, outcome)
-            a, b = simulated.pose, real.pose
-            assert math.hypot(a.x - b.x, a.y - b.y) < 0.01, (n, action, a, b)
-            assert abs(math.remainder(a.yaw - b.yaw, 2 * math.pi)) < math.radians(1.0), (n, action, a, b)
-        assert outcome == "blocked"  # the walk ends against the wall, both ways
+        expected = [(simulated.run_command(PlanCommand(action_id=n, stamp=0.0, action=action)), simulated.pose)
+                    for n, action in enumerate(script, 1)]
     finally:
         simulated.stop()
+    assert expected[-1][0] == "blocked"  # the walk ends against the wall
+    real = _wheels(base, None)
+    try:
+        wait_for(lambda: real.driver.state().mode is DriverMode.READY, timeout=10, what="real-time base ready")
+        for n, (action, (outcome, a)) in enumerate(zip(script, expected), 1):
+            assert real.driver.submit(PlanCommand(action_id=n, stamp=0.0, action=action)) == "accepted"
+            wait_for(lambda: real.driver.state().last_completed >= n, timeout=15, what=f"command {n}")
+            assert (n, real.driver.state().last_outcome) == (n, outcome)
+            b = real.pose
+            assert math.hypot(a.x - b.x, a.y - b.y) < 0.01, (n, action, a, b)
+            assert abs(math.remainder(a.yaw - b.yaw, 2 * math.pi)) < math.radians(1.0), (n, action, a, b)
+    finally:
         real.stop()
 
 

@@ -123,7 +123,7 @@ def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Run:
             watcher = threading.Thread(target=lambda: watched.update(zip(("advertised", "viewed"), asyncio.run(
                 _watch(f"ws://127.0.0.1:{ws_port}", VIEWED, timeout=120.0)))))
             watcher.start()
-            with Supervisor(services, log_dir=tmp / "logs"), \
+            with Supervisor(services, log_dir=tmp / "logs", stop_timeout_s=30) as supervisor, \
                     GatewayClient(f"http://127.0.0.1:{http_port}") as client:
                 wait_for(lambda: port_open("127.0.0.1", http_port), timeout=60, what="the gateway")
                 wait_for(lambda: all(_alive(session, ROBOT, s) for s in SERVICES), timeout=90,
@@ -132,8 +132,10 @@ def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Run:
                 task = client.submit(targets, robot_id=ROBOT, max_steps=STEPS).id
                 wait_for(lambda: client.get(task).final, timeout=120, what="the task ends")
                 watcher.join()
-            wait_for(lambda: set(SERVICES) <= {k.split("/")[0] for k in final}, timeout=20,
-                     what="every service's final stats")
+            missing = lambda: set(SERVICES) - {k.split("/")[0] for k in final}  # noqa: E731
+            wait_for(lambda: not missing(), timeout=20, what=lambda: "the final stats of " + "; ".join(
+                f"{c.name} ({c.last_exit}; its log ends: {c.log_path.read_text()[-400:]!r})"
+                for c in supervisor.status() if c.name in missing()))
             sub.undeclare()
             taker.join()
         finally:

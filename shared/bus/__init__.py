@@ -485,6 +485,7 @@ class Bus(BusCore):
         if d is not None and d is not threading.current_thread():
             d.join(timeout=5)  # the handler it is running finishes before the session goes
         # The final counters, put once on the stats key: a process that is gone answers no
-        # query, yet a recording is checked against what its publishers counted.
-        self.session.put(self._stats_key, self.stats().to_bytes())
+        # query, yet a recording is checked against what its publishers counted. Blocking, so a
+        # queue still full of frames cannot drop the one message that says what was sent.
+        self.session.put(self._stats_key, self.stats().to_bytes(), congestion_control=zenoh.CongestionControl.BLOCK)
         self.session.close()
