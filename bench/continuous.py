@@ -3,8 +3,9 @@
 The planner's continuous motion (:mod:`ovamos.services.planner.continuous`) on a wheeled base's
 controller and simulated device, all on one :class:`~ovamos.shared.simtime.SimClock`: a frame
 every ``1 / frame_hz`` simulated seconds from where the robot truly is, perceived and fused into
-the map at once; a decision on the newest map when the command in flight completes or a path's
-:class:`~ovamos.services.planner.continuous.Redecision` falls due; the new command submitted
+the map at once; a decision on the newest map when the command in flight completes, a path's
+:class:`~ovamos.services.planner.continuous.Redecision` falls due or a turn nears its end
+(:func:`~ovamos.services.planner.continuous.turn_ahead`); the new command submitted
 ``perception + mapping + decision`` seconds after the frame it was decided on, the robot driving
 on meanwhile; a path re-sent every :data:`RESEND_S` (the executive's keep-alive). Deterministic per
 episode: one thread, simulated time.
@@ -17,7 +18,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from ovamos.services.planner.agent import Reason, Step
-from ovamos.services.planner.continuous import PathStep, booked_step, path_step
+from ovamos.services.planner.continuous import PathStep, booked_step, chains, path_step, turn_ahead
 from ovamos.services.planner.executive import ExecutiveConfig
 from ovamos.shared.messages import PlanCommand, TaskStatus
 from ovamos.shared.motion import Action, Pose
@@ -27,6 +28,10 @@ if TYPE_CHECKING:
 
 RESEND_S: float = ExecutiveConfig.model_fields["resend_s"].default
 """How often the planner re-sends the command in flight (the path's keep-alive)."""
+
+
+TURN_END_POLL_S = 0.02
+"""How finely a command decided ahead of a turn's end waits for it (the base's control period)."""
 
 
 class ContinuousNeedsWheels(ValueError):
@@ -67,14 +72,19 @@ def search_continuously(world: EpisodeWorld, search: TaskRun) -> None:
         snapshot = world.observe(search, stamp=now, after_action=state.last_completed)
         world.seq += 1
         pose = world.pose()
+        turning: _Flight | None = None  # a turn decided on ahead of its end (turn_ahead)
         if flight is not None:
             completed = state.last_completed >= flight.command.action_id
-            if not completed and (state.backing_off or flight.drive is None or not flight.drive.redecision.due(
-                    now, snapshot, pose, task.remaining, agent.config)):
+            ahead = None if completed or state.backing_off else turn_ahead(flight.command.action, flight.pose, pose, agent.config)
+            if not completed and ahead is None and (state.backing_off or flight.drive is None or
+                                                    not flight.drive.redecision.due(now, snapshot, pose,
+                                                                                    task.remaining, agent.config)):
                 clock.sleep(period)
                 continue
             _book(world, search, flight, blocked=completed and state.last_outcome == "blocked")
             search.time_by_step[step_kind(flight.step, flight.drive)] += now - booked_at
+            if ahead is not None:
+                turning, pose = flight, ahead
             flight, booked_at = None, now
             if task.state is not TaskStatus.SEARCHING:
                 break
@@ -83,12 +93,17 @@ def search_continuously(world: EpisodeWorld, search: TaskRun) -> None:
             break
         drive = path_step(agent, step, snapshot, pose, now)
         clock.sleep(thinking)  # perceived, fused, decided on: the command in flight (if any) runs on
+        spent = thinking
+        if turning is not None and not chains(turning.command.action, step, drive):
+            while driver.state().last_completed < turning.command.action_id:  # sent as the turn ends
+                clock.sleep(TURN_END_POLL_S)
+                spent += TURN_END_POLL_S
         command = world.command(drive=drive) if drive else world.command(step.action)
         if driver.submit(command) != "accepted":
             raise RuntimeError(f"the simulated base refused command {command.action_id}: {driver.state()}")
         world.keep_alive = command if drive else None
         flight = _Flight(command, step, pose, world.robot.distance, drive)
-        clock.sleep(period * math.ceil(thinking / period) - thinking)  # to the camera's next frame
+        clock.sleep(period * math.ceil(spent / period) - spent)  # to the camera's next frame
     world.keep_alive = None
     driver.submit(world.command(Action.STOP))  # the task is over: whatever runs stops
 

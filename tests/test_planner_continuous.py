@@ -175,6 +175,41 @@ def test_the_careful_path_after_a_bump_never_touches_the_obstacle_it_was_told_of
         base.stop()
 
 
+def test_a_look_around_is_decided_turn_by_turn_ahead_of_each_turns_end_and_what_follows_waits_for_it() -> None:
+    """Each turn's next step is decided while the turn runs (the driver chains a turn the same way
+    onto it); the first path after the look-around is decided as the last turn runs, and sent when
+    it ends."""
+    ex = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=3, motion="continuous", turn_ahead_deg=15.0)))
+    ex.on_task(spec())
+    ex.on_driver(driver())
+    ex.on_snapshot(snapshot(0))
+    ex.on_odom(odom())
+    [first] = commands(ex.poll(0.0))
+    assert first.action is Action.TURN_LEFT
+    ex.on_driver(driver(active=1))
+    ex.on_odom(odom(yaw=math.radians(10)))
+    ex.on_snapshot(snapshot(1, after=0))
+    assert commands(ex.poll(0.2)) == []  # 20 degrees to go: not yet
+    ex.on_odom(odom(yaw=math.radians(20)))
+    [second] = commands(ex.poll(0.4))
+    assert second.action is Action.TURN_LEFT and ex.task.steps == 1  # type: ignore[union-attr]
+    ex.on_driver(driver(completed=1, outcome="done", active=2))  # chained: the first is done, the robot turning on
+    ex.on_odom(odom(yaw=math.radians(50), after=1))  # decided for 30 degrees, not for where it stood (20)
+    assert commands(ex.poll(0.5)) == []  # 10 degrees to go, but no map newer than the decision's
+    ex.on_snapshot(snapshot(3, after=1))
+    [third] = commands(ex.poll(0.6))
+    assert third.action is Action.TURN_LEFT and ex.in_flight.pose.yaw == pytest.approx(math.radians(60))  # type: ignore[union-attr]
+    ex.on_driver(driver(completed=2, outcome="done", active=3))
+    ex.on_odom(odom(yaw=math.radians(80), after=2))
+    ex.on_snapshot(snapshot(4, after=2))
+    assert commands(ex.poll(0.8)) == []  # the path after the look-around is decided, held for the turn's end
+    assert ex.task.steps == 3 and ex.in_flight.after == 3  # type: ignore[union-attr]
+    assert commands(ex.poll(1.5)) == []  # no keep-alive of what was not sent
+    ex.on_driver(driver(completed=3, outcome="done"))
+    [path] = commands(ex.poll(1.6))
+    assert path.path and path.action_id == 4
+
+
 def test_stepwise_sends_primitives_only() -> None:
     ex = Executive(ExecutiveConfig(agent=AgentConfig(initial_turns=0)))
     ex.on_task(spec())

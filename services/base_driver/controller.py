@@ -22,6 +22,11 @@ Optional extensions a hardware interface may offer: ``estop()`` (a stronger
 halt for the e-stop; else ``halt()``) and ``stale_reason(now) -> str`` (which
 part of the base went silent; else a generic reason).
 
+Commands: the newest wins (the one it replaces completes ``aborted``, a velocity command ``done``),
+except that a turn arriving while a turn the same way runs is chained: it turns on from the heading
+the running one aims at, which completes ``done``, and the wheels do not stop in between (continuous
+motion's look-arounds, counted as ``chained_turns``).
+
 Safety, in order of precedence:
 
 * e-stop: the wheels are halted at once, latched until :meth:`clear_estop`;
@@ -93,6 +98,7 @@ class _Active:
     tracker: PrimitiveTracker | PathFollower | None = None  # None: a velocity command
     outcome: Outcome = "done"            # how it completes when the tracker reaches its goal
     stall: tuple[float, Pose, float] | None = None  # the stall window: since when, from where, travel commanded
+    from_yaw: float | None = None        # a chained turn: turned from the heading the turn before it aimed at
 
 
 @dataclass
@@ -243,14 +249,27 @@ class BaseController:
                 self._counters["rejected"] += 1
                 self._complete_id(command.action_id, "rejected")
                 return "rejected"
+            from_yaw = self._chained(command)
             if self._active is not None:  # the newest command wins
-                superseded: Literal["done", "aborted"] = ("done" if self._active.tracker is None
-                                                          and self._active.started else "aborted")
+                superseded: Literal["done", "aborted"] = ("done" if from_yaw is not None or (
+                    self._active.tracker is None and self._active.started) else "aborted")
                 self._finish(superseded)
-            self._active = _Active(command, now)
+            self._active = _Active(command, now, from_yaw=from_yaw)
             self._last_command_at = now
             self._counters["commands"] += 1
+            self._counters["chained_turns"] += from_yaw is not None
             return "accepted"
+
+    def _chained(self, command: PlanCommand) -> float | None:
+        """The heading a turn arriving while a turn the same way is under way starts from: the one
+        the running turn aims at, so that it carries on turning without stopping in between and
+        lands ``turn_deg`` further (the running one completes as done). None for anything else."""
+        active = self._active
+        tracker = None if active is None else active.tracker
+        if (isinstance(tracker, PrimitiveTracker) and tracker.action in (Action.TURN_LEFT, Action.TURN_RIGHT)
+                and command.action is tracker.action and active is not None and active.outcome == "done"):
+            return tracker.goal_yaw
+        return None
 
     def bump(self, backward: bool = False) -> None:
         """Something outside the hardware's sensors (the simulator's collision check) hit an
@@ -495,7 +514,9 @@ class BaseController:
         if active.started is None:
             active.started = now
             if cmd.action is not None:
-                active.tracker = PrimitiveTracker(cmd.action, self._odom.pose, c)
+                pose = self._odom.pose
+                start = pose if active.from_yaw is None else Pose(x=pose.x, y=pose.y, yaw=active.from_yaw)
+                active.tracker = PrimitiveTracker(cmd.action, start, c)
             elif cmd.path:
                 active.tracker = PathFollower(cmd.path, c, cmd.obstacles, cmd.speed_m_s)
         if active.tracker is None:  # velocity command

@@ -12,7 +12,10 @@ waiting for the robot to stop. The path goes with the mapped obstacles near it
 cell by cell, or, with ``careful_path_m`` set, a careful path (:func:`careful_path`: short, slow,
 the bumps named, and only where it keeps the footprint off every bump). Every other step (the
 look-around, a turn with nowhere to go, ovamos-plus's check turns, the STOP beside a found object)
-stays a primitive, so a found target still ends with the robot within its STOP distance and a STOP.
+stays a primitive, so a found target still ends with the robot within its STOP distance and a STOP;
+but a turn's next step is decided before the turn ends (:func:`turn_ahead`), so a look-around or a
+run of idle turns is one rotation the base chains turn by turn while frames free-run, and no step
+after a turn waits for a decision with the robot standing.
 
 A step is then a decision tick: ``decide_every_s`` defaults to about the time a MOVE_FORWARD's
 0.25 m takes at a TurtleBot's top speed, so the agent's step-counted rules (re-decide every 4,
@@ -37,7 +40,7 @@ from ovamos.services.planner.decide import GoalKind, decision_values, explored_w
 from ovamos.services.planner.navigator import NavMap
 from ovamos.shared.grid import GridGeometry, disc
 from ovamos.shared.messages import MAX_PATH_OBSTACLES, MAX_PATH_POINTS, MapSnapshot
-from ovamos.shared.motion import Action, Pose
+from ovamos.shared.motion import Action, Pose, wrap_angle
 from ovamos.shared.robot import ROBOT
 
 Point = tuple[float, float]
@@ -188,6 +191,30 @@ def obstacles_near(snapshot: MapSnapshot, path: Sequence[Point], pose: Pose, wit
     y = np.bincount(inverse, oy + (r0 + rows + 0.5) * res) / np.bincount(inverse)
     order = np.argsort(np.hypot(x - pose.x, y - pose.y), kind="stable")[:MAX_PATH_OBSTACLES]
     return tuple((round(float(x[i]), 3), round(float(y[i]), 3)) for i in order)
+
+
+TURNS = (Action.TURN_LEFT, Action.TURN_RIGHT)
+
+
+def turn_ahead(sent: Action | None, decided_at: Pose, pose: Pose, config: AgentConfig) -> Pose | None:
+    """Where the turn primitive ``sent`` (decided at ``decided_at``, the robot at ``pose`` now) will
+    end, once it is within ``turn_ahead_deg`` of its heading; None before, or for a command that is no
+    turn (a path, even one that begins by turning). The next step is decided then, for that pose, on
+    the newest map: a further turn the same way goes at once (the base chains it, turning on without
+    stopping), anything else when the turn ends (:func:`chains`)."""
+    if sent not in TURNS or config.turn_ahead_deg == 0:
+        return None
+    sign = 1.0 if sent is Action.TURN_LEFT else -1.0
+    goal = wrap_angle(decided_at.yaw + sign * math.radians(config.primitives.turn_deg))
+    if abs(wrap_angle(goal - pose.yaw)) > math.radians(config.turn_ahead_deg):
+        return None
+    return Pose(x=pose.x, y=pose.y, yaw=goal)
+
+
+def chains(sent: Action | None, step: Step, drive: PathStep | None) -> bool:
+    """Whether ``step``, decided ahead of the end of the turn ``sent``, goes at once: a turn the same
+    way, sent as a primitive, which the base chains onto the running one."""
+    return drive is None and step.action in TURNS and step.action is sent
 
 
 def booked_step(step: Step, path: bool, blocked: bool, decided_at: Pose, now: Pose) -> tuple[Step, Pose]:

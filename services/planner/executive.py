@@ -44,7 +44,10 @@ rules be tested message by message:
   (``DriverState.primitives``) other than the planner's;
 * the task's progress goes out as a :class:`TaskEvent` after every step and
   again every ``event_every_s`` (the gateway may have missed one);
-* every decision goes out as a :class:`DecisionTrace` (the options weighed, the goal, why).
+* every decision goes out as a :class:`DecisionTrace` (the options weighed, the goal, why);
+* continuous motion (:mod:`ovamos.services.planner.continuous`): a path is decided on again while
+  it is driven, and a turn's next step is decided before the turn ends, for the heading it ends
+  at; a turn the same way goes at once (the driver chains it), anything else when the turn ends.
 
 ``now`` in :meth:`Executive.poll` is a monotonic clock (timers only); the
 stamps of outgoing messages come from ``wall_clock`` (for people and logs).
@@ -61,7 +64,7 @@ from dataclasses import dataclass
 from pydantic import BaseModel, ConfigDict, Field
 
 from ovamos.services.planner.agent import AgentConfig, Reason, SearchAgent, Step
-from ovamos.services.planner.continuous import PERIOD, Redecision, booked_step, path_step
+from ovamos.services.planner.continuous import PERIOD, Redecision, booked_step, chains, path_step, turn_ahead
 from ovamos.services.planner.task import SearchTask, SearchTaskError
 from ovamos.shared.messages import (
     FINAL,
@@ -115,6 +118,7 @@ class _InFlight:
     sent: float
     redecision: Redecision | None = None  # a path's (continuous motion): when it is decided on again
     blind: bool = False  # due for a new decision, no frame fused since this one: left to stop
+    after: int | None = None  # decided ahead of a turn's end (turn_ahead): sent once this command completes
 
 
 class Executive:
@@ -311,6 +315,11 @@ class Executive:
     def _follow_up(self, now: float, d: DriverState) -> list[JsonMessage]:
         flight = self.in_flight
         assert flight is not None and self.agent is not None
+        if flight.after is not None:  # decided ahead of a turn's end: sent as it ends
+            if d.last_completed < flight.after:
+                return []
+            flight.after, flight.sent = None, now
+            return [flight.command]
         action_id = flight.command.action_id
         if d.last_completed >= action_id:
             if self.odom is None or self.odom.after_action < action_id:
@@ -319,6 +328,8 @@ class Executive:
                 return self._wait(f"waiting for odometry after command {action_id}")
             self._book(flight, d.last_outcome == "blocked")
             return self._decide(now, d) if self.task and self.task.state is TaskStatus.SEARCHING else []
+        if (turning := self._turn_ahead(flight, d)) is not None:
+            return self._decide(now, d, turning)
         why = self._redecision(now, flight)  # continuous: the path is decided on again while it is driven
         if why is not None:
             if self.snapshot is not None and self.snapshot.seq == self._decided_on:
@@ -352,6 +363,16 @@ class Executive:
             return None
         return flight.redecision.due(now, snapshot, pose, agent.task.remaining, agent.config)
 
+    def _turn_ahead(self, flight: _InFlight, d: DriverState) -> Pose | None:
+        """Continuous motion: where the turn in flight will end, once it is near enough to decide the
+        next step ahead of it (:func:`turn_ahead`) on a map of the driver's session newer than its
+        decision."""
+        snapshot, pose, agent = self.snapshot, self._pose(), self.agent
+        if self.config.agent.motion != "continuous" or snapshot is None or pose is None or agent is None \
+                or snapshot.seq == self._decided_on or snapshot.odom_session != d.odom_session:
+            return None
+        return turn_ahead(flight.command.action, flight.pose, pose, agent.config)
+
     def _blind(self, flight: _InFlight) -> list[JsonMessage]:
         """A path due for a new decision on a map that has fused no frame since it was decided: the
         robot would drive on blind. The keep-alive stops, so the driver's deadman stops the path
@@ -366,7 +387,10 @@ class Executive:
                 log.warning("command %d: %s", flight.command.action_id, BLIND)
         return self._wait(BLIND)
 
-    def _decide(self, now: float, d: DriverState) -> list[JsonMessage]:
+    def _decide(self, now: float, d: DriverState, ahead: Pose | None = None) -> list[JsonMessage]:
+        """The next step, sent; ``ahead``: decided before the turn in flight ends, for the pose it ends
+        at (booked here, once nothing else holds the decision up), and sent at once only when the base
+        chains it onto the turn."""
         assert self.agent is not None
         if self.camera is not None and self.camera.fault:
             return self._wait(f"camera: {self.camera.fault}")
@@ -390,6 +414,10 @@ class Executive:
             return self._wait(f"waiting for perception: the map has no values of {', '.join(unseen)} yet")
         self.waiting = ""
         self._decided_on = snapshot.seq
+        turning = self.in_flight
+        if ahead is not None and turning is not None:
+            self._book(turning, blocked=False)
+            pose = ahead
         decisions = self.agent.decisions
         step = self.agent.next_step(snapshot, pose)
         trace: list[JsonMessage] = ([self._trace(snapshot, pose)] if self.agent.decisions != decisions
@@ -403,10 +431,12 @@ class Executive:
                               else None, action=None if drive else step.action,
                               **(drive.in_odom(snapshot.to_odom) if drive else {}))
         self._next_id += 1
-        self.in_flight = _InFlight(command, step, pose, now, drive.redecision if drive else None)
+        after = (turning.command.action_id if ahead is not None and turning is not None
+                 and not chains(turning.command.action, step, drive) else None)
+        self.in_flight = _InFlight(command, step, pose, now, drive.redecision if drive else None, after=after)
         if step.reason is Reason.FOUND:
             self._event_due = True
-        return trace + [command]
+        return trace if after is not None else trace + [command]
 
     def _trace(self, snapshot: MapSnapshot, pose: Pose) -> DecisionTrace:
         """The agent's newest decision, as the planner's decision trace."""
