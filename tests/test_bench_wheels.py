@@ -56,6 +56,7 @@ def _wheels(base: str, clock: SimClock | None) -> SerialSimRobot | WheeledSimRob
     return wheeled(robot, base, clock=clock).start()
 
 
+@pytest.mark.serial  # a real-time device (a pty's, a virtual CAN bus's) answering within its deadlines: run alone
 @pytest.mark.parametrize("base", WHEELED)
 def test_primitives_in_simulated_time_land_where_they_land_in_real_time(base: str) -> None:
     """The same walk on the real-time parts (threads; a pty or a virtual CAN bus) and in simulated
