@@ -25,8 +25,19 @@ def test_a_checkout_is_named_by_its_commit_and_marked_dirty_with_changes(tmp_pat
     commit = git(tmp_path, "rev-parse", "--short=12", "HEAD")
     assert code_version(tmp_path) == commit
     (tmp_path / "a.py").write_text("x = 2\n")
-    assert code_version(tmp_path) == f"{commit}-dirty"
+    dirty = code_version(tmp_path)
+    assert dirty.startswith(f"{commit}-dirty-")
+    (tmp_path / "a.py").write_text("x = 3\n")
+    assert code_version(tmp_path) not in (dirty, commit)  # other changes, another name
 
 
-def test_an_installed_copy_is_named_by_the_package_version(tmp_path: Path) -> None:
-    assert code_version(tmp_path) == f"ovamos {__version__}"
+def test_a_copy_without_git_is_named_by_the_package_version_and_its_sources(tmp_path: Path) -> None:
+    (tmp_path / "bench").mkdir()
+    (tmp_path / "bench" / "a.py").write_text("x = 1\n")
+    (tmp_path / "tests").mkdir()
+    first = code_version(tmp_path)
+    assert first.startswith(f"ovamos {__version__}+")
+    (tmp_path / "tests" / "test_a.py").write_text("assert True\n")
+    assert code_version(tmp_path) == first  # a test is not code a benchmark runs
+    (tmp_path / "bench" / "a.py").write_text("x = 2\n")
+    assert code_version(tmp_path) != first
