@@ -158,6 +158,24 @@ def test_a_continuous_episode_finds_its_target_in_simulated_time() -> None:
     assert first["search_s"] < stepwise["search_s"]
 
 
+def test_a_continuous_look_around_decided_ahead_is_one_rotation_in_less_time() -> None:
+    """``turn_ahead_deg``: the look-around's turns are decided ahead of each turn's end and chained
+    by the base, so it takes less simulated time than turn by turn, turning one way all along on
+    the spot (its 12 turns booked as 12 steps, each where the robot was when the next was decided)."""
+    spec, scene, truth = load_episode(*EPISODE)
+    scans = {}
+    for ahead in (0.0, 30.0):
+        config = EpisodeConfig(base="kobuki", agent=AgentConfig(motion="continuous", turn_ahead_deg=ahead))
+        scans[ahead] = run_episode(spec.model_copy(update={"max_steps": 12}), scene, truth, config, load_prior())
+    turned, chained = scans[0.0], scans[30.0]
+    assert turned.steps == chained.steps == 12 and set(chained.time_by_step or {}) == {"scan"}
+    assert (chained.time_by_step or {})["scan"] < 0.6 * (turned.time_by_step or {})["scan"]
+    a, b = turned.trajectory[-1], chained.trajectory[-1]
+    assert math.hypot(a[0] - b[0], a[1] - b[1]) < 0.01
+    yaws = [yaw for _, _, yaw in chained.trajectory]
+    assert all(0 < math.remainder(q - p, 2 * math.pi) < math.radians(45) for p, q in zip(yaws[1:], yaws[2:]))
+
+
 def test_continuous_motion_needs_a_wheeled_base() -> None:
     spec, scene, truth = load_episode(*EPISODE)
     with pytest.raises(ContinuousNeedsWheels, match="wheeled base"):

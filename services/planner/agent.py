@@ -117,11 +117,12 @@ class AgentConfig(BaseModel):
         description="continuous: a path command names the mapped obstacles this close to the path, which the "
                     "robot's follower slows near (it has no map); 0: none")
     turn_ahead_deg: float = Field(
-        default=30.0, ge=0, le=PRIMITIVES.turn_deg,
+        default=0.0, ge=0, le=PRIMITIVES.turn_deg,
         description="continuous: a turn's next step is decided once the turn is this near its heading (for the "
                     "pose it will end at), so a further turn the same way carries on without stopping (a "
-                    "look-around, idle turns) and anything else is sent the moment it ends; 0: a turn is "
-                    "decided on once the robot stands still, as stepwise")
+                    "look-around, idle turns) and anything else is sent the moment it ends; 0 (the default): "
+                    "once the robot stands still. Off because on the development seed (40 episodes) 30 lost SR "
+                    "and took longer (docs/benchmarks/search.md#turns-without-standing-still-development-seed)")
 
     @property
     def primitives(self) -> Primitives:
