@@ -2,7 +2,7 @@
 
 A 360 deg look-around on the simulated Kobuki in simulated time, the demo's episode: stepwise (a
 frame at rest after each TURN primitive, the paper's) against free-running (the primitives back
-to back, a frame every 1 / ``frame_hz`` s whatever the wheels do), each frame posed by the
+to back, or chained into one rotation, a frame every 1 / ``frame_hz`` s whatever the wheels do), each frame posed by the
 camera's own :class:`~ovamos.services.camera.pose.OdometryBuffer` from odometry at the driver's
 publishing rate, and fused by the mapping core. The agreement measure is the map's obstacle
 precision: the share of cells it marks as obstacles that lie within ``TOLERANCE_M`` of an
@@ -122,28 +122,22 @@ def obstacle_precision(world: EpisodeWorld) -> tuple[float, int]:
 
 
 def test_frames_taken_while_turning_map_the_room_as_well_as_a_stepwise_scan() -> None:
+    """Turn by turn, and chained as continuous motion's look-around does when its turns are decided
+    ahead (each turn sent before the one before ends, the base turning on without stopping)."""
     stepwise, stepwise_cells = obstacle_precision(stepwise_scan())
     world, turning = free_running_scan(pose_after_s=0.0)
     free, free_cells = obstacle_precision(world)
     late_world, _ = free_running_scan(pose_after_s=RECEIPT_S)
     late, _ = obstacle_precision(late_world)
+    chained_world, chained_turning = free_running_scan(pose_after_s=0.0, chained=True)
+    chained, chained_cells = obstacle_precision(chained_world)
     print(f"obstacle precision: stepwise {stepwise:.3f} of {stepwise_cells} cells, free-running {free:.3f} of "
-          f"{free_cells} ({turning} of {world.seq} frames while turning), posed at receipt {late:.3f}")
+          f"{free_cells} ({turning} of {world.seq} frames while turning), posed at receipt {late:.3f}, chained "
+          f"{chained:.3f} of {chained_cells} ({chained_turning} of {chained_world.seq} while turning) in "
+          f"{chained_world.clock():.1f} s against {world.clock():.1f} s")
     assert turning >= world.seq // 2  # most frames were taken in motion
     assert free >= stepwise - 0.02 and free_cells >= 0.9 * stepwise_cells  # as clean, the same walls seen
     assert late < free - 0.05  # the measure sees a pose a tenth of a second late
-
-
-def test_a_chained_look_around_maps_the_room_as_well_as_a_stepwise_scan_in_less_time() -> None:
-    """Continuous motion's look-around: each turn sent before the one before ends, the base
-    turning on without stopping, the camera free-running."""
-    stepwise, stepwise_cells = obstacle_precision(stepwise_scan())
-    separate, _ = free_running_scan(pose_after_s=0.0)
-    world, turning = free_running_scan(pose_after_s=0.0, chained=True)
-    chained, chained_cells = obstacle_precision(world)
-    print(f"obstacle precision: stepwise {stepwise:.3f} of {stepwise_cells} cells, chained {chained:.3f} of "
-          f"{chained_cells} ({turning} of {world.seq} frames while turning); {world.clock():.1f} s against "
-          f"{separate.clock():.1f} s turn by turn")
-    assert world.wheels.driver.counters["chained_turns"] == TURNS - 1
+    assert chained_world.wheels.driver.counters["chained_turns"] == TURNS - 1
     assert chained >= stepwise - 0.02 and chained_cells >= 0.9 * stepwise_cells
-    assert world.clock() < 0.8 * separate.clock()  # the turns did not stop in between
+    assert chained_world.clock() < 0.8 * world.clock()  # the turns did not stop in between
