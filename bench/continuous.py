@@ -30,10 +30,6 @@ RESEND_S: float = ExecutiveConfig.model_fields["resend_s"].default
 """How often the planner re-sends the command in flight (the path's keep-alive)."""
 
 
-TURN_END_POLL_S = 0.02
-"""How finely a command decided ahead of a turn's end waits for it (the base's control period)."""
-
-
 class ContinuousNeedsWheels(ValueError):
     """Continuous motion on the kinematic robot: there are no wheels to follow a path with."""
 
@@ -95,9 +91,9 @@ def search_continuously(world: EpisodeWorld, search: TaskRun) -> None:
         clock.sleep(thinking)  # perceived, fused, decided on: the command in flight (if any) runs on
         spent = thinking
         if turning is not None and not chains(turning.command.action, step, drive):
-            while driver.state().last_completed < turning.command.action_id:  # sent as the turn ends
-                clock.sleep(TURN_END_POLL_S)
-                spent += TURN_END_POLL_S
+            turned = turning.command.action_id  # sent as the turn ends
+            spent += clock.run_until(lambda: driver.state().last_completed >= turned, driver.config.primitive_timeout_s,
+                                     1.0 / driver.config.control_hz, f"the end of turn {turned}")
         command = world.command(drive=drive) if drive else world.command(step.action)
         if driver.submit(command) != "accepted":
             raise RuntimeError(f"the simulated base refused command {command.action_id}: {driver.state()}")

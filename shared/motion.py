@@ -27,6 +27,12 @@ class Action(str, Enum):
     TURN_RIGHT = "TURN_RIGHT"
     STOP = "STOP"
 
+    @property
+    def turn_sign(self) -> float:
+        """Which way it turns the heading: +1 TURN_LEFT (counter-clockwise in REP-103), -1 TURN_RIGHT,
+        0 for anything else (so it also says whether the action is a turn)."""
+        return 1.0 if self is Action.TURN_LEFT else -1.0 if self is Action.TURN_RIGHT else 0.0
+
 
 class Pose(BaseModel):
     """Planar pose in REP-103: yaw 0 along +x, counter-clockwise positive (radians); finite, as it

@@ -266,8 +266,8 @@ class BaseController:
         lands ``turn_deg`` further (the running one completes as done). None for anything else."""
         active = self._active
         tracker = None if active is None else active.tracker
-        if (isinstance(tracker, PrimitiveTracker) and tracker.action in (Action.TURN_LEFT, Action.TURN_RIGHT)
-                and command.action is tracker.action and active is not None and active.outcome == "done"):
+        if (isinstance(tracker, PrimitiveTracker) and tracker.action.turn_sign and command.action is tracker.action
+                and active is not None and active.outcome == "done"):
             return tracker.goal_yaw
         return None
 

@@ -40,9 +40,7 @@ class PrimitiveTracker:
 
     @property
     def goal_yaw(self) -> float:
-        turn = math.radians(self.config.turn_deg)
-        sign = {Action.TURN_LEFT: 1.0, Action.TURN_RIGHT: -1.0}.get(self.action, 0.0)
-        return wrap_angle(self.start.yaw + sign * turn)
+        return wrap_angle(self.start.yaw + self.action.turn_sign * math.radians(self.config.turn_deg))
 
     def remaining(self, pose: Pose) -> float:
         """Metres (forward) or radians (turns) still to go; 0 for STOP."""
@@ -50,7 +48,7 @@ class PrimitiveTracker:
             done = ((pose.x - self.start.x) * math.cos(self.start.yaw)
                     + (pose.y - self.start.y) * math.sin(self.start.yaw))
             return (self.config.forward_m if self.distance_m is None else self.distance_m) - done
-        if self.action in (Action.TURN_LEFT, Action.TURN_RIGHT):
+        if self.action.turn_sign:
             return wrap_angle(self.goal_yaw - pose.yaw)
         return 0.0
 
@@ -62,7 +60,7 @@ class PrimitiveTracker:
             heading = c.heading_gain * wrap_angle(self.start.yaw - pose.yaw)
             return approach(r, c.max_linear_m_s, c.max_linear_accel_m_s2, c.approach_gain,
                              c.creep_m_s), heading
-        if self.action in (Action.TURN_LEFT, Action.TURN_RIGHT):
+        if self.action.turn_sign:
             if abs(r) <= c.angular_tolerance_rad:
                 return None
             return 0.0, approach(r, c.max_angular_rad_s, c.max_angular_accel_rad_s2,

@@ -193,19 +193,15 @@ def obstacles_near(snapshot: MapSnapshot, path: Sequence[Point], pose: Pose, wit
     return tuple((round(float(x[i]), 3), round(float(y[i]), 3)) for i in order)
 
 
-TURNS = (Action.TURN_LEFT, Action.TURN_RIGHT)
-
-
 def turn_ahead(sent: Action | None, decided_at: Pose, pose: Pose, config: AgentConfig) -> Pose | None:
     """Where the turn primitive ``sent`` (decided at ``decided_at``, the robot at ``pose`` now) will
     end, once it is within ``turn_ahead_deg`` of its heading; None before, or for a command that is no
     turn (a path, even one that begins by turning). The next step is decided then, for that pose, on
     the newest map: a further turn the same way goes at once (the base chains it, turning on without
     stopping), anything else when the turn ends (:func:`chains`)."""
-    if sent not in TURNS or config.turn_ahead_deg == 0:
+    if sent is None or not sent.turn_sign or config.turn_ahead_deg == 0:
         return None
-    sign = 1.0 if sent is Action.TURN_LEFT else -1.0
-    goal = wrap_angle(decided_at.yaw + sign * math.radians(config.primitives.turn_deg))
+    goal = wrap_angle(decided_at.yaw + sent.turn_sign * math.radians(config.primitives.turn_deg))
     if abs(wrap_angle(goal - pose.yaw)) > math.radians(config.turn_ahead_deg):
         return None
     return Pose(x=pose.x, y=pose.y, yaw=goal)
@@ -214,7 +210,7 @@ def turn_ahead(sent: Action | None, decided_at: Pose, pose: Pose, config: AgentC
 def chains(sent: Action | None, step: Step, drive: PathStep | None) -> bool:
     """Whether ``step``, decided ahead of the end of the turn ``sent``, goes at once: a turn the same
     way, sent as a primitive, which the base chains onto the running one."""
-    return drive is None and step.action in TURNS and step.action is sent
+    return drive is None and sent is not None and bool(sent.turn_sign) and step.action is sent
 
 
 def booked_step(step: Step, path: bool, blocked: bool, decided_at: Pose, now: Pose) -> tuple[Step, Pose]:

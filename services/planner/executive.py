@@ -414,8 +414,8 @@ class Executive:
             return self._wait(f"waiting for perception: the map has no values of {', '.join(unseen)} yet")
         self.waiting = ""
         self._decided_on = snapshot.seq
-        turning = self.in_flight
-        if ahead is not None and turning is not None:
+        turning = self.in_flight if ahead is not None else None
+        if turning is not None and ahead is not None:
             self._book(turning, blocked=False)
             pose = ahead
         decisions = self.agent.decisions
@@ -431,8 +431,8 @@ class Executive:
                               else None, action=None if drive else step.action,
                               **(drive.in_odom(snapshot.to_odom) if drive else {}))
         self._next_id += 1
-        after = (turning.command.action_id if ahead is not None and turning is not None
-                 and not chains(turning.command.action, step, drive) else None)
+        after = (turning.command.action_id if turning is not None and not chains(turning.command.action, step, drive)
+                 else None)
         self.in_flight = _InFlight(command, step, pose, now, drive.redecision if drive else None, after=after)
         if step.reason is Reason.FOUND:
             self._event_due = True

@@ -84,9 +84,8 @@ class SimRobot:
                 return False
             self.pose = Pose(x=x, y=y, yaw=p.yaw)
             self.distance += c.forward_m
-        elif action in (Action.TURN_LEFT, Action.TURN_RIGHT):
-            sign = 1.0 if action is Action.TURN_LEFT else -1.0
-            self.pose = Pose(x=p.x, y=p.y, yaw=wrap_angle(p.yaw + sign * math.radians(c.turn_deg)))
+        elif action.turn_sign:
+            self.pose = Pose(x=p.x, y=p.y, yaw=wrap_angle(p.yaw + action.turn_sign * math.radians(c.turn_deg)))
         return True
 
     def _apply_slipping(self, action: Action) -> bool:
@@ -96,8 +95,8 @@ class SimRobot:
         assert slip is not None
         if action is Action.MOVE_FORWARD:
             left = right = c.forward_m
-        elif action in (Action.TURN_LEFT, Action.TURN_RIGHT):
-            half = (1.0 if action is Action.TURN_LEFT else -1.0) * math.radians(c.turn_deg) * c.track_width_m / 2
+        elif action.turn_sign:
+            half = action.turn_sign * math.radians(c.turn_deg) * c.track_width_m / 2
             left, right = -half, half
         else:
             return True
